@@ -1,0 +1,33 @@
+# One virtual env for everything; each target is idempotent.
+VENV ?= .venv
+PY := $(VENV)/bin/python
+PYTHON ?= python3
+
+.PHONY: setup demo test bench clean
+
+$(VENV)/.installed: pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	# the CPU wheel of torch first, so the range in pyproject.toml never pulls a CUDA build
+	$(PY) -m pip install -q torch==2.13.0
+	$(PY) -m pip install -q -e '.[test]'
+	touch $@
+
+setup: $(VENV)/.installed
+
+demo: setup
+	$(VENV)/bin/ngp demo
+
+test: setup
+	$(VENV)/bin/ruff check ngp_kornia tests benchmarks
+	$(PY) -m pytest
+
+$(VENV)/.bench: $(VENV)/.installed
+	$(PY) -m pip install -q -e '.[test,bench]'
+	touch $@
+
+bench: $(VENV)/.bench
+	$(PY) benchmarks/yud.py $(YUD)
+
+clean:
+	rm -rf $(VENV)

@@ -1,0 +1,12 @@
+"""Batched, differentiable torch geometry of the Neural Geometric Parser. Knows nothing of the networks."""
+
+from ngp_kornia.geometry.camera import *  # noqa: F403
+from ngp_kornia.geometry.camera import __all__ as _camera_all
+from ngp_kornia.geometry.lines import *  # noqa: F403
+from ngp_kornia.geometry.lines import __all__ as _lines_all
+from ngp_kornia.geometry.raster import *  # noqa: F403
+from ngp_kornia.geometry.raster import __all__ as _raster_all
+from ngp_kornia.geometry.vp import *  # noqa: F403
+from ngp_kornia.geometry.vp import __all__ as _vp_all
+
+__all__ = [*_camera_all, *_lines_all, *_raster_all, *_vp_all]

@@ -1,0 +1,155 @@
+r"""Line segments, homogeneous lines and their intersections (Eq. 2-4 of the paper), and the pseudo camera.
+
+Segments are ``(B, N, 2, 2)`` tensors ``[[x0, y0], [x1, y1]]`` in pixels (x right, y down, origin at the centre of
+the top-left pixel) with a ``(B, N)`` bool mask for padding. Homogeneous lines ``(a, b, c)`` satisfy
+``a x + b y + c = 0``; homogeneous points may lie at infinity (third coordinate 0).
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from kornia.core.check import KORNIA_CHECK_SHAPE
+from kornia.geometry.conversions import convert_points_to_homogeneous
+from torch import Tensor
+
+from ngp_kornia.geometry.camera import image_center, normalize
+
+__all__ = [
+    "cossim",
+    "intersect_lines",
+    "is_near_vertical",
+    "pseudo_focal",
+    "segment_lengths",
+    "segments_to_lines",
+    "to_pseudo_camera",
+]
+
+
+def segment_lengths(segments: Tensor) -> Tensor:
+    """Euclidean length of each segment: (B, N, 2, 2) -> (B, N).
+
+    Example:
+        >>> segment_lengths(torch.tensor([[[[0.0, 0.0], [3.0, 4.0]]]]))
+        tensor([[5.]])
+    """
+    KORNIA_CHECK_SHAPE(segments, ["*", "2", "2"])
+    return (segments[..., 1, :] - segments[..., 0, :]).norm(dim=-1)
+
+
+def segments_to_lines(segments: Tensor) -> Tensor:
+    r"""Homogeneous line through each segment, ``l = p_0 \times p_1`` (Eq. 2), scaled so ``a^2 + b^2 = 1``.
+
+    A zero-length segment has no line and gives ``(0, 0, 0)``.
+
+    Args:
+        segments: (B, N, 2, 2) segment endpoints.
+
+    Returns:
+        (B, N, 3) lines ``(a, b, c)`` with ``a x + b y + c = 0`` for both endpoints.
+
+    Example:
+        >>> segments_to_lines(torch.tensor([[[[0.0, 2.0], [5.0, 2.0]]]]))  # the line y = 2
+        tensor([[[ 0.,  1., -2.]]])
+    """
+    KORNIA_CHECK_SHAPE(segments, ["*", "2", "2"])
+    p = convert_points_to_homogeneous(segments)
+    line = torch.linalg.cross(p[..., 0, :], p[..., 1, :])
+    return line / line[..., :2].norm(dim=-1, keepdim=True).clamp_min(torch.finfo(line.dtype).eps)
+
+
+def intersect_lines(l0: Tensor, l1: Tensor) -> Tensor:
+    r"""Intersection ``v = l_0 \times l_1`` of two homogeneous lines (Eq. 3), returned with unit norm.
+
+    Parallel lines meet at a point at infinity (third coordinate 0); identical lines give ``(0, 0, 0)``.
+
+    Args:
+        l0: (..., 3) lines.
+        l1: (..., 3) lines, broadcastable with ``l0``.
+
+    Returns:
+        (..., 3) homogeneous points of unit norm.
+
+    Example:
+        >>> intersect_lines(torch.tensor([1.0, 0.0, -2.0]), torch.tensor([0.0, 1.0, -3.0]))  # x=2, y=3
+        tensor([0.5345, 0.8018, 0.2673])
+    """
+    KORNIA_CHECK_SHAPE(l0, ["*", "3"])
+    KORNIA_CHECK_SHAPE(l1, ["*", "3"])
+    l0, l1 = torch.broadcast_tensors(l0, l1)
+    return normalize(torch.linalg.cross(l0, l1))
+
+
+def is_near_vertical(lines: Tensor, threshold_deg: float = 67.5) -> Tensor:
+    r"""Near-vertical line test of Eq. 4: the line's angle to the image x axis exceeds ``threshold_deg``.
+
+    Args:
+        lines: (..., 3) homogeneous lines.
+        threshold_deg: :math:`\delta_z`, 67.5 degrees in the paper.
+
+    Returns:
+        (...,) bool.
+
+    Example:
+        >>> is_near_vertical(torch.tensor([[1.0, 0.1, 0.0], [0.1, 1.0, 0.0]]))
+        tensor([ True, False])
+    """
+    KORNIA_CHECK_SHAPE(lines, ["*", "3"])
+    # the direction of (a, b, c) is (-b, a): its angle to the x axis is atan(|a| / |b|)
+    angle = torch.atan2(lines[..., 0].abs(), lines[..., 1].abs())
+    return angle > math.radians(threshold_deg)
+
+
+def cossim(x: Tensor, y: Tensor) -> Tensor:
+    r"""Absolute cosine similarity of homogeneous vectors, :math:`|x \cdot y| / (\|x\| \|y\|)` (Eq. 8).
+
+    Sign-free, so a homogeneous point and its negative are the same point. Zero vectors give 0.
+
+    Args:
+        x: (..., 3).
+        y: (..., 3), broadcastable with ``x``.
+
+    Returns:
+        (...,) values in [0, 1].
+
+    Example:
+        >>> cossim(torch.tensor([0.0, 1.0, 0.0]), torch.tensor([0.0, -2.0, 0.0]))
+        tensor(1.)
+    """
+    KORNIA_CHECK_SHAPE(x, ["*", "3"])
+    KORNIA_CHECK_SHAPE(y, ["*", "3"])
+    return (normalize(x) * normalize(y)).sum(-1).abs().clamp_max(1.0)
+
+
+def pseudo_focal(height: int, width: int) -> float:
+    """Focal length of the pseudo camera ``K_p``: half the long side, in pixels.
+
+    The paper states ``min(W, H) / 2``; half the long side (as in the authors' code) makes one unit span the same
+    angle on landscape and portrait images of the same camera.
+
+    Example:
+        >>> pseudo_focal(480, 640)
+        320.0
+    """
+    return max(height, width) / 2.0
+
+
+def to_pseudo_camera(points: Tensor, height: int, width: int) -> Tensor:
+    """Map pixel coordinates into the pseudo camera, ``K_p^-1 p``: centred on the image centre and divided by
+    :func:`pseudo_focal`. Works on points (..., 2) and on segments (..., 2, 2) alike.
+
+    Args:
+        points: (..., 2) pixel coordinates.
+        height: image height in pixels.
+        width: image width in pixels.
+
+    Returns:
+        (..., 2) pseudo-camera coordinates.
+
+    Example:
+        >>> to_pseudo_camera(torch.tensor([[639.5, 239.5]]), 480, 640)
+        tensor([[1., 0.]])
+    """
+    KORNIA_CHECK_SHAPE(points, ["*", "2"])
+    return (points - image_center(height, width, like=points)) / pseudo_focal(height, width)

@@ -1,0 +1,114 @@
+r"""Rasterised line maps (Eq. 14), closeness maps (Eq. 16) and the map form of the Manhattan score (Eq. 20).
+
+Segments are drawn by sampling points about one pixel apart along each segment and writing each segment's
+value into the nearest pixel; where segments overlap a pixel keeps the largest value. The maps are
+differentiable with respect to the per-segment values (so closeness maps pass gradients to the VPs).
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from kornia.core.check import KORNIA_CHECK, KORNIA_CHECK_SHAPE
+from torch import Tensor
+
+__all__ = ["line_map", "closeness_maps", "manhattan_score_maps", "rasterize_segments"]
+
+
+def rasterize_segments(segments: Tensor, mask: Tensor, values: Tensor, height: int, width: int) -> Tensor:
+    """Draw segments into (B, C, H, W) maps, each pixel a segment passes through taking that segment's values.
+
+    Args:
+        segments: (B, N, 2, 2) segment endpoints in the map's pixels.
+        mask: (B, N) bool, False for padding (not drawn).
+        values: (B, N, C) per-segment values, one channel each.
+        height: map height.
+        width: map width.
+
+    Returns:
+        (B, C, H, W) maps, zero where no segment passes. Overlaps keep the maximum.
+
+    Example:
+        >>> seg = torch.tensor([[[[0.0, 1.0], [3.0, 1.0]]]])
+        >>> rasterize_segments(seg, torch.tensor([[True]]), torch.ones(1, 1, 1), 3, 4)[0, 0]
+        tensor([[0., 0., 0., 0.],
+                [1., 1., 1., 1.],
+                [0., 0., 0., 0.]])
+    """
+    KORNIA_CHECK_SHAPE(segments, ["B", "N", "2", "2"])
+    KORNIA_CHECK_SHAPE(mask, ["B", "N"])
+    KORNIA_CHECK_SHAPE(values, ["B", "N", "C"])
+    KORNIA_CHECK(height > 0 and width > 0, f"map size must be positive, got {height}x{width}")
+    B, N, C = values.shape
+    maps = values.new_zeros(B, C, height * width)
+    if N == 0:
+        return maps.reshape(B, C, height, width)
+    length = (segments[..., 1, :] - segments[..., 0, :]).norm(dim=-1)
+    steps = int(math.ceil(float(length[mask].max()) if bool(mask.any()) else 0.0)) + 2
+    t = torch.linspace(0.0, 1.0, steps, device=segments.device, dtype=segments.dtype)
+    p0, p1 = segments[..., 0, :].detach(), segments[..., 1, :].detach()
+    pts = p0[:, :, None] + (p1 - p0)[:, :, None] * t[:, None]  # (B, N, S, 2)
+    ij = pts.round().long()
+    inside = (ij[..., 0] >= 0) & (ij[..., 0] < width) & (ij[..., 1] >= 0) & (ij[..., 1] < height)
+    inside &= mask[:, :, None]
+    flat = (ij[..., 1].clamp(0, height - 1) * width + ij[..., 0].clamp(0, width - 1)).reshape(B, -1)
+    vals = values[:, :, None, :].expand(B, N, steps, C) * inside[..., None].to(values)
+    vals = vals.reshape(B, -1, C).transpose(1, 2)  # (B, C, N*S)
+    index = flat[:, None, :].expand(B, C, flat.shape[-1])
+    maps = maps.scatter_reduce(2, index, vals, reduce="amax", include_self=True)
+    return maps.reshape(B, C, height, width)
+
+
+def line_map(segments: Tensor, mask: Tensor, height: int, width: int) -> Tensor:
+    """Binary line-segment map L of Eq. 14: (B, N, 2, 2) -> (B, 1, H, W).
+
+    Example:
+        >>> seg = torch.tensor([[[[1.0, 0.0], [1.0, 2.0]]]])
+        >>> line_map(seg, torch.tensor([[True]]), 3, 3)[0, 0]
+        tensor([[0., 1., 0.],
+                [0., 1., 0.],
+                [0., 0., 0.]])
+    """
+    ones = segments.new_ones(*segments.shape[:2], 1)
+    return rasterize_segments(segments, mask, ones, height, width)
+
+
+def closeness_maps(segments: Tensor, mask: Tensor, closeness: Tensor, height: int, width: int) -> Tensor:
+    """Closeness maps A_x, A_y, A_z of Eq. 16, one per VP of a frame.
+
+    Args:
+        segments: (B, N, 2, 2) segments in the map's pixels.
+        mask: (B, N) bool.
+        closeness: (B, 3, N) closeness of every segment to each of the frame's three VPs (Eq. 15, or a sharper
+            kernel).
+        height: map height.
+        width: map width.
+
+    Returns:
+        (B, 3, H, W) maps.
+    """
+    KORNIA_CHECK_SHAPE(closeness, ["B", "3", "N"])
+    return rasterize_segments(segments, mask, closeness.transpose(1, 2), height, width)
+
+
+def manhattan_score_maps(line_map: Tensor, closeness_maps: Tensor) -> Tensor:
+    r"""Manhattan score of Eq. 20 on rasterised maps, :math:`\sum \max(A_x, A_y, A_z) / \sum L`.
+
+    Args:
+        line_map: (B, 1, H, W) binary line map.
+        closeness_maps: (B, 3, H, W) closeness maps.
+
+    Returns:
+        (B,) scores; 0 for an empty line map.
+
+    Example:
+        >>> L = torch.ones(1, 1, 2, 2)
+        >>> A = torch.zeros(1, 3, 2, 2); A[0, 1] = 0.5
+        >>> manhattan_score_maps(L, A)
+        tensor([0.5000])
+    """
+    KORNIA_CHECK_SHAPE(line_map, ["B", "1", "H", "W"])
+    KORNIA_CHECK_SHAPE(closeness_maps, ["B", "3", "H", "W"])
+    num = closeness_maps.amax(1).flatten(1).sum(-1)
+    return num / line_map.flatten(1).sum(-1).clamp_min(1.0)

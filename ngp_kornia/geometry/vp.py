@@ -1,0 +1,243 @@
+r"""Vanishing points: structure tensors (Eq. 9-10), closeness of lines to VPs (Eq. 15), the Manhattan score
+(Eq. 20) and top-k averaging (Eq. 22).
+
+Every function is batched, differentiable and defined on degenerate input (zero weights, points at infinity,
+padded lines), where it returns finite values.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from kornia.core.check import KORNIA_CHECK_SHAPE
+from torch import Tensor
+
+from ngp_kornia.geometry.camera import normalize
+
+__all__ = [
+    "closeness",
+    "dominant_eigenvector",
+    "line_vp_cosine",
+    "manhattan_score",
+    "segment_vp_angle",
+    "sharp_closeness",
+    "structure_tensor",
+    "topk_weighted_average",
+    "weighted_structure_tensor",
+]
+
+
+def structure_tensor(v: Tensor) -> Tensor:
+    r"""Structure tensor of an l2-normalised homogeneous point, :math:`\hat v \hat v^T` (Eq. 9).
+
+    Invariant to the sign and scale of ``v``, so averaging tensors averages points on the projective plane.
+
+    Args:
+        v: (..., 3) homogeneous points.
+
+    Returns:
+        (..., 3, 3) symmetric tensors with unit trace (zero for a zero vector).
+
+    Example:
+        >>> structure_tensor(torch.tensor([0.0, 0.0, -2.0]))
+        tensor([[0., 0., 0.],
+                [0., 0., 0.],
+                [0., 0., 1.]])
+    """
+    KORNIA_CHECK_SHAPE(v, ["*", "3"])
+    u = normalize(v)
+    return u.unsqueeze(-1) * u.unsqueeze(-2)
+
+
+def weighted_structure_tensor(v: Tensor, weights: Tensor) -> Tensor:
+    r"""Weighted mean of structure tensors, :math:`\sum_i w_i ST(v_i) / \sum_i w_i` (Eq. 10 and 22).
+
+    Args:
+        v: (B, N, 3) homogeneous points.
+        weights: (B, N) non-negative weights (zero for padding).
+
+    Returns:
+        (B, 3, 3). A row whose weights are all zero gives the zero matrix.
+
+    Example:
+        >>> v = torch.tensor([[[0.0, 1.0, 0.0], [1.0, 0.0, 0.0]]])
+        >>> weighted_structure_tensor(v, torch.tensor([[3.0, 1.0]]))
+        tensor([[[0.2500, 0.0000, 0.0000],
+                 [0.0000, 0.7500, 0.0000],
+                 [0.0000, 0.0000, 0.0000]]])
+    """
+    KORNIA_CHECK_SHAPE(v, ["B", "N", "3"])
+    KORNIA_CHECK_SHAPE(weights, ["B", "N"])
+    total = weights.sum(-1)[:, None, None]
+    st = (weights[..., None, None] * structure_tensor(v)).sum(1)
+    return st / total.clamp_min(torch.finfo(st.dtype).tiny ** 0.5)
+
+
+def dominant_eigenvector(tensor: Tensor, fallback: Tensor | None = None) -> Tensor:
+    """Unit eigenvector of the largest eigenvalue of a symmetric (B, 3, 3) tensor: the mean point of Eq. 10-12.
+
+    The sign is fixed so the largest-magnitude component is positive. A zero tensor has no dominant direction and
+    gives ``fallback`` (default ``(0, 1, 0)``, the zenith of a level camera).
+
+    Args:
+        tensor: (B, 3, 3) symmetric positive semi-definite tensors.
+        fallback: (3,) or (B, 3) vector returned for zero tensors.
+
+    Returns:
+        (B, 3) unit vectors.
+
+    Example:
+        >>> dominant_eigenvector(torch.diag(torch.tensor([0.1, 0.2, 0.7]))[None])
+        tensor([[0., 0., 1.]])
+    """
+    KORNIA_CHECK_SHAPE(tensor, ["B", "3", "3"])
+    sym = 0.5 * (tensor + tensor.transpose(-1, -2))
+    _, vecs = torch.linalg.eigh(sym)
+    v = vecs[..., -1]
+    idx = v.abs().argmax(-1, keepdim=True)
+    v = v * torch.sign(torch.gather(v, -1, idx)).clamp_min(0.0).mul(2).sub(1)
+    if fallback is None:
+        fallback = torch.tensor([0.0, 1.0, 0.0], device=v.device, dtype=v.dtype)
+    empty = tensor.flatten(1).abs().amax(-1, keepdim=True) <= torch.finfo(tensor.dtype).tiny ** 0.5
+    return torch.where(empty, fallback.to(v).expand_as(v), v)
+
+
+def line_vp_cosine(lines: Tensor, vps: Tensor) -> Tensor:
+    r"""Absolute cosine between homogeneous line and point vectors, :math:`|l \cdot v| / (\|l\| \|v\|)`: zero when
+    the line passes through the VP. All pairs: lines (B, N, 3), vps (B, ..., 3) -> (B, ..., N).
+
+    Example:
+        >>> line_vp_cosine(torch.tensor([[[1.0, 0.0, -2.0]]]), torch.tensor([[[2.0, 5.0, 1.0]]]))
+        tensor([[[0.]]])
+    """
+    KORNIA_CHECK_SHAPE(lines, ["B", "N", "3"])
+    KORNIA_CHECK_SHAPE(vps, ["*", "3"])
+    ln, vn = normalize(lines), normalize(vps)
+    flat = vn.reshape(vn.shape[0], -1, 3)
+    cos = (flat @ ln.transpose(-1, -2)).abs()
+    return cos.reshape(*vn.shape[:-1], lines.shape[1])
+
+
+def segment_vp_angle(segments: Tensor, vps: Tensor) -> Tensor:
+    """Angle in degrees between each segment and the ray from its midpoint to each VP, in [0, 90].
+
+    A geometric consistency measure that does not depend on the image scale; a VP at infinity is a direction.
+    All pairs: segments (B, N, 2, 2), vps (B, ..., 3) -> (B, ..., N). A degenerate pair (zero-length segment, VP
+    at the midpoint, zero VP) gives 0.
+
+    Example:
+        >>> seg = torch.tensor([[[[0.0, 0.0], [0.0, 1.0]]]])
+        >>> segment_vp_angle(seg, torch.tensor([[[0.0, 1.0, 0.0], [1.0, 1.5, 1.0]]]))
+        tensor([[[ 0.],
+                 [45.]]])
+    """
+    KORNIA_CHECK_SHAPE(segments, ["B", "N", "2", "2"])
+    KORNIA_CHECK_SHAPE(vps, ["*", "3"])
+    v = normalize(vps).reshape(vps.shape[0], -1, 1, 3)  # (B, V, 1, 3)
+    mid = segments.mean(-2)[:, None]  # (B, 1, N, 2)
+    s = (segments[..., 1, :] - segments[..., 0, :])[:, None]
+    d = v[..., :2] - mid * v[..., 2:]
+    cross = (s[..., 0] * d[..., 1] - s[..., 1] * d[..., 0]).abs()
+    dot = (s * d).sum(-1).abs()
+    angle = torch.rad2deg(torch.atan2(cross, dot))
+    return angle.reshape(*vps.shape[:-1], segments.shape[1])
+
+
+def closeness(lines: Tensor, vps: Tensor) -> Tensor:
+    r"""The paper's closeness of a line to a VP, :math:`1 - |l \cdot v| / (\|l\| \|v\|)` (Eq. 15).
+
+    Args:
+        lines: (B, N, 3) homogeneous lines.
+        vps: (B, ..., 3) homogeneous VPs.
+
+    Returns:
+        (B, ..., N) values in [0, 1]; 1 when the line passes through the VP.
+
+    Example:
+        >>> closeness(torch.tensor([[[1.0, 0.0, -2.0]]]), torch.tensor([[[2.0, 5.0, 1.0]]]))
+        tensor([[[1.]]])
+    """
+    return 1.0 - line_vp_cosine(lines, vps)
+
+
+def sharp_closeness(lines: Tensor, vps: Tensor, angle_deg: float = 89.0) -> Tensor:
+    r"""A sharp closeness kernel, :math:`\exp(-\cos^2 / (2 \cos^2 \alpha))` with :math:`\cos` from
+    :func:`line_vp_cosine` and :math:`\alpha` = ``angle_deg``: a line counts only when its vector is within about
+    ``90 - angle_deg`` degrees of orthogonal to the VP. Used for the Manhattan score of Eq. 20, where Eq. 15's
+    linear closeness cannot tell a line that points at the VP from one a few degrees off.
+
+    Args:
+        lines: (B, N, 3) homogeneous lines.
+        vps: (B, ..., 3) homogeneous VPs.
+        angle_deg: kernel width as an angle; 89 degrees keeps lines within about a degree.
+
+    Returns:
+        (B, ..., N) values in (0, 1].
+
+    Example:
+        >>> sharp_closeness(torch.tensor([[[1.0, 0.0, -2.0]]]), torch.tensor([[[2.0, 5.0, 1.0]]]))
+        tensor([[[1.]]])
+    """
+    cos = line_vp_cosine(lines, vps)
+    return torch.exp(-(cos**2) / (2.0 * math.cos(math.radians(angle_deg)) ** 2))
+
+
+def manhattan_score(closeness_to_vps: Tensor, lengths: Tensor, mask: Tensor) -> Tensor:
+    r"""Manhattan score of Eq. 20 on line segments: the length-weighted mean over lines of their best closeness to
+    the frame's three VPs. This equals Eq. 20's ratio of rasterised maps, :math:`\sum \max(A_x, A_y, A_z) /
+    \sum L`, when segments do not overlap, without drawing a map per candidate.
+
+    Args:
+        closeness_to_vps: (B, F, 3, N) closeness of each line to each of the three VPs of each frame.
+        lengths: (B, N) segment lengths (the number of pixels a segment covers).
+        mask: (B, N) bool, False for padding.
+
+    Returns:
+        (B, F) scores in [0, 1]; 0 for an image with no lines.
+
+    Example:
+        >>> c = torch.tensor([[[[1.0, 0.0], [0.0, 0.0], [0.0, 0.5]]]])
+        >>> manhattan_score(c, torch.tensor([[1.0, 3.0]]), torch.tensor([[True, True]]))
+        tensor([[0.6250]])
+    """
+    KORNIA_CHECK_SHAPE(closeness_to_vps, ["B", "F", "3", "N"])
+    KORNIA_CHECK_SHAPE(lengths, ["B", "N"])
+    w = lengths * mask.to(lengths)
+    best = closeness_to_vps.amax(-2)
+    return (best * w[:, None]).sum(-1) / w.sum(-1, keepdim=True).clamp_min(torch.finfo(w.dtype).eps)
+
+
+def topk_weighted_average(
+    scores: Tensor, values: Tensor, k: int = 8, mask: Tensor | None = None
+) -> tuple[Tensor, Tensor]:
+    r"""Score-weighted mean of the values of the ``k`` best candidates (Eq. 22).
+
+    Args:
+        scores: (B, F) non-negative candidate scores.
+        values: (B, F, ...) per-candidate values (focal lengths, structure tensors, ...).
+        k: number of candidates kept (fewer when fewer are valid).
+        mask: (B, F) bool, False for invalid candidates, which are never kept.
+
+    Returns:
+        the weighted mean (B, ...) and the weights (B, F) used (zero outside the top k, summing to 1 where any
+        candidate is valid). Where the kept scores are all zero the kept candidates count equally; where no
+        candidate is valid the mean is zero and so are the weights.
+
+    Example:
+        >>> topk_weighted_average(torch.tensor([[0.1, 0.6, 0.3]]), torch.tensor([[10.0, 20.0, 40.0]]), k=2)[0]
+        tensor([26.6667])
+    """
+    KORNIA_CHECK_SHAPE(scores, ["B", "F"])
+    if mask is None:
+        mask = torch.ones_like(scores, dtype=torch.bool)
+    k = max(1, min(k, scores.shape[1]))
+    ranked = torch.where(mask, scores, torch.full_like(scores, -1.0))
+    top = ranked.topk(k, dim=1).indices
+    keep = torch.zeros_like(mask).scatter(1, top, True) & mask
+    w = torch.where(keep, scores.clamp_min(0.0), torch.zeros_like(scores))
+    # all kept scores zero: count the kept candidates equally rather than divide by zero
+    w = torch.where((w.sum(1, keepdim=True) > 0) | ~keep, w, keep.to(w))
+    w = w / w.sum(1, keepdim=True).clamp_min(torch.finfo(w.dtype).eps)
+    mean = (w.reshape(*w.shape, *([1] * (values.dim() - 2))) * values).sum(1)
+    return mean, w

@@ -1,0 +1,201 @@
+"""The Neural Geometric Parser pipeline as an ``nn.Module``: segments -> zenith candidates -> horizontal VP
+candidates -> Manhattan frames -> scores -> top-k calibration.
+
+Without networks this is the paper's geometric baseline: zenith candidates count uniformly (instead of ZSNet's
+scores) and frames are ranked by the Manhattan score ``m_i`` of Eq. 20 alone (instead of ``s_vh * m_i``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor, nn
+
+from ngp_kornia.geometry import (
+    angles_from_rotation,
+    canonical_manhattan_rotation,
+    dominant_eigenvector,
+    fov_from_focal,
+    horizon_from_zenith,
+    image_center,
+    intrinsics_matrix,
+    manhattan_score,
+    pitch_roll_from_up,
+    pseudo_focal,
+    rotation_from_vps,
+    segment_lengths,
+    segments_to_lines,
+    sharp_closeness,
+    structure_tensor,
+    to_pseudo_camera,
+    topk_weighted_average,
+    vanishing_points_from_rotation,
+    weighted_structure_tensor,
+    zenith_from_up,
+)
+from ngp_kornia.lines import detect_segments
+from ngp_kornia.models.result import Calibration
+from ngp_kornia.sampling import (
+    FrameCandidates,
+    horizontal_line_mask,
+    sample_frames,
+    sample_horizontal_vps,
+    sample_zenith_candidates,
+    split_by_pseudo_horizon,
+)
+
+__all__ = ["NeuralGeometricParser", "ParserConfig"]
+
+
+@dataclass
+class ParserConfig:
+    """Settings of the pipeline; the defaults are the paper's where it gives them.
+
+    Attributes:
+        working_size: LSD runs at this long side, in pixels.
+        min_length: shorter segments (working-resolution pixels) are dropped.
+        max_segments: at most this many segments per image, the longest kept.
+        num_zenith_lines: |L_z|.
+        num_zenith: |Z|.
+        vertical_threshold: delta_z of Eq. 4, degrees.
+        zenith_threshold: delta_c of Eq. 12.
+        vertical_tol: a segment within this angle (degrees) of the ray to the zenith estimate counts as vertical in
+            the junction filter.
+        junction_radius: endpoint distance for a junction, in units of half the image's long side.
+        num_horizontal: horizontal VP candidates (half per group).
+        num_frames: Manhattan-frame candidates scored per image.
+        focal_range: allowed focal lengths, in units of half the image's long side.
+        kernel_angle: width of the sharp closeness kernel of the Manhattan score, degrees.
+        top_k: k of Eq. 22.
+        fallback_fov: long-side field of view (degrees) reported when an image has no valid frame.
+        seed: seed of the candidate sampling; every call with the same input gives the same result.
+    """
+
+    working_size: int = 640
+    min_length: float = 10.0
+    max_segments: int = 1024
+    num_zenith_lines: int = 256
+    num_zenith: int = 256
+    vertical_threshold: float = 67.5
+    zenith_threshold: float = 0.5
+    vertical_tol: float = 5.0
+    junction_radius: float = 0.03
+    num_horizontal: int = 256
+    num_frames: int = 1024
+    focal_range: tuple[float, float] = (0.8, 4.0)
+    kernel_angle: float = 89.0
+    top_k: int = 8
+    fallback_fov: float = 60.0
+    seed: int = 0
+
+
+class NeuralGeometricParser(nn.Module):
+    """Single-image calibration of a Manhattan / Atlanta-world scene.
+
+    Args:
+        config: pipeline settings.
+
+    Example:
+        >>> img = torch.rand(1, 3, 96, 128)
+        >>> out = NeuralGeometricParser()(img)
+        >>> out.K.shape, out.horizon.shape, bool(torch.isfinite(out.focal).all())
+        (torch.Size([1, 3, 3]), torch.Size([1, 3]), True)
+    """
+
+    def __init__(self, config: ParserConfig | None = None) -> None:
+        super().__init__()
+        self.config = config or ParserConfig()
+
+    def forward(self, images: Tensor, segments: Tensor | None = None, mask: Tensor | None = None) -> Calibration:
+        """Calibrate a batch.
+
+        Args:
+            images: (B, 3, H, W) float RGB in [0, 1].
+            segments: optional (B, N, 2, 2) precomputed segments in the images' pixels (skips LSD).
+            mask: (B, N) bool, required with ``segments``.
+
+        Returns:
+            a batched :class:`Calibration`.
+        """
+        cfg = self.config
+        height, width = images.shape[-2:]
+        if segments is None:
+            segments, mask = detect_segments(images, cfg.working_size, cfg.min_length, cfg.max_segments)
+        elif mask is None:
+            raise ValueError("segments were given without their (B, N) mask; pass mask=torch.ones(B, N, dtype=bool)")
+        segments = segments.to(images)
+        generator = torch.Generator().manual_seed(cfg.seed)
+        frames, scores = self.score_frames(segments, mask, height, width, generator)
+        return self.calibrate_from_frames(frames, scores, height, width)
+
+    def score_frames(
+        self, segments: Tensor, mask: Tensor, height: int, width: int, generator: torch.Generator
+    ) -> tuple[FrameCandidates, Tensor]:
+        """Sample frame candidates (pseudo camera) and score each one: (B, F) scores, zero for invalid frames."""
+        cfg = self.config
+        seg = to_pseudo_camera(segments, height, width)
+        lines = segments_to_lines(seg)
+        lengths = segment_lengths(segments) * mask.to(segments)
+        _, _, zenith, zenith_ok = sample_zenith_candidates(
+            lines, lengths, mask, cfg.num_zenith_lines, cfg.num_zenith, cfg.vertical_threshold, generator
+        )
+        zenith_scores = zenith_ok.to(lines)  # uniform: every candidate is in Z_c
+        weights = zenith_scores * (zenith_scores > cfg.zenith_threshold)
+        z_est = dominant_eigenvector(weighted_structure_tensor(zenith, weights))
+        horizontal = horizontal_line_mask(seg, mask, z_est, cfg.vertical_tol, cfg.junction_radius)
+        right = split_by_pseudo_horizon(lines, z_est)
+        h_vps, h_ok = sample_horizontal_vps(lines, lengths, horizontal, right, cfg.num_horizontal, generator)
+        frames = sample_frames(zenith, weights, h_vps, h_ok, cfg.num_frames, cfg.focal_range, generator)
+        close = sharp_closeness(lines, frames.vps, cfg.kernel_angle)  # (B, F, 3, N)
+        scores = manhattan_score(close, lengths, mask)
+        return frames, torch.where(frames.valid, scores, torch.zeros_like(scores))
+
+    def calibrate_from_frames(self, frames: FrameCandidates, scores: Tensor, height: int, width: int) -> Calibration:
+        """Top-k average (Eq. 22) of focal and zenith, yaw from the best frame, everything mapped to pixels."""
+        cfg = self.config
+        valid = frames.valid.any(-1)
+        focal, _ = topk_weighted_average(scores, frames.focal, cfg.top_k, frames.valid)
+        st, _ = topk_weighted_average(scores, structure_tensor(frames.zenith), cfg.top_k, frames.valid)
+        zenith = dominant_eigenvector(st)
+        best = scores.argmax(-1)
+        horizontal = frames.horizontal[torch.arange(len(best)), best]
+        fallback = 1.0 / math.tan(math.radians(cfg.fallback_fov) / 2.0)
+        focal = torch.where(valid, focal, torch.full_like(focal, fallback))
+        level = torch.tensor([0.0, 1.0, 0.0]).to(zenith)
+        zenith = torch.where(valid[:, None], zenith, level)
+        horizontal = torch.where(valid[:, None], horizontal, torch.tensor([1.0, 0.0, 0.0]).to(zenith))
+        # the pseudo camera has K = diag(f, f, 1); pixels need K_p = [[f_p, 0, c], [0, f_p, c], [0, 0, 1]]
+        K_unit = intrinsics_matrix(focal, zenith.new_zeros(2))
+        R = canonical_manhattan_rotation(rotation_from_vps(K_unit, zenith, horizontal))
+        f_px = focal * pseudo_focal(height, width)
+        K = intrinsics_matrix(f_px, image_center(height, width, like=f_px))
+        return self._result(K, R, scores.amax(-1), valid, height, width)
+
+    @staticmethod
+    def _result(K: Tensor, R: Tensor, score: Tensor, valid: Tensor, height: int, width: int) -> Calibration:
+        up = -R[..., :, 1]
+        zenith = zenith_from_up(K, up)
+        zenith = zenith / zenith.norm(dim=-1, keepdim=True)
+        pitch, roll = pitch_roll_from_up(up)
+        _, _, yaw = angles_from_rotation(R)
+        f = K[:, 0, 0]
+        size = torch.tensor([height, width], device=K.device).expand(len(f), 2)
+        return Calibration(
+            K=K,
+            R=R,
+            focal=f,
+            fov_v=fov_from_focal(f, height),
+            fov_h=fov_from_focal(f, width),
+            pitch=pitch,
+            roll=roll,
+            yaw=yaw,
+            up=up,
+            zenith=zenith,
+            horizon=horizon_from_zenith(K, zenith),
+            vps=vanishing_points_from_rotation(K, R),
+            score=score,
+            valid=valid,
+            image_size=size,
+        )

@@ -1,0 +1,296 @@
+"""Candidate sampling of Sec. 3.1-3.2 and Fig. 3: zenith candidates, horizontal line groups, horizontal VP
+candidates and Manhattan-frame candidates.
+
+Everything works in the pseudo camera (:func:`ngp_kornia.geometry.to_pseudo_camera`): the image centre is the
+origin and one unit is half the image's long side, so a focal length ``f`` here is ``f * max(H, W) / 2`` pixels.
+Sampling is random, batched and reproducible through a ``torch.Generator``; variable counts are padded and masked.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from kornia.core.check import KORNIA_CHECK_SHAPE
+from torch import Tensor
+
+from ngp_kornia.geometry import (
+    focal_from_orthogonal_vps,
+    intersect_lines,
+    is_near_vertical,
+    normalize,
+    segment_vp_angle,
+)
+
+__all__ = [
+    "FrameCandidates",
+    "frames_from_vps",
+    "horizontal_line_mask",
+    "sample_frames",
+    "sample_horizontal_vps",
+    "sample_pairs",
+    "sample_zenith_candidates",
+    "split_by_pseudo_horizon",
+]
+
+
+def sample_pairs(
+    weights: Tensor, count: int, generator: torch.Generator | None = None
+) -> tuple[Tensor, Tensor, Tensor]:
+    """Draw ``count`` random pairs of distinct items per row, each item with probability proportional to its weight.
+
+    Args:
+        weights: (B, N) non-negative weights; zero for items that must not be drawn.
+        count: pairs per row.
+        generator: random generator for reproducibility.
+
+    Returns:
+        first (B, count) and second (B, count) long indices and valid (B, count) bool; a pair is invalid when its
+        row has fewer than two drawable items or both draws hit the same item.
+
+    Example:
+        >>> i, j, ok = sample_pairs(torch.tensor([[1.0, 1.0, 0.0]]), 4, torch.Generator().manual_seed(0))
+        >>> bool(((i < 2) & (j < 2)).all()), bool((ok == (i != j)).all())
+        (True, True)
+    """
+    KORNIA_CHECK_SHAPE(weights, ["B", "N"])
+    B, N = weights.shape
+    if N == 0:
+        empty = torch.zeros(B, count, dtype=torch.long, device=weights.device)
+        return empty, empty, torch.zeros(B, count, dtype=torch.bool, device=weights.device)
+    usable = (weights > 0).sum(-1, keepdim=True) >= 2
+    w = torch.where(usable, weights.clamp_min(0), torch.ones_like(weights)).float()
+    draws = torch.multinomial(w.cpu(), 2 * count, replacement=True, generator=generator).to(weights.device)
+    first, second = draws[:, :count], draws[:, count:]
+    return first, second, usable & (first != second)
+
+
+def _gather(x: Tensor, index: Tensor) -> Tensor:
+    return torch.gather(x, 1, index[..., None].expand(*index.shape, x.shape[-1]))
+
+
+def sample_zenith_candidates(
+    lines: Tensor,
+    lengths: Tensor,
+    mask: Tensor,
+    num_lines: int = 256,
+    num_candidates: int = 256,
+    threshold_deg: float = 67.5,
+    generator: torch.Generator | None = None,
+) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """Near-vertical lines L_z (Eq. 4) and zenith candidates Z from random pairs of them (Eq. 3).
+
+    Lines are drawn with probability proportional to their length.
+
+    Args:
+        lines: (B, N, 3) homogeneous lines.
+        lengths: (B, N) segment lengths.
+        mask: (B, N) bool, False for padding.
+        num_lines: |L_z|.
+        num_candidates: |Z|.
+        threshold_deg: delta_z of Eq. 4.
+        generator: random generator.
+
+    Returns:
+        L_z (B, num_lines, 3), its mask (B, num_lines), Z (B, num_candidates, 3) unit homogeneous points and
+        their mask (B, num_candidates). Masks are all False for an image without two near-vertical lines.
+    """
+    KORNIA_CHECK_SHAPE(lines, ["B", "N", "3"])
+    vertical = mask & is_near_vertical(lines, threshold_deg)
+    weights = lengths * vertical.to(lengths)
+    idx, _, _ = sample_pairs(weights, num_lines, generator)
+    line_mask = vertical.any(-1, keepdim=True).expand(-1, num_lines)
+    i, j, ok = sample_pairs(weights, num_candidates, generator)
+    zenith = intersect_lines(_gather(lines, i), _gather(lines, j))
+    ok = ok & (zenith.norm(dim=-1) > 0.5)  # identical lines have no intersection
+    return _gather(lines, idx), line_mask, zenith, ok
+
+
+def horizontal_line_mask(
+    segments: Tensor,
+    mask: Tensor,
+    zenith: Tensor,
+    vertical_tol_deg: float = 5.0,
+    junction_radius: float = 0.03,
+    min_lines: int = 8,
+) -> Tensor:
+    """The junction filter of Fig. 3 (a-c): lines that do not point at the zenith and have an endpoint near an
+    endpoint of a line that does (corners of facades, windows, doors).
+
+    Falls back to every non-vertical line when fewer than ``min_lines`` pass the filter.
+
+    Args:
+        segments: (B, N, 2, 2) segments in pseudo-camera units.
+        mask: (B, N) bool.
+        zenith: (B, 3) zenith estimate in pseudo-camera units.
+        vertical_tol_deg: a line within this angle of the ray to the zenith counts as vertical.
+        junction_radius: endpoint distance (pseudo-camera units; 0.03 is 1.5% of the long side) for a junction.
+        min_lines: fall-back threshold.
+
+    Returns:
+        (B, N) bool mask of horizontal-direction lines.
+    """
+    KORNIA_CHECK_SHAPE(segments, ["B", "N", "2", "2"])
+    KORNIA_CHECK_SHAPE(zenith, ["B", "3"])
+    angle = segment_vp_angle(segments, zenith[:, None])[:, 0]
+    vertical = mask & (angle < vertical_tol_deg)
+    other = mask & ~vertical
+    ends = segments.flatten(1, 2)  # (B, 2N, 2)
+    dist = torch.cdist(ends, ends)  # (B, 2N, 2N)
+    near_vertical_end = (dist < junction_radius) & vertical.repeat_interleave(2, 1)[:, None, :]
+    at_junction = near_vertical_end.any(-1).reshape(*mask.shape, 2).any(-1)
+    selected = other & at_junction
+    enough = selected.sum(-1, keepdim=True) >= min_lines
+    return torch.where(enough, selected, other)
+
+
+def split_by_pseudo_horizon(lines: Tensor, zenith: Tensor) -> Tensor:
+    """Fig. 3 (d): which side of the pivot (the line through the zenith and the image centre) each line crosses
+    the pseudo-horizon on.
+
+    In the pseudo camera ``K_p = I``, so the pseudo-horizon of a zenith ``z`` is the line ``z`` itself.
+
+    Args:
+        lines: (B, N, 3) lines in pseudo-camera units.
+        zenith: (B, 3) zenith in pseudo-camera units.
+
+    Returns:
+        (B, N) bool, True for the right-hand group (lines parallel to the horizon count as right).
+    """
+    KORNIA_CHECK_SHAPE(lines, ["B", "N", "3"])
+    horizon = normalize(zenith)
+    centre = torch.zeros_like(horizon)
+    centre[:, 2] = 1.0
+    pivot_point = torch.linalg.cross(torch.linalg.cross(horizon, centre), horizon)  # (B, 3)
+    direction = torch.stack([horizon[:, 1], -horizon[:, 0]], -1)
+    direction = direction * torch.where(direction[:, :1] < 0, -1.0, 1.0).to(direction)  # left to right
+    crossing = torch.linalg.cross(lines, horizon[:, None].expand_as(lines))  # (B, N, 3)
+    # sign of (crossing/w_c - pivot/w_p) . direction without dividing by w
+    diff = crossing[..., :2] * pivot_point[:, None, 2:] - pivot_point[:, None, :2] * crossing[..., 2:]
+    side = (diff * direction[:, None]).sum(-1) * crossing[..., 2] * pivot_point[:, None, 2]
+    return side >= 0
+
+
+def sample_horizontal_vps(
+    lines: Tensor,
+    lengths: Tensor,
+    horizontal: Tensor,
+    right: Tensor,
+    count: int = 256,
+    generator: torch.Generator | None = None,
+) -> tuple[Tensor, Tensor]:
+    """Horizontal VP candidates: intersections of random pairs within each group, ``count // 2`` per group.
+
+    Args:
+        lines: (B, N, 3) lines.
+        lengths: (B, N) segment lengths (sampling weights).
+        horizontal: (B, N) bool mask of horizontal-direction lines.
+        right: (B, N) bool group of each line (:func:`split_by_pseudo_horizon`).
+        count: number of candidates.
+        generator: random generator.
+
+    Returns:
+        (B, count, 3) unit homogeneous VPs and their (B, count) mask.
+    """
+    vps, valid = [], []
+    for group in (horizontal & right, horizontal & ~right):
+        i, j, ok = sample_pairs(lengths * group.to(lengths), count // 2, generator)
+        v = intersect_lines(_gather(lines, i), _gather(lines, j))
+        vps.append(v)
+        valid.append(ok & (v.norm(dim=-1) > 0.5))
+    return torch.cat(vps, 1), torch.cat(valid, 1)
+
+
+@dataclass
+class FrameCandidates:
+    """Manhattan-frame candidates in the pseudo camera.
+
+    Attributes:
+        zenith: (B, F, 3) zenith VP of each frame.
+        horizontal: (B, F, 3) horizontal VP it was built from.
+        focal: (B, F) focal length in pseudo-camera units (0 where invalid).
+        R: (B, F, 3, 3) world-to-camera rotations (columns: horizontal axis, down, third axis).
+        vps: (B, F, 3, 3) the three VPs (rows, matching R's columns) in pseudo-camera units.
+        valid: (B, F) bool.
+    """
+
+    zenith: Tensor
+    horizontal: Tensor
+    focal: Tensor
+    R: Tensor
+    vps: Tensor
+    valid: Tensor
+
+
+def frames_from_vps(
+    zenith: Tensor, horizontal: Tensor, valid: Tensor, focal_range: tuple[float, float] = (0.8, 4.0)
+) -> FrameCandidates:
+    """Complete (zenith, horizontal VP) pairs into Manhattan frames: focal length from orthogonality, rotation
+    and the third VP.
+
+    Args:
+        zenith: (B, F, 3) zenith VPs (pseudo camera).
+        horizontal: (B, F, 3) horizontal VPs.
+        valid: (B, F) bool validity of the pairs.
+        focal_range: allowed focal lengths in pseudo-camera units; (0.8, 4.0) spans long-side fields of view from
+            about 28 to 103 degrees.
+
+    Returns:
+        :class:`FrameCandidates`; frames whose VPs cannot be orthogonal or whose focal is out of range are invalid
+        (and carry a finite placeholder frame).
+    """
+    KORNIA_CHECK_SHAPE(zenith, ["B", "F", "3"])
+    focal, ok = focal_from_orthogonal_vps(zenith, horizontal, zenith.new_zeros(2))
+    ok = ok & valid & (focal >= focal_range[0]) & (focal <= focal_range[1])
+    f = torch.where(ok, focal, torch.ones_like(focal))
+    scale = torch.stack([f, f, torch.ones_like(f)], -1)  # K = diag(f, f, 1)
+    up = normalize(zenith / scale)
+    up = up * torch.where(up[..., 1:2] > 0, -1.0, 1.0).to(up)
+    h = normalize(horizontal / scale)
+    h = normalize(h - (h * up).sum(-1, keepdim=True) * up)
+    R = torch.stack([h, -up, torch.linalg.cross(h, -up)], -1)
+    vps = normalize(R.transpose(-1, -2) * scale[..., None, :])
+    return FrameCandidates(zenith, horizontal, torch.where(ok, focal, torch.zeros_like(focal)), R, vps, ok)
+
+
+def sample_frames(
+    zenith: Tensor,
+    zenith_weights: Tensor,
+    horizontal: Tensor,
+    horizontal_mask: Tensor,
+    count: int = 1024,
+    focal_range: tuple[float, float] = (0.8, 4.0),
+    generator: torch.Generator | None = None,
+) -> FrameCandidates:
+    """Manhattan-frame candidates: each pairs a zenith drawn by its weight (ZSNet score, or uniform over Z_c) with a
+    uniformly drawn horizontal VP.
+
+    Args:
+        zenith: (B, Z, 3) zenith candidates.
+        zenith_weights: (B, Z) non-negative weights, zero outside Z_c.
+        horizontal: (B, H, 3) horizontal VP candidates.
+        horizontal_mask: (B, H) bool.
+        count: number of frames F.
+        focal_range: see :func:`frames_from_vps`.
+        generator: random generator.
+
+    Returns:
+        :class:`FrameCandidates` with F = ``count``.
+    """
+    KORNIA_CHECK_SHAPE(zenith_weights, ["B", "Z"])
+    KORNIA_CHECK_SHAPE(horizontal_mask, ["B", "H"])
+    zi, zok = _draw(zenith_weights, count, generator)
+    hi, hok = _draw(horizontal_mask.to(zenith_weights), count, generator)
+    return frames_from_vps(_gather(zenith, zi), _gather(horizontal, hi), zok & hok, focal_range)
+
+
+def _draw(  # one weighted draw per frame, with replacement
+    weights: Tensor, count: int, generator: torch.Generator | None
+) -> tuple[Tensor, Tensor]:
+    if weights.shape[1] == 0:
+        idx = torch.zeros(weights.shape[0], count, dtype=torch.long, device=weights.device)
+        return idx, torch.zeros_like(idx, dtype=torch.bool)
+    usable = (weights > 0).any(-1, keepdim=True)
+    w = torch.where(usable, weights.clamp_min(0), torch.ones_like(weights)).float()
+    idx = torch.multinomial(w.cpu(), count, replacement=True, generator=generator).to(weights.device)
+    return idx, usable & (torch.gather(weights, 1, idx) > 0)

@@ -248,9 +248,25 @@ def frames_from_vps(
     up = up * torch.where(up[..., 1:2] > 0, -1.0, 1.0).to(up)
     h = normalize(horizontal / scale)
     h = normalize(h - (h * up).sum(-1, keepdim=True) * up)
-    R = torch.stack([h, -up, torch.linalg.cross(h, -up)], -1)
+    R = _vertical_axis_first(torch.stack([h, -up, torch.linalg.cross(h, -up)], -1))
     vps = normalize(R.transpose(-1, -2) * scale[..., None, :])
+    zenith, horizontal = vps[..., 1, :], vps[..., 0, :]
     return FrameCandidates(zenith, horizontal, torch.where(ok, focal, torch.zeros_like(focal)), R, vps, ok)
+
+
+def _vertical_axis_first(R: Tensor) -> Tensor:
+    """Relabel a frame's axes so the down axis (column 1) is the one closest to the image's y axis.
+
+    Three orthogonal VPs do not say which one is vertical: a candidate whose "zenith" came from two steep lines
+    meeting at a horizontal VP is still a valid frame, only mislabelled. Taking the most image-vertical axis as the
+    vertical assumes |roll| and |pitch| below about 45 degrees, the range of hand-held photos.
+    """
+    axes = R.transpose(-1, -2)  # (..., 3 axes, 3)
+    vertical = axes[..., 1].abs().argmax(-1)
+    down = torch.gather(axes, -2, vertical[..., None, None].expand(*vertical.shape, 1, 3)).squeeze(-2)
+    down = down * torch.where(down[..., 1:2] < 0, -1.0, 1.0).to(down)
+    first = torch.where((vertical == 0)[..., None], axes[..., 1, :], axes[..., 0, :])
+    return torch.stack([first, down, torch.linalg.cross(first, down)], -1)
 
 
 def sample_frames(

@@ -186,10 +186,17 @@ class YorkUrbanDB(Sequence[YUDSample]):
         FileNotFoundError: ``root`` or one of its .mat files (or a present folder's files) is missing.
         ValueError: unknown split or malformed files.
 
+    Usage::
+
+        db = YorkUrbanDB("/path/to/YorkUrbanDB", split="train")
+        for s in db:
+            s.image_path, s.K, s.R, s.horizon, s.pitch, s.roll
+
     Example:
-        >>> db = YorkUrbanDB("/path/to/YorkUrbanDB", split="train")  # doctest: +SKIP
-        >>> s = db[0]  # doctest: +SKIP
-        >>> s.K, s.R, s.horizon, s.pitch, s.roll  # doctest: +SKIP
+        >>> YorkUrbanDB("/no/such/folder")
+        Traceback (most recent call last):
+        ...
+        FileNotFoundError: York Urban DB root not found (or not a folder): /no/such/folder
     """
 
     def __init__(self, root: str | Path, split: str = "all") -> None:

@@ -38,24 +38,35 @@ def _names_cell(names):
 def fake_yud(tmp_path: Path) -> Path:
     root = tmp_path / "YorkUrbanDB"
     root.mkdir()
-    scipy.io.savemat(root / "cameraParameters.mat",
-                     {"focal": np.array([[FOCAL_MM]]), "pixelSize": np.array([[PIXEL_MM]]), "pp": np.array([PP])})
+    scipy.io.savemat(
+        root / "cameraParameters.mat",
+        {"focal": np.array([[FOCAL_MM]]), "pixelSize": np.array([[PIXEL_MM]]), "pp": np.array([PP])},
+    )
     scipy.io.savemat(root / "Manhattan_Image_DB_Names.mat", {"Manhattan_Image_DB_Names": _names_cell(NAMES)})
-    scipy.io.savemat(root / "ECCV_TrainingAndTestImageNumbers.mat",
-                     {"trainingSetIndex": np.array(TRAIN, dtype=np.uint8)[:, None],
-                      "testSetIndex": np.array(TEST, dtype=np.uint8)[:, None]})
+    scipy.io.savemat(
+        root / "ECCV_TrainingAndTestImageNumbers.mat",
+        {
+            "trainingSetIndex": np.array(TRAIN, dtype=np.uint8)[:, None],
+            "testSetIndex": np.array(TEST, dtype=np.uint8)[:, None],
+        },
+    )
     for i, (name, (pitch, roll, yaw)) in enumerate(CAMERAS.items()):
         folder = root / name
         folder.mkdir()
         image = np.full((H, W, 3), 40 * i, dtype=np.uint8)
         assert cv2.imwrite(str(folder / f"{name}.jpg"), image)
         R = rotation_from_angles(*(torch.tensor([v], dtype=torch.float64) for v in (pitch, roll, yaw)))[0]
-        scipy.io.savemat(folder / f"{name}GroundTruthVP_Orthogonal_CamParams.mat",
-                         {"vp_orthogonal": _yud_vp_from_rotation(R)})
+        scipy.io.savemat(
+            folder / f"{name}GroundTruthVP_Orthogonal_CamParams.mat", {"vp_orthogonal": _yud_vp_from_rotation(R)}
+        )
         lines = np.array([[11.0, 21.0], [31.0, 41.0], [1.0, 2.0], [3.0, 4.0]])  # 1-based, two segments
-        scipy.io.savemat(folder / f"{name}LinesAndVP.mat",
-                         {"lines": lines.astype(np.uint16) if i == 1 else lines,
-                          "vp_association": np.array([[2], [3]], dtype=np.uint8)})
+        scipy.io.savemat(
+            folder / f"{name}LinesAndVP.mat",
+            {
+                "lines": lines.astype(np.uint16) if i == 1 else lines,
+                "vp_association": np.array([[2], [3]], dtype=np.uint8),
+            },
+        )
     return root
 
 
@@ -111,14 +122,16 @@ def test_fake_labelled_segments(fake_yud):
     for s in YorkUrbanDB(fake_yud):
         seg, assoc = load_labelled_segments(s.lines_path)
         assert seg.dtype == torch.float64 and seg.shape == (2, 2, 2)
-        torch.testing.assert_close(seg, torch.tensor([[[10.0, 20.0], [30.0, 40.0]], [[0.0, 1.0], [2.0, 3.0]]],
-                                                     dtype=torch.float64))
+        torch.testing.assert_close(
+            seg, torch.tensor([[[10.0, 20.0], [30.0, 40.0]], [[0.0, 1.0], [2.0, 3.0]]], dtype=torch.float64)
+        )
         assert assoc.tolist() == [1, 2]
 
 
 def test_rotation_from_yud_vps_signs():
-    R = rotation_from_angles(torch.tensor([7.0]).double(), torch.tensor([-4.0]).double(),
-                             torch.tensor([33.0]).double())[0]
+    R = rotation_from_angles(
+        torch.tensor([7.0]).double(), torch.tensor([-4.0]).double(), torch.tensor([33.0]).double()
+    )[0]
     vp = _yud_vp_from_rotation(R)
     for flip in ([1, 1, 1], [1, -1, 1], [1, 1, -1], [1, -1, -1]):
         torch.testing.assert_close(rotation_from_yud_vps(vp * np.array(flip)), R)

@@ -126,6 +126,8 @@ class NeuralGeometricParser(nn.Module):
         elif mask is None:
             raise ValueError("segments were given without their (B, N) mask; pass mask=torch.ones(B, N, dtype=bool)")
         segments = segments.to(images)
+        if segments.shape[1] == 0:  # no lines anywhere in the batch: one masked dummy keeps every shape non-empty
+            segments, mask = segments.new_zeros(len(images), 1, 2, 2), mask.new_zeros(len(images), 1)
         generator = torch.Generator().manual_seed(cfg.seed)
         frames, scores = self.score_frames(segments, mask, height, width, generator)
         return self.calibrate_from_frames(frames, scores, height, width)

@@ -1,0 +1,143 @@
+"""calibrate(): input formats, bad input, result shapes and conventions."""
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+import ngp_kornia
+from ngp_kornia import ImageError, calibrate
+
+
+@pytest.fixture
+def photo(tmp_path):
+    """A small synthetic facade: a grid of rectangles in perspective, written as JPEG."""
+    img = np.full((120, 160, 3), 90, np.uint8)
+    for x in range(10, 150, 22):
+        for y in range(10, 110, 25):
+            cv2.rectangle(img, (x, y), (x + 12, y + 15), (230, 230, 230), -1)
+    path = tmp_path / "facade.jpg"
+    cv2.imwrite(str(path), img)
+    return path
+
+
+def test_path_array_and_tensor_inputs_agree(photo):
+    rgb = cv2.cvtColor(cv2.imread(str(photo)), cv2.COLOR_BGR2RGB)
+    a = calibrate(photo)
+    b = calibrate(rgb)
+    c = calibrate(torch.from_numpy(rgb).permute(2, 0, 1).float() / 255)
+    assert torch.allclose(a.K, b.K) and torch.allclose(b.K, c.K)
+    assert torch.allclose(a.horizon, c.horizon)
+
+
+def test_result_fields_and_shapes(photo):
+    cal = calibrate(photo)
+    assert cal.K.shape == (3, 3) and cal.R.shape == (3, 3) and cal.vps.shape == (3, 3)
+    assert cal.zenith.shape == (3,) and cal.horizon.shape == (3,)
+    for name in ("focal", "fov_v", "fov_h", "pitch", "roll", "yaw"):
+        assert getattr(cal, name).dim() == 0
+        assert torch.isfinite(getattr(cal, name))
+    assert torch.allclose(cal.R @ cal.R.T, torch.eye(3), atol=1e-5)
+    # K is in the input's pixels with the principal point at the image centre
+    assert cal.K[0, 2] == pytest.approx(79.5) and cal.K[1, 2] == pytest.approx(59.5)
+    d = cal.to_dict()
+    assert json.loads(json.dumps(d))["width"] == 160
+    for key in ("K", "R", "focal", "fov_v", "fov_h", "pitch", "roll", "zenith", "horizon", "vps"):
+        assert key in d
+
+
+def test_batched_tensor_gives_batched_result():
+    images = torch.rand(3, 3, 48, 64)
+    cal = calibrate(images, weights="none")
+    assert cal.batched and len(cal) == 3 and cal.K.shape == (3, 3, 3)
+    assert isinstance(cal.to_dict(), list) and len(cal.to_dict()) == 3
+    single = calibrate(images[1], weights="none")
+    assert torch.allclose(single.K, cal[1].K)
+
+
+def test_same_seed_same_answer_and_seed_changes_sampling(photo):
+    assert torch.equal(calibrate(photo, seed=3).K, calibrate(photo, seed=3).K)
+
+
+def test_float64_tensor_keeps_dtype():
+    cal = calibrate(torch.rand(1, 3, 40, 40, dtype=torch.float64))
+    assert cal.K.dtype == torch.float64
+
+
+def test_greyscale_rgba_and_16bit_files_are_converted(tmp_path, photo):
+    rgb = cv2.imread(str(photo))
+    grey = cv2.cvtColor(rgb, cv2.COLOR_BGR2GRAY)
+    rgba = cv2.cvtColor(rgb, cv2.COLOR_BGR2BGRA)
+    deep = rgb.astype(np.uint16) * 257
+    ref = calibrate(cv2.cvtColor(grey, cv2.COLOR_GRAY2RGB))
+    for name, img in (("grey.png", grey), ("rgba.png", rgba), ("deep.png", deep)):
+        cv2.imwrite(str(tmp_path / name), img)
+        cal = calibrate(tmp_path / name)
+        assert torch.isfinite(cal.focal)
+    assert torch.allclose(calibrate(tmp_path / "grey.png").K, ref.K)
+    assert torch.allclose(calibrate(tmp_path / "deep.png").K, calibrate(photo.with_suffix(".jpg")).K, rtol=0.05)
+
+
+def _write(path, data):
+    path.write_bytes(data)
+    return path
+
+
+@pytest.mark.parametrize(
+    ("make", "message"),
+    [
+        (lambda p: p / "nope.jpg", "file not found"),
+        (lambda p: _write(p / "empty.jpg", b""), "empty"),
+        (lambda p: _write(p / "text.jpg", b"not an image"), "not a readable image"),
+        (lambda p: p, "directory"),
+    ],
+)
+def test_bad_files_name_the_problem(tmp_path, make, message):
+    with pytest.raises(ImageError, match=message):
+        calibrate(make(tmp_path))
+
+
+def test_truncated_jpeg_is_reported(tmp_path, photo):
+    data = photo.read_bytes()
+    (tmp_path / "cut.jpg").write_bytes(data[: len(data) // 2])
+    with pytest.raises(ImageError, match="truncated"):
+        calibrate(tmp_path / "cut.jpg")
+
+
+def test_tiny_image_is_rejected_with_the_minimum_size():
+    with pytest.raises(ImageError, match="at least 32 px"):
+        calibrate(np.zeros((20, 100, 3), np.uint8))
+
+
+@pytest.mark.parametrize(
+    ("tensor", "error", "message"),
+    [
+        (torch.full((3, 40, 40), float("nan")), ImageError, "NaN"),
+        (torch.rand(4, 40, 40), ImageError, r"\(3, H, W\)"),
+        (torch.rand(40, 40), ImageError, r"\(3, H, W\)"),
+        (torch.zeros(3, 40, 40, dtype=torch.uint8), TypeError, "float"),
+        (torch.rand(3, 40, 40) * 255, ImageError, r"\[0, 1\]"),
+        (torch.rand(0, 3, 40, 40), ImageError, "empty image tensor"),
+    ],
+)
+def test_bad_tensors_name_the_problem(tensor, error, message):
+    with pytest.raises(error, match=message):
+        calibrate(tensor)
+
+
+def test_unknown_weights_lists_the_choices():
+    with pytest.raises(ValueError, match="default, none"):
+        calibrate(torch.rand(3, 40, 40), weights="imagenet")
+
+
+def test_image_without_lines_gives_a_defined_level_camera():
+    cal = calibrate(torch.full((3, 64, 80), 0.5))
+    assert not bool(cal.valid)
+    assert float(cal.pitch) == pytest.approx(0.0, abs=1e-5) and float(cal.roll) == pytest.approx(0.0, abs=1e-5)
+    assert float(cal.fov_h) == pytest.approx(60.0, abs=1e-3)  # the documented fallback on the long side
+
+
+def test_version_is_exposed():
+    assert ngp_kornia.__version__.count(".") == 2

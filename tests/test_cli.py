@@ -1,0 +1,70 @@
+"""The ngp command: JSON per image, overlays, one-line errors that do not stop the other images."""
+
+import json
+import subprocess
+import sys
+
+import cv2
+import numpy as np
+import pytest
+
+from ngp_kornia.cli import main
+
+
+@pytest.fixture
+def photo(tmp_path):
+    img = np.full((120, 160, 3), 80, np.uint8)
+    for x in range(10, 150, 22):
+        cv2.line(img, (x, 5), (x + 4, 115), (240, 240, 240), 2)
+    for y in range(10, 110, 20):
+        cv2.line(img, (5, y), (155, y + 6), (200, 200, 200), 2)
+    path = tmp_path / "scene.png"
+    cv2.imwrite(str(path), img)
+    return path
+
+
+def test_calibrate_prints_one_json_object_per_image(photo, capsys):
+    assert main(["calibrate", str(photo), str(photo)]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert len(lines) == 2
+    record = json.loads(lines[0])
+    assert record["image"] == str(photo)
+    for key in ("K", "R", "focal", "fov_v", "fov_h", "pitch", "roll", "zenith", "horizon", "vps"):
+        assert key in record
+
+
+def test_bad_image_is_one_line_on_stderr_and_the_rest_still_run(photo, tmp_path, capsys):
+    missing = tmp_path / "missing.jpg"
+    code = main(["calibrate", str(missing), str(photo)])
+    out, err = capsys.readouterr()
+    assert code == 1
+    assert len(out.strip().splitlines()) == 1 and json.loads(out)["image"] == str(photo)
+    assert err.strip().count("\n") == 0 and "missing.jpg: file not found" in err
+
+
+def test_overlay_is_written_as_an_image(photo, tmp_path, capsys):
+    target = tmp_path / "out" / "overlay.png"
+    assert main(["calibrate", str(photo), "--overlay", str(target)]) == 0
+    drawn = cv2.imread(str(target))
+    assert drawn is not None and drawn.shape == (120, 160, 3)
+
+
+def test_overlay_folder_for_several_images(photo, tmp_path, capsys):
+    second = tmp_path / "second.png"
+    second.write_bytes(photo.read_bytes())
+    assert main(["calibrate", str(photo), str(second), "--overlay", str(tmp_path / "ov")]) == 0
+    assert sorted(p.name for p in (tmp_path / "ov").iterdir()) == ["scene_overlay.png", "second_overlay.png"]
+
+
+def test_installed_command_reports_errors_without_traceback(tmp_path):
+    bad = tmp_path / "bad.jpg"
+    bad.write_text("not an image")
+    run = subprocess.run(
+        [sys.executable, "-m", "ngp_kornia.cli", "calibrate", str(bad)], capture_output=True, text=True, timeout=120
+    )
+    assert run.returncode == 1
+    assert (
+        "Traceback" not in run.stderr
+        and run.stderr.strip()
+        == f"ngp: error: {bad}: not a readable image (supported: JPEG, PNG, TIFF, BMP, WebP, ...)"
+    )

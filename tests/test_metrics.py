@@ -215,6 +215,8 @@ def test_shape_and_type_errors():
         up_vector_error(torch.zeros(3), torch.zeros(3))
     with pytest.raises(TypeError):
         up_vector_error([[0.0, -1.0, 0.0]], torch.zeros(1, 3))
+    with pytest.raises(TypeError):
+        up_vector_error(torch.zeros(1, 3, dtype=torch.int64), torch.zeros(1, 3))
     with pytest.raises(ValueError):
         pitch_error(torch.zeros(2), torch.zeros(3))
     with pytest.raises(ValueError):

@@ -21,13 +21,14 @@ from ngp_kornia.geometry import (
     horizon_from_zenith,
     image_center,
     intrinsics_matrix,
+    line_vp_cosine,
     manhattan_score,
     pitch_roll_from_up,
     pseudo_focal,
     rotation_from_vps,
     segment_lengths,
     segments_to_lines,
-    sharp_closeness,
+    sharp_kernel,
     structure_tensor,
     to_pseudo_camera,
     topk_weighted_average,
@@ -150,8 +151,9 @@ class NeuralGeometricParser(nn.Module):
         right = split_by_pseudo_horizon(lines, z_est)
         h_vps, h_ok = sample_horizontal_vps(lines, lengths, horizontal, right, cfg.num_horizontal, generator)
         frames = sample_frames(zenith, weights, h_vps, h_ok, cfg.num_frames, cfg.focal_range, generator)
-        close = sharp_closeness(lines, frames.vps, cfg.kernel_angle)  # (B, F, 3, N)
-        scores = manhattan_score(close, lengths, mask)
+        # max over the three VPs of the kernel = kernel of the smallest cosine (B, F, 1, N)
+        cosine = line_vp_cosine(lines, frames.vps).amin(-2, keepdim=True)
+        scores = manhattan_score(sharp_kernel(cosine, cfg.kernel_angle), lengths, mask)
         return frames, torch.where(frames.valid, scores, torch.zeros_like(scores))
 
     def calibrate_from_frames(self, frames: FrameCandidates, scores: Tensor, height: int, width: int) -> Calibration:

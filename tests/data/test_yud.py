@@ -19,6 +19,7 @@ W, H = 160, 120
 CAMERAS = {"IMG_A": (10.0, 0.0, 20.0), "IMG_B": (-5.0, 8.0, -30.0), "IMG_C": (0.0, -3.0, 0.0)}
 NAMES = ["IMG_A", "IMG_B", "IMG_C", "IMG_D"]
 TRAIN, TEST = [3, 1], [2, 4]  # 1-based into NAMES
+RAW_UP_YUP = np.array([0.0, 1.0, 0.1]) / np.linalg.norm([0.0, 1.0, 0.1])  # camera frame y up: pitch ~5.7 deg
 
 
 def _yud_vp_from_rotation(R: torch.Tensor) -> np.ndarray:
@@ -59,6 +60,9 @@ def fake_yud(tmp_path: Path) -> Path:
         scipy.io.savemat(
             folder / f"{name}GroundTruthVP_Orthogonal_CamParams.mat", {"vp_orthogonal": _yud_vp_from_rotation(R)}
         )
+        raw = _yud_vp_from_rotation(R)
+        raw[:, 1] = RAW_UP_YUP  # the raw vertical differs from the orthogonal one
+        scipy.io.savemat(folder / f"{name}GroundTruthVP_CamParams.mat", {"vp": raw})
         lines = np.array([[11.0, 21.0], [31.0, 41.0], [1.0, 2.0], [3.0, 4.0]])  # 1-based, two segments
         scipy.io.savemat(
             folder / f"{name}LinesAndVP.mat",
@@ -116,6 +120,18 @@ def test_fake_known_answer(fake_yud):
     torch.testing.assert_close(
         a_.horizon, torch.tensor([0.0, 1.0, -(PP[1] + f * math.tan(math.radians(10.0)))], dtype=torch.float64)
     )
+
+
+def test_fake_raw_ground_truth(fake_yud):
+    for s in YorkUrbanDB(fake_yud, ground_truth="raw"):
+        expected_up = torch.tensor(RAW_UP_YUP * np.array([1.0, -1.0, 1.0]))
+        torch.testing.assert_close(s.up, expected_up)
+        torch.testing.assert_close(s.R.T @ s.R, torch.eye(3, dtype=torch.float64))
+        assert torch.linalg.det(s.R).item() == pytest.approx(1.0)
+        assert s.pitch == pytest.approx(math.degrees(math.atan(0.1)))
+        assert s.roll == pytest.approx(0.0, abs=1e-12)
+    with pytest.raises(ValueError, match="ground_truth"):
+        YorkUrbanDB(fake_yud, ground_truth="best")
 
 
 def test_fake_labelled_segments(fake_yud):
@@ -198,3 +214,10 @@ def test_shared_copy_ground_truth_is_consistent():
     assert all_err.numel() > 1000
     assert all_err.median().item() < 1.0
     assert vertical_err.median().item() < 1.0
+    # the raw vertical fits the labelled vertical segments at least as well
+    raw_err = []
+    for s in YorkUrbanDB(SHARED_YUD, split="train", ground_truth="raw"):
+        seg, assoc = load_labelled_segments(s.lines_path)
+        vert = assoc == 1
+        raw_err.append(_segment_vp_angles(seg[vert], s.zenith.expand(int(vert.sum()), 3)))
+    assert torch.cat(raw_err).median().item() < 1.0

@@ -1,0 +1,377 @@
+"""Benchmark single-image calibration on the York Urban Database (Denis, Elder and Estrada, ECCV 2008).
+
+Compares, on the same images and in the same process:
+
+* ``ngp_kornia.calibrate`` (this package; it estimates the focal length itself),
+* lu-vp-detect (Lu et al., WACV 2017, the ``lu_vp_detect`` package), given the TRUE focal length and principal
+  point, so its field of view is exact by construction,
+* a trivial baseline: a level horizon through the image centre (pitch = roll = 0).
+
+Usage::
+
+    python benchmarks/yud.py /path/to/YorkUrbanDB [--split all] [--limit N] [--weights none] [--out r.json]
+
+Errors are in degrees; the horizon AUC is the area under the cumulative horizon-error curve on [0, 0.25] of
+the image height (:func:`ngp_kornia.metrics.horizon_auc`). Seconds per image is the wall time of one call
+including reading the image, measured with the methods interleaved image by image after one warm-up call each.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import platform
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+from ngp_kornia.data.yud import YorkUrbanDB, YUDSample
+from ngp_kornia.geometry.camera import (
+    horizon_from_zenith,
+    pitch_roll_from_up,
+    zenith_from_up,
+)
+from ngp_kornia.metrics import (
+    fov_error,
+    horizon_auc,
+    horizon_error,
+    pitch_error,
+    roll_error,
+    summarize,
+    up_vector_error,
+)
+
+
+@dataclass
+class Estimate:
+    """One method's answer for one image, in this package's conventions (float64, degrees)."""
+
+    up: torch.Tensor  # (3,)
+    horizon: torch.Tensor  # (3,)
+    pitch: float
+    roll: float
+    fov_v: float | None = None  # None: the method does not estimate it
+    extra: dict = field(default_factory=dict)
+
+
+def _failed() -> Estimate:
+    nan3 = torch.full((3,), math.nan, dtype=torch.float64)
+    return Estimate(nan3, nan3.clone(), math.nan, math.nan, math.nan)
+
+
+# ----------------------------------------------------------------------------------------------------------
+# this package
+
+
+def _unbatch(x):
+    """A detached CPU tensor; floating point values as float64."""
+    t = torch.as_tensor(x).detach().cpu()
+    return t.double() if t.is_floating_point() else t
+
+
+def _first(x, ndim: int) -> torch.Tensor:
+    """Value of the first image for a field whose unbatched shape has ``ndim`` dims (0 scalar, 1 vector, ...)."""
+    t = _unbatch(x)
+    if t.dim() == ndim + 1:
+        if t.shape[0] != 1:
+            raise ValueError(f"expected a single image, got a batch of {t.shape[0]}")
+        t = t[0]
+    if t.dim() != ndim:
+        raise ValueError(f"unexpected shape {tuple(t.shape)}")
+    return t
+
+
+def estimate_from_calibration(result, sample: YUDSample) -> Estimate:
+    """Adapter for the result of ``ngp_kornia.calibrate``: works for batched (B = 1) and unbatched results."""
+    K = _first(result.K, 2)
+    if getattr(result, "up", None) is not None:
+        up = _first(result.up, 1)
+    else:  # older result objects: the up vector from the zenith
+        from ngp_kornia.geometry.camera import up_from_zenith
+
+        up = up_from_zenith(K[None], _first(result.zenith, 1)[None])[0]
+    extra = {"focal": float(_first(result.focal, 0))}
+    for name in ("valid", "score"):
+        if getattr(result, name, None) is not None:
+            v = _first(getattr(result, name), 0)
+            extra[name] = bool(v) if v.dtype == torch.bool else float(v)
+    return Estimate(
+        up=up,
+        horizon=_first(result.horizon, 1),
+        pitch=float(_first(result.pitch, 0)),
+        roll=float(_first(result.roll, 0)),
+        fov_v=float(_first(result.fov_v, 0)),
+        extra=extra,
+    )
+
+
+def make_ngp(weights: str | None) -> Callable[[YUDSample], Estimate]:
+    try:
+        from ngp_kornia import calibrate
+    except ImportError:
+        from ngp_kornia.api import calibrate
+    kwargs = {} if weights is None else {"weights": weights}
+
+    def run(sample: YUDSample) -> Estimate:
+        return estimate_from_calibration(calibrate(str(sample.image_path), **kwargs), sample)
+
+    return run
+
+
+# ----------------------------------------------------------------------------------------------------------
+# lu-vp-detect
+
+
+class _LSDReshaper:
+    """OpenCV >= 5 returns LSD lines as (N, 4); lu-vp-detect indexes them as (N, 1, 4)."""
+
+    def __init__(self, lsd) -> None:
+        self._lsd = lsd
+
+    def detect(self, image, *args, **kwargs):
+        out = self._lsd.detect(image, *args, **kwargs)
+        lines = out[0]
+        if lines is not None:
+            lines = np.asarray(lines).reshape(-1, 1, 4)
+        return (lines, *out[1:])
+
+    def __getattr__(self, name):
+        return getattr(self._lsd, name)
+
+
+class _Cv2Proxy:
+    """Stands in for ``cv2`` inside ``lu_vp_detect.vp_detection`` only; everything else is the real module."""
+
+    def __getattr__(self, name):
+        return getattr(cv2, name)
+
+    @staticmethod
+    def createLineSegmentDetector(*args, **kwargs):  # noqa: N802 (OpenCV's name)
+        return _LSDReshaper(cv2.createLineSegmentDetector(*args, **kwargs))
+
+
+def make_lu() -> Callable[[YUDSample], Estimate]:
+    """lu-vp-detect with the true focal length and principal point.
+
+    Its VPs are unit directions in the OpenCV camera frame (x right, y down, z forward: it lifts a pixel p to
+    ``(p - pp, f)``), checked against the York Urban ground truth. The vertical is the VP with the largest |y|.
+    """
+    import lu_vp_detect.vp_detection as vp_detection
+    from lu_vp_detect import VPDetection
+
+    if not isinstance(vp_detection.cv2, _Cv2Proxy):
+        vp_detection.cv2 = _Cv2Proxy()
+
+    def run(sample: YUDSample) -> Estimate:
+        image = cv2.imread(str(sample.image_path), cv2.IMREAD_COLOR)
+        if image is None:
+            raise FileNotFoundError(sample.image_path)
+        K = sample.K
+        detector = VPDetection(
+            length_thresh=30,
+            principal_point=(float(K[0, 2]), float(K[1, 2])),
+            focal_length=float(K[0, 0]),
+            seed=0,
+        )
+        vps = torch.as_tensor(np.asarray(detector.find_vps(image), dtype=np.float64))
+        if vps.shape != (3, 3) or not bool(torch.isfinite(vps).all()):
+            raise RuntimeError("lu-vp-detect returned no valid vanishing points")
+        v = vps[int(vps[:, 1].abs().argmax())]
+        up = -v if v[1] > 0 else v
+        up = up / up.norm()
+        zenith = zenith_from_up(K[None], up[None])
+        horizon = horizon_from_zenith(K[None], zenith)[0]
+        pitch, roll = pitch_roll_from_up(up[None])
+        return Estimate(up, horizon, float(pitch[0]), float(roll[0]), None)
+
+    return run
+
+
+# ----------------------------------------------------------------------------------------------------------
+# trivial baseline
+
+
+def level_centre(sample: YUDSample) -> Estimate:
+    """A level camera: up = (0, -1, 0), horizon y = (H - 1) / 2 (through the image centre)."""
+    up = torch.tensor([0.0, -1.0, 0.0], dtype=torch.float64)
+    horizon = torch.tensor([0.0, 1.0, -(sample.height - 1) / 2.0], dtype=torch.float64)
+    return Estimate(up, horizon, 0.0, 0.0, None)
+
+
+# ----------------------------------------------------------------------------------------------------------
+
+
+def evaluate(samples: list[YUDSample], estimates: list[Estimate]) -> dict:
+    """Per-image errors and summaries of one method; failed images count as misses in the AUC."""
+    ok = torch.tensor([math.isfinite(e.pitch) for e in estimates])
+    up = torch.stack([e.up for e in estimates])
+    hor = torch.stack([e.horizon for e in estimates])
+    gt_up = torch.stack([s.up for s in samples])
+    gt_hor = torch.stack([s.horizon for s in samples])
+    heights = torch.tensor([float(s.height) for s in samples], dtype=torch.float64)
+    widths = torch.tensor([float(s.width) for s in samples], dtype=torch.float64)
+    pitch = torch.tensor([e.pitch for e in estimates], dtype=torch.float64)
+    roll = torch.tensor([e.roll for e in estimates], dtype=torch.float64)
+    gt_pitch = torch.tensor([s.pitch for s in samples], dtype=torch.float64)
+    gt_roll = torch.tensor([s.roll for s in samples], dtype=torch.float64)
+    errors = {
+        "up": up_vector_error(up, gt_up),
+        "pitch": pitch_error(pitch, gt_pitch),
+        "roll": roll_error(roll, gt_roll),
+        "horizon": horizon_error(hor, gt_hor, heights, widths),
+    }
+    has_fov = all(e.fov_v is not None for e in estimates)
+    if has_fov:
+        fov = torch.tensor([e.fov_v for e in estimates], dtype=torch.float64)
+        errors["fov_v"] = fov_error(fov, torch.tensor([s.fov_v for s in samples], dtype=torch.float64))
+    for k in errors:
+        errors[k] = torch.where(ok, errors[k], torch.full_like(errors[k], math.nan))
+    summary = {k: summarize(v[ok]) for k, v in errors.items()}
+    auc = horizon_auc(errors["horizon"]).item() if len(samples) else math.nan
+    return {
+        "summary": summary,
+        "horizon_auc": auc,
+        "failures": int((~ok).sum()),
+        "per_image": [
+            {"name": s.name, **{k: float(v[i]) for k, v in errors.items()}, **estimates[i].extra}
+            for i, s in enumerate(samples)
+        ],
+    }
+
+
+def _mm(summary: dict, key: str) -> str:
+    if key not in summary or summary[key]["count"] == 0:
+        return "n.a."
+    s = summary[key]
+    return f"{s['mean']:.2f} / {s['median']:.2f}"
+
+
+def markdown_table(results: dict[str, dict], n_images: int) -> str:
+    head = (
+        "| method | up error (deg) mean / median | pitch error (deg) mean / median "
+        "| roll error (deg) mean / median | FoV_v error (deg) mean / median | horizon AUC (%) "
+        "| s / image | failures |"
+    )
+    rows = [head, "|" + "---|" * 8]
+    for name, r in results.items():
+        s = r["summary"]
+        fov = _mm(s, "fov_v") if "fov_v" in s else r.get("fov_note", "n.a.")
+        sec = f"{r['seconds_per_image']:.3f}" if r.get("seconds_per_image") is not None else "n.a."
+        rows.append(
+            f"| {name} | {_mm(s, 'up')} | {_mm(s, 'pitch')} | {_mm(s, 'roll')} | {fov} "
+            f"| {100 * r['horizon_auc']:.2f} | {sec} | {r['failures']}/{n_images} |"
+        )
+    return "\n".join(rows)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("root", type=Path, help="York Urban DB folder (official layout)")
+    parser.add_argument("--split", default="all", choices=["all", "train", "test"])
+    parser.add_argument(
+        "--ground-truth",
+        default="orthogonal",
+        choices=["orthogonal", "raw"],
+        help="York Urban ground truth: vp_orthogonal (default) or the vertical of the raw vp",
+    )
+    parser.add_argument("--limit", type=int, default=None, help="use only the first N images")
+    parser.add_argument("--weights", default=None, help="passed to ngp_kornia.calibrate(weights=...)")
+    parser.add_argument("--methods", default="ngp,lu", help="comma-separated subset of: ngp, lu")
+    parser.add_argument("--out", type=Path, default=None, help="write per-image results to this JSON file")
+    args = parser.parse_args(argv)
+
+    db = YorkUrbanDB(args.root, split=args.split, ground_truth=args.ground_truth)
+    samples = list(db)[: args.limit] if args.limit is not None else list(db)
+    if not samples:
+        parser.error(f"no images found in {args.root} for split {args.split!r}")
+
+    wanted = [m.strip() for m in args.methods.split(",") if m.strip()]
+    methods: dict[str, Callable[[YUDSample], Estimate]] = {}
+    notes: dict[str, str] = {}
+    for m in wanted:
+        try:
+            if m == "ngp":
+                label = "ngp_kornia.calibrate" + (f" (weights={args.weights})" if args.weights else "")
+                methods[label] = make_ngp(args.weights)
+            elif m == "lu":
+                methods["lu-vp-detect (true f, pp)"] = make_lu()
+            else:
+                parser.error(f"unknown method {m!r}")
+        except ImportError as e:
+            notes[m] = f"skipped: {e}"
+            print(f"[{m}] skipped: {e}", file=sys.stderr)
+
+    # warm-up: one untimed call per method
+    for name, fn in methods.items():
+        try:
+            fn(samples[0])
+        except Exception as e:  # reported again, per image, below
+            print(f"[{name}] warm-up failed: {e!r}", file=sys.stderr)
+
+    estimates: dict[str, list[Estimate]] = {name: [] for name in methods}
+    seconds: dict[str, float] = {name: 0.0 for name in methods}
+    errors_seen: dict[str, list[str]] = {name: [] for name in methods}
+    names = list(methods)
+    for i, sample in enumerate(samples):
+        order = names[i % len(names) :] + names[: i % len(names)] if names else []  # alternate who goes first
+        for name in order:
+            t0 = time.perf_counter()
+            try:
+                est = methods[name](sample)
+            except Exception as e:
+                est = _failed()
+                errors_seen[name].append(f"{sample.name}: {e!r}")
+            seconds[name] += time.perf_counter() - t0
+            estimates[name].append(est)
+        print(f"\r{i + 1}/{len(samples)} {sample.name}", end="", file=sys.stderr, flush=True)
+    print(file=sys.stderr)
+
+    results: dict[str, dict] = {}
+    for name in names:
+        r = evaluate(samples, estimates[name])
+        r["seconds_per_image"] = seconds[name] / len(samples)
+        r["exceptions"] = errors_seen[name]
+        if name.startswith("lu-vp-detect"):
+            r["fov_note"] = "0 (given)"
+        results[name] = r
+    base = evaluate(samples, [level_centre(s) for s in samples])
+    base["seconds_per_image"] = None
+    results["level horizon through the centre"] = base
+
+    print(f"York Urban DB, split={args.split}, ground truth={args.ground_truth}: {len(samples)} images ({args.root})")
+    print()
+    print(markdown_table(results, len(samples)))
+    for name, r in results.items():
+        for msg in r.get("exceptions", [])[:5]:
+            print(f"  [{name}] {msg}")
+    for m, note in notes.items():
+        print(f"  [{m}] {note}")
+
+    if args.out is not None:
+        payload = {
+            "command": " ".join(sys.argv),
+            "root": str(args.root),
+            "split": args.split,
+            "ground_truth": args.ground_truth,
+            "images": [s.name for s in samples],
+            "versions": {
+                "python": platform.python_version(),
+                "torch": torch.__version__,
+                "opencv": cv2.__version__,
+            },
+            "methods": results,
+        }
+        args.out.write_text(json.dumps(payload, indent=1, allow_nan=True))
+        print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -24,7 +24,9 @@ from ngp_kornia.geometry import (
 
 __all__ = [
     "FrameCandidates",
+    "cat_frames",
     "frames_from_vps",
+    "sample_horizontal_pair_frames",
     "horizontal_line_mask",
     "sample_frames",
     "sample_horizontal_vps",
@@ -223,14 +225,19 @@ class FrameCandidates:
 
 
 def frames_from_vps(
-    zenith: Tensor, horizontal: Tensor, valid: Tensor, focal_range: tuple[float, float] = (0.8, 4.0)
+    first: Tensor, second: Tensor, valid: Tensor, focal_range: tuple[float, float] = (0.8, 4.0)
 ) -> FrameCandidates:
-    """Complete (zenith, horizontal VP) pairs into Manhattan frames: focal length from orthogonality, rotation
-    and the third VP.
+    """Complete pairs of orthogonal VPs into Manhattan frames: focal length from orthogonality, rotation and the
+    third VP.
+
+    The pair is a zenith and a horizontal VP (the paper's frames) or two horizontal VPs, which still fix the focal
+    length when the zenith is at infinity (a level camera, where a zenith-horizontal pair cannot). The first VP's
+    direction is kept exactly, the second is made orthogonal to it, and the axis closest to the image's y axis is
+    labelled vertical.
 
     Args:
-        zenith: (B, F, 3) zenith VPs (pseudo camera).
-        horizontal: (B, F, 3) horizontal VPs.
+        first: (B, F, 3) VPs (pseudo camera).
+        second: (B, F, 3) VPs orthogonal to ``first``.
         valid: (B, F) bool validity of the pairs.
         focal_range: allowed focal lengths in pseudo-camera units; (0.8, 4.0) spans long-side fields of view from
             about 28 to 103 degrees.
@@ -239,19 +246,26 @@ def frames_from_vps(
         :class:`FrameCandidates`; frames whose VPs cannot be orthogonal or whose focal is out of range are invalid
         (and carry a finite placeholder frame).
     """
-    KORNIA_CHECK_SHAPE(zenith, ["B", "F", "3"])
-    focal, ok = focal_from_orthogonal_vps(zenith, horizontal, zenith.new_zeros(2))
+    KORNIA_CHECK_SHAPE(first, ["B", "F", "3"])
+    KORNIA_CHECK_SHAPE(second, ["B", "F", "3"])
+    focal, ok = focal_from_orthogonal_vps(first, second, first.new_zeros(2))
     ok = ok & valid & (focal >= focal_range[0]) & (focal <= focal_range[1])
     f = torch.where(ok, focal, torch.ones_like(focal))
     scale = torch.stack([f, f, torch.ones_like(f)], -1)  # K = diag(f, f, 1)
-    up = normalize(zenith / scale)
-    up = up * torch.where(up[..., 1:2] > 0, -1.0, 1.0).to(up)
-    h = normalize(horizontal / scale)
-    h = normalize(h - (h * up).sum(-1, keepdim=True) * up)
-    R = _vertical_axis_first(torch.stack([h, -up, torch.linalg.cross(h, -up)], -1))
+    a = normalize(first / scale)
+    b = normalize(second / scale)
+    b = normalize(b - (b * a).sum(-1, keepdim=True) * a)
+    R = _vertical_axis_first(torch.stack([b, a, torch.linalg.cross(b, a)], -1))
     vps = normalize(R.transpose(-1, -2) * scale[..., None, :])
     zenith, horizontal = vps[..., 1, :], vps[..., 0, :]
     return FrameCandidates(zenith, horizontal, torch.where(ok, focal, torch.zeros_like(focal)), R, vps, ok)
+
+
+def cat_frames(*frames: FrameCandidates) -> FrameCandidates:
+    """Concatenate frame candidates along the frame dim."""
+    return FrameCandidates(
+        *(torch.cat([getattr(f, k) for f in frames], 1) for k in FrameCandidates.__dataclass_fields__)
+    )
 
 
 def _vertical_axis_first(R: Tensor) -> Tensor:
@@ -310,3 +324,35 @@ def _draw(  # one weighted draw per frame, with replacement
     w = torch.where(usable, weights.clamp_min(0), torch.ones_like(weights)).float()
     idx = torch.multinomial(w.cpu(), count, replacement=True, generator=generator).to(weights.device)
     return idx, usable & (torch.gather(weights, 1, idx) > 0)
+
+
+def sample_horizontal_pair_frames(
+    horizontal: Tensor,
+    horizontal_mask: Tensor,
+    count: int = 512,
+    focal_range: tuple[float, float] = (0.8, 4.0),
+    generator: torch.Generator | None = None,
+) -> FrameCandidates:
+    """Manhattan-frame candidates from two horizontal VPs, one from each group of :func:`sample_horizontal_vps`
+    (its first half is the right-hand group, its second half the left-hand one).
+
+    These frames get their focal length from the two horizontal VPs, so they stay accurate for a level camera, whose
+    zenith is at infinity.
+
+    Args:
+        horizontal: (B, H, 3) horizontal VP candidates, right-hand group first.
+        horizontal_mask: (B, H) bool.
+        count: number of frames.
+        focal_range: see :func:`frames_from_vps`.
+        generator: random generator.
+
+    Returns:
+        :class:`FrameCandidates` with F = ``count``.
+    """
+    KORNIA_CHECK_SHAPE(horizontal_mask, ["B", "H"])
+    half = horizontal.shape[1] // 2
+    weights = horizontal_mask.to(horizontal)
+    ri, rok = _draw(weights[:, :half], count, generator)
+    li, lok = _draw(weights[:, half:], count, generator)
+    first, second = _gather(horizontal[:, :half], ri), _gather(horizontal[:, half:], li)
+    return frames_from_vps(first, second, rok & lok, focal_range)

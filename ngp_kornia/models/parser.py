@@ -40,8 +40,10 @@ from ngp_kornia.lines import detect_segments
 from ngp_kornia.models.result import Calibration
 from ngp_kornia.sampling import (
     FrameCandidates,
+    cat_frames,
     horizontal_line_mask,
     sample_frames,
+    sample_horizontal_pair_frames,
     sample_horizontal_vps,
     sample_zenith_candidates,
     split_by_pseudo_horizon,
@@ -66,7 +68,9 @@ class ParserConfig:
             the junction filter.
         junction_radius: endpoint distance for a junction, in units of half the image's long side.
         num_horizontal: horizontal VP candidates (half per group).
-        num_frames: Manhattan-frame candidates scored per image.
+        num_frames: Manhattan-frame candidates from a zenith and a horizontal VP (the paper's) per image.
+        num_horizontal_frames: further candidates from two horizontal VPs, which fix the focal length of a level
+            camera (zenith at infinity), where a zenith and a horizontal VP cannot; 0 disables them.
         focal_range: allowed focal lengths, in units of half the image's long side.
         kernel_angle: width of the sharp closeness kernel of the Manhattan score, degrees.
         top_k: k of Eq. 22.
@@ -85,6 +89,7 @@ class ParserConfig:
     junction_radius: float = 0.03
     num_horizontal: int = 256
     num_frames: int = 1024
+    num_horizontal_frames: int = 512
     focal_range: tuple[float, float] = (0.8, 4.0)
     kernel_angle: float = 89.0
     top_k: int = 8
@@ -151,6 +156,9 @@ class NeuralGeometricParser(nn.Module):
         right = split_by_pseudo_horizon(lines, z_est)
         h_vps, h_ok = sample_horizontal_vps(lines, lengths, horizontal, right, cfg.num_horizontal, generator)
         frames = sample_frames(zenith, weights, h_vps, h_ok, cfg.num_frames, cfg.focal_range, generator)
+        if cfg.num_horizontal_frames > 0:
+            pairs = sample_horizontal_pair_frames(h_vps, h_ok, cfg.num_horizontal_frames, cfg.focal_range, generator)
+            frames = cat_frames(frames, pairs)
         # max over the three VPs of the kernel = kernel of the smallest cosine (B, F, 1, N)
         cosine = line_vp_cosine(lines, frames.vps).amin(-2, keepdim=True)
         scores = manhattan_score(sharp_kernel(cosine, cfg.kernel_angle), lengths, mask)

@@ -45,7 +45,9 @@ def detect_segments_gray(
         raise ValueError(f"expected an (H, W) uint8 greyscale image, got shape {gray.shape} dtype {gray.dtype}")
     h, w = gray.shape
     scale = min(1.0, working_size / max(h, w))
-    small = gray if scale == 1.0 else cv2.resize(gray, (round(w * scale), round(h * scale)), cv2.INTER_AREA)
+    small = (
+        gray if scale == 1.0 else cv2.resize(gray, (round(w * scale), round(h * scale)), interpolation=cv2.INTER_AREA)
+    )
     found = _lsd().detect(small)[0]
     if found is None or found.size == 0:
         return np.zeros((0, 2, 2), np.float32)

@@ -68,6 +68,8 @@ def sample_pairs(
 
 
 def _gather(x: Tensor, index: Tensor) -> Tensor:
+    if x.shape[1] == 0:  # nothing to draw from: finite zeros, masked invalid by the caller
+        return x.new_zeros(*index.shape, x.shape[-1])
     return torch.gather(x, 1, index[..., None].expand(*index.shape, x.shape[-1]))
 
 
@@ -101,7 +103,7 @@ def sample_zenith_candidates(
     vertical = mask & is_near_vertical(lines, threshold_deg)
     weights = lengths * vertical.to(lengths)
     idx, _, _ = sample_pairs(weights, num_lines, generator)
-    line_mask = vertical.any(-1, keepdim=True).expand(-1, num_lines)
+    line_mask = (vertical.sum(-1, keepdim=True) >= 2).expand(-1, num_lines)
     i, j, ok = sample_pairs(weights, num_candidates, generator)
     zenith = intersect_lines(_gather(lines, i), _gather(lines, j))
     ok = ok & (zenith.norm(dim=-1) > 0.5)  # identical lines have no intersection
@@ -192,7 +194,7 @@ def sample_horizontal_vps(
         generator: random generator.
 
     Returns:
-        (B, count, 3) unit homogeneous VPs and their (B, count) mask.
+        (B, 2 * (count // 2), 3) unit homogeneous VPs, the right-hand group first, and their mask.
     """
     vps, valid = [], []
     for group in (horizontal & right, horizontal & ~right):

@@ -55,8 +55,15 @@ def segments_to_lines(segments: Tensor) -> Tensor:
     """
     KORNIA_CHECK_SHAPE(segments, ["*", "2", "2"])
     p = convert_points_to_homogeneous(segments)
-    line = torch.linalg.cross(p[..., 0, :], p[..., 1, :])
+    line = _exact_zero(torch.linalg.cross(p[..., 0, :], p[..., 1, :]), p[..., 0, :], p[..., 1, :])
     return line / line[..., :2].norm(dim=-1, keepdim=True).clamp_min(torch.finfo(line.dtype).eps)
+
+
+def _exact_zero(cross: Tensor, u: Tensor, v: Tensor) -> Tensor:
+    """Zero a cross product that is only rounding residue of (anti)parallel inputs, so it is not normalised into a
+    random direction (fused multiply-adds leave about eps * |u| |v| where exact arithmetic gives 0)."""
+    tol = 64.0 * torch.finfo(cross.dtype).eps * u.norm(dim=-1, keepdim=True) * v.norm(dim=-1, keepdim=True)
+    return torch.where(cross.norm(dim=-1, keepdim=True) <= tol, torch.zeros_like(cross), cross)
 
 
 def intersect_lines(l0: Tensor, l1: Tensor) -> Tensor:
@@ -78,7 +85,7 @@ def intersect_lines(l0: Tensor, l1: Tensor) -> Tensor:
     KORNIA_CHECK_SHAPE(l0, ["*", "3"])
     KORNIA_CHECK_SHAPE(l1, ["*", "3"])
     l0, l1 = torch.broadcast_tensors(l0, l1)
-    return normalize(torch.linalg.cross(l0, l1))
+    return normalize(_exact_zero(torch.linalg.cross(l0, l1), l0, l1))
 
 
 def is_near_vertical(lines: Tensor, threshold_deg: float = 67.5) -> Tensor:

@@ -68,7 +68,7 @@ def line_map(segments: Tensor, mask: Tensor, height: int, width: int) -> Tensor:
         >>> line_map(seg, torch.tensor([[True]]), 3, 3)[0, 0]
         tensor([[0., 1., 0.],
                 [0., 1., 0.],
-                [0., 0., 0.]])
+                [0., 1., 0.]])
     """
     ones = segments.new_ones(*segments.shape[:2], 1)
     return rasterize_segments(segments, mask, ones, height, width)

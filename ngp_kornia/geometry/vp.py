@@ -174,7 +174,7 @@ def sharp_closeness(lines: Tensor, vps: Tensor, angle_deg: float = 89.0) -> Tens
         angle_deg: kernel width as an angle; 89 degrees keeps lines within about a degree.
 
     Returns:
-        (B, ..., N) values in (0, 1].
+        (B, ..., N) values in [0, 1] (the exponential underflows to 0 far from the VP).
 
     Example:
         >>> sharp_closeness(torch.tensor([[[1.0, 0.0, -2.0]]]), torch.tensor([[[2.0, 5.0, 1.0]]]))

@@ -1,0 +1,207 @@
+"""Tests of ngp_kornia.geometry.raster: rasterised line maps (Eq. 14), closeness maps (Eq. 16) and the map form of
+the Manhattan score (Eq. 20)."""
+
+import pytest
+import torch
+from kornia.core.exceptions import BaseError, ShapeError
+from torch.autograd import gradcheck
+
+from ngp_kornia.geometry.lines import segment_lengths, segments_to_lines
+from ngp_kornia.geometry.raster import closeness_maps, line_map, manhattan_score_maps, rasterize_segments
+from ngp_kornia.geometry.vp import closeness, manhattan_score
+
+BATCHES = [1, 2, 5]
+DTYPES = [torch.float32, torch.float64]
+
+
+def _seg(*xyxy, dtype=torch.float32):
+    return torch.tensor([[[x0, y0], [x1, y1]] for x0, y0, x1, y1 in xyxy], dtype=dtype)
+
+
+def test_rasterize_segments_known_pixels():
+    seg = _seg((2, 3, 8, 3), (1, 0, 1, 5), (4, 5, 7, 8))[None]  # horizontal, vertical, 45-degree diagonal
+    values = torch.tensor([[[1.0], [2.0], [3.0]]])
+    out = rasterize_segments(seg, torch.ones(1, 3, dtype=torch.bool), values, 10, 12)
+    assert out.shape == (1, 1, 10, 12)
+    expected = torch.zeros(10, 12)
+    expected[3, 2:9] = 1.0
+    expected[0:6, 1] = 2.0
+    for i in range(4):
+        expected[5 + i, 4 + i] = 3.0
+    assert torch.equal(out[0, 0], expected)
+
+
+def test_rasterize_segments_endpoint_order_and_rounding():
+    # a segment and its reverse draw the same pixels; endpoints snap to the nearest pixel centre
+    a = rasterize_segments(
+        _seg((1.2, 2.1, 6.8, 2.3))[None], torch.ones(1, 1, dtype=torch.bool), torch.ones(1, 1, 1), 5, 9
+    )
+    b = rasterize_segments(
+        _seg((6.8, 2.3, 1.2, 2.1))[None], torch.ones(1, 1, dtype=torch.bool), torch.ones(1, 1, 1), 5, 9
+    )
+    assert torch.equal(a, b)
+    expected = torch.zeros(5, 9)
+    expected[2, 1:8] = 1.0
+    assert torch.equal(a[0, 0], expected)
+
+
+def test_rasterize_segments_overlap_keeps_max_and_channels():
+    seg = _seg((0, 2, 5, 2), (2, 0, 2, 4))[None]
+    values = torch.tensor([[[0.3, 0.9], [0.7, 0.1]]])
+    out = rasterize_segments(seg, torch.ones(1, 2, dtype=torch.bool), values, 5, 6)
+    assert out.shape == (1, 2, 5, 6)
+    assert out[0, 0, 2, 2] == pytest.approx(0.7) and out[0, 1, 2, 2] == pytest.approx(0.9)
+    assert out[0, 0, 2, 0] == pytest.approx(0.3) and out[0, 1, 0, 2] == pytest.approx(0.1)
+
+
+def test_rasterize_segments_mask_clipping_and_empty():
+    seg = _seg((0, 1, 3, 1), (0, 3, 3, 3))[None]
+    out = rasterize_segments(seg, torch.tensor([[True, False]]), torch.ones(1, 2, 1), 5, 4)
+    assert out[0, 0, 1].tolist() == [1.0] * 4 and out[0, 0, 3].sum() == 0  # padding not drawn
+    # segments partly or fully outside the map: only the inside pixels, no wrap-around onto the borders
+    seg = _seg((-5, 1, 2, 1), (10, 10, 20, 10), (1, -3, 1, -1))[None]
+    out = rasterize_segments(seg, torch.ones(1, 3, dtype=torch.bool), torch.ones(1, 3, 1), 4, 4)
+    expected = torch.zeros(4, 4)
+    expected[1, 0:3] = 1.0
+    assert torch.equal(out[0, 0], expected)
+    # no lines at all: zero maps
+    out = rasterize_segments(torch.zeros(2, 0, 2, 2), torch.zeros(2, 0, dtype=torch.bool), torch.zeros(2, 0, 3), 4, 5)
+    assert out.shape == (2, 3, 4, 5) and torch.equal(out, torch.zeros(2, 3, 4, 5))
+    out = rasterize_segments(torch.rand(2, 3, 2, 2), torch.zeros(2, 3, dtype=torch.bool), torch.ones(2, 3, 1), 4, 5)
+    assert torch.equal(out, torch.zeros(2, 1, 4, 5))
+
+
+def test_rasterize_segments_zero_length_segment():
+    out = rasterize_segments(_seg((2, 2, 2, 2))[None], torch.ones(1, 1, dtype=torch.bool), torch.ones(1, 1, 1), 4, 4)
+    expected = torch.zeros(4, 4)
+    expected[2, 2] = 1.0
+    assert torch.equal(out[0, 0], expected)
+
+
+@pytest.mark.parametrize("b", BATCHES)
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_rasterize_segments_cardinality(b, dtype):
+    g = torch.Generator().manual_seed(b)
+    n = 6
+    seg = (torch.rand(b, n, 2, 2, generator=g) * 30).to(dtype)
+    mask = torch.rand(b, n, generator=g) < 0.7
+    values = torch.rand(b, n, 3, generator=g).to(dtype)
+    out = rasterize_segments(seg, mask, values, 32, 40)
+    assert out.shape == (b, 3, 32, 40) and out.dtype == dtype
+    assert ((out >= 0) & (out <= values.max())).all()
+    lm = line_map(seg, mask, 32, 40)
+    assert lm.shape == (b, 1, 32, 40) and lm.dtype == dtype
+    # every drawn pixel is on the line map and vice versa (values are positive)
+    assert torch.equal(out.amax(1, keepdim=True) > 0, lm > 0)
+
+
+def test_rasterize_segments_exceptions():
+    seg, mask, values = torch.zeros(1, 2, 2, 2), torch.ones(1, 2, dtype=torch.bool), torch.ones(1, 2, 1)
+    with pytest.raises(ShapeError):
+        rasterize_segments(seg[0], mask, values, 4, 4)
+    with pytest.raises(ShapeError):
+        rasterize_segments(seg, mask[0], values, 4, 4)
+    with pytest.raises(ShapeError):
+        rasterize_segments(seg, mask, values[..., 0], 4, 4)
+    with pytest.raises(BaseError, match="map size"):
+        rasterize_segments(seg, mask, values, 0, 4)
+    with pytest.raises(BaseError, match="map size"):
+        rasterize_segments(seg, mask, values, 4, -1)
+
+
+def test_rasterize_segments_gradcheck_values():
+    seg = _seg((0, 1, 6, 1), (2, 3, 2, 7), (4, 4, 7, 7), dtype=torch.float64)[None].expand(2, 3, 2, 2)
+    mask = torch.tensor([[True, True, True], [True, False, True]])
+    values = torch.rand(2, 3, 2, generator=torch.Generator().manual_seed(0), dtype=torch.float64) + 0.1
+    values.requires_grad_()
+    assert gradcheck(lambda v: rasterize_segments(seg, mask, v, 9, 8), (values,))
+    # d(sum of map)/d(value) is the number of pixels the segment covers
+    out = rasterize_segments(seg, mask, values, 9, 8)
+    (grad,) = torch.autograd.grad(out.sum(), values)
+    torch.testing.assert_close(grad[0, :, 0], torch.tensor([7.0, 5.0, 4.0], dtype=torch.float64))
+    assert grad[1, 1].abs().sum() == 0  # masked: no gradient
+
+
+def test_line_map_known():
+    seg = torch.tensor([[[[1.0, 0.0], [1.0, 2.0]]]])
+    out = line_map(seg, torch.tensor([[True]]), 4, 3)[0, 0]
+    # both endpoints are drawn, as in rasterize_segments (the docstring example of line_map shows the last row empty;
+    # that doctest only passes because of the lenient NUMBER doctest option)
+    assert torch.equal(out, torch.tensor([[0.0, 1, 0], [0, 1, 0], [0, 1, 0], [0, 0, 0]]))
+
+
+def test_closeness_maps_and_exception():
+    seg = _seg((0, 1, 4, 1), (2, 3, 4, 3))[None]
+    c = torch.tensor([[[0.1, 0.2], [0.5, 0.6], [0.9, 0.3]]])  # (B, 3, N)
+    out = closeness_maps(seg, torch.ones(1, 2, dtype=torch.bool), c, 5, 5)
+    assert out.shape == (1, 3, 5, 5)
+    torch.testing.assert_close(out[0, :, 1, 0], c[0, :, 0])
+    torch.testing.assert_close(out[0, :, 3, 3], c[0, :, 1])
+    with pytest.raises(ShapeError):
+        closeness_maps(seg, torch.ones(1, 2, dtype=torch.bool), c[:, :2], 5, 5)
+
+
+def test_manhattan_score_maps_known_and_empty():
+    L = torch.ones(1, 1, 2, 2)
+    A = torch.zeros(1, 3, 2, 2)
+    A[0, 1] = 0.5
+    A[0, 2, 0, 0] = 0.9
+    torch.testing.assert_close(manhattan_score_maps(L, A), torch.tensor([(0.9 + 3 * 0.5) / 4]))
+    out = manhattan_score_maps(torch.zeros(2, 1, 4, 4), torch.zeros(2, 3, 4, 4))
+    assert torch.equal(out, torch.zeros(2))
+    with pytest.raises(ShapeError):
+        manhattan_score_maps(torch.zeros(1, 2, 4, 4), torch.zeros(1, 3, 4, 4))
+    with pytest.raises(ShapeError):
+        manhattan_score_maps(torch.zeros(1, 1, 4, 4), torch.zeros(1, 2, 4, 4))
+
+
+def _scene(b, dtype):
+    """Non-overlapping axis-aligned and diagonal segments in a 64x64 map, and three VPs per image."""
+    seg = _seg(
+        (3, 3, 40, 3),
+        (3, 10, 3, 50),
+        (10, 20, 30, 40),
+        (50, 5, 50, 60),
+        (20, 55, 45, 55),
+        (35, 10, 45, 20),
+        dtype=dtype,
+    )
+    seg = seg[None].expand(b, -1, -1, -1).clone()
+    g = torch.Generator().manual_seed(b)
+    vps = torch.randn(b, 3, 3, generator=g).to(dtype) * torch.tensor([30.0, 30.0, 1.0], dtype=dtype)
+    vps[:, :, :2] += 32 * vps[:, :, 2:]
+    # make VP 0 lie on segment 0's line so a closeness of 1 appears
+    vps[:, 0] = torch.tensor([100.0, 3.0, 1.0], dtype=dtype)
+    mask = torch.ones(b, seg.shape[1], dtype=torch.bool)
+    if b > 1:
+        mask[1, 2] = False
+    return seg, mask, vps
+
+
+@pytest.mark.parametrize("b", BATCHES)
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_manhattan_score_maps_agrees_with_line_level_score(b, dtype):
+    seg, mask, vps = _scene(b, dtype)
+    lines = segments_to_lines(seg)
+    c = closeness(lines, vps)  # (B, 3, N)
+    maps = closeness_maps(seg, mask, c, 64, 64)
+    lm = line_map(seg, mask, 64, 64)
+    score_maps = manhattan_score_maps(lm, maps)
+    assert score_maps.shape == (b,) and score_maps.dtype == dtype
+    # exact with each segment weighted by the pixels it covers
+    n = seg.shape[1]
+    onehot = torch.eye(n, dtype=dtype)[None].expand(b, n, n)
+    pixels = rasterize_segments(seg, torch.ones_like(mask), onehot, 64, 64).flatten(2).sum(-1)  # (B, N)
+    exact = manhattan_score(c[:, None], pixels, mask)[:, 0]
+    torch.testing.assert_close(exact, score_maps, atol=1e-5, rtol=1e-5)
+    # close with the Euclidean lengths the line-level score is given in practice
+    approx = manhattan_score(c[:, None], segment_lengths(seg), mask)[:, 0]
+    torch.testing.assert_close(approx, score_maps, atol=0.03, rtol=0)
+
+
+def test_manhattan_score_maps_gradcheck():
+    seg, mask, vps = _scene(2, torch.float64)
+    lines = segments_to_lines(seg)
+    lm = line_map(seg, mask, 64, 64)
+    vps = vps.requires_grad_()
+    assert gradcheck(lambda v: manhattan_score_maps(lm, closeness_maps(seg, mask, closeness(lines, v), 64, 64)), (vps,))

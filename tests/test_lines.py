@@ -1,0 +1,169 @@
+"""Tests of ngp_kornia.lines: LSD line-segment detection returned as padded torch tensors (pixel-centre convention)."""
+
+import numpy as np
+import pytest
+import torch
+from kornia.core.exceptions import ShapeError
+
+from ngp_kornia.lines import LineDetector, detect_segments, detect_segments_gray, pad_segments
+
+
+def _rectangle(h, w, y0, y1, x0, x1, dtype=torch.float32):
+    """Black (1, 3, h, w) image with a white filled rectangle over pixels [y0, y1] x [x0, x1] (inclusive)."""
+    img = torch.zeros(1, 3, h, w, dtype=dtype)
+    img[..., y0 : y1 + 1, x0 : x1 + 1] = 1.0
+    return img
+
+
+def _edges(seg, mask):
+    """Split detected segments of an axis-aligned rectangle into horizontal and vertical ones."""
+    s = seg[mask]
+    d = (s[:, 1] - s[:, 0]).abs()
+    return s[d[:, 0] > d[:, 1]], s[d[:, 0] <= d[:, 1]]
+
+
+def _check_rectangle(seg, mask, x_lo, x_hi, y_lo, y_hi, tol):
+    """Four edges: two horizontal at y_lo / y_hi spanning about [x_lo, x_hi], two vertical likewise."""
+    assert int(mask.sum()) == 4
+    hor, ver = _edges(seg, mask)
+    assert len(hor) == 2 and len(ver) == 2
+    ys = sorted(hor[:, :, 1].mean(1).tolist())
+    xs = sorted(ver[:, :, 0].mean(1).tolist())
+    assert ys == pytest.approx([y_lo, y_hi], abs=tol)
+    assert xs == pytest.approx([x_lo, x_hi], abs=tol)
+    # each edge is straight and lies within the rectangle's extent (plus the tolerance)
+    assert (hor[:, 0, 1] - hor[:, 1, 1]).abs().max() < tol and (ver[:, 0, 0] - ver[:, 1, 0]).abs().max() < tol
+    assert hor[:, :, 0].min() > x_lo - tol and hor[:, :, 0].max() < x_hi + tol
+    assert ver[:, :, 1].min() > y_lo - tol and ver[:, :, 1].max() < y_hi + tol
+    # and covers most of it
+    assert ((hor[:, 1, 0] - hor[:, 0, 0]).abs() > 0.8 * (x_hi - x_lo)).all()
+    assert ((ver[:, 1, 1] - ver[:, 0, 1]).abs() > 0.8 * (y_hi - y_lo)).all()
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_detect_segments_rectangle_pixel_centres(dtype):
+    # filled pixels 20..43: the edges lie between pixel centres, at 19.5 and 43.5
+    img = _rectangle(64, 64, 20, 43, 20, 43, dtype=dtype)
+    seg, mask = detect_segments(img)
+    assert seg.shape == (1, 4, 2, 2) and mask.shape == (1, 4)
+    assert seg.dtype == dtype and mask.dtype == torch.bool
+    _check_rectangle(seg[0], mask[0], 19.5, 43.5, 19.5, 43.5, tol=0.35)
+
+
+def test_detect_segments_non_square_rectangle():
+    img = _rectangle(80, 120, 10, 49, 30, 99)
+    seg, mask = detect_segments(img)
+    _check_rectangle(seg[0], mask[0], 29.5, 99.5, 9.5, 49.5, tol=0.35)
+
+
+def test_detect_segments_batch_padding():
+    one = _rectangle(64, 64, 20, 43, 20, 43)
+    two = _rectangle(64, 64, 10, 25, 5, 30) + _rectangle(64, 64, 40, 58, 35, 60)
+    flat = torch.full((1, 3, 64, 64), 0.5)
+    images = torch.cat([one, two, flat])
+    seg, mask = detect_segments(images)
+    assert seg.shape == (3, 8, 2, 2) and mask.shape == (3, 8)
+    assert mask.sum(1).tolist() == [4, 8, 0]
+    # valid entries first, padding after, padding zero
+    assert mask[0, :4].all() and not mask[0, 4:].any()
+    assert torch.equal(seg[0, 4:], torch.zeros(4, 2, 2)) and torch.equal(seg[2], torch.zeros(8, 2, 2))
+    # the same segments as detecting each image on its own
+    s0, m0 = detect_segments(one)
+    torch.testing.assert_close(seg[0, :4], s0[0][m0[0]])
+
+
+def test_detect_segments_flat_image_has_no_lines():
+    seg, mask = detect_segments(torch.full((2, 3, 48, 64), 0.3))
+    assert seg.shape[0] == 2 and seg.shape[2:] == (2, 2) and mask.shape == seg.shape[:2]
+    assert not mask.any()
+
+
+def test_detect_segments_downscaled_maps_back():
+    # LSD runs on a 640x480 copy of a 1280x960 image; segments come back in input pixels
+    img = _rectangle(960, 1280, 200, 599, 300, 999)
+    seg, mask = detect_segments(img, working_size=640)
+    # a missing half-pixel correction would put the edges about 0.75 px off
+    _check_rectangle(seg[0], mask[0], 299.5, 999.5, 199.5, 599.5, tol=0.6)
+    # min_length is in working-resolution pixels: the 200-px (working) edges pass 150, the 350-px ones only pass 300
+    _, mask = detect_segments(img, working_size=640, min_length=300.0)
+    assert int(mask.sum()) == 2
+
+
+def test_detect_segments_smaller_than_working_size_unchanged():
+    img = _rectangle(64, 64, 20, 43, 20, 43)
+    a, ma = detect_segments(img, working_size=640)
+    b, mb = detect_segments(img, working_size=64)
+    assert torch.equal(a, b) and torch.equal(ma, mb)
+
+
+def test_detect_segments_gray_longest_first_and_limits():
+    gray = np.zeros((100, 120), np.uint8)
+    gray[20:80, 10:110] = 255  # edges of 100 and 60 px
+    seg = detect_segments_gray(gray)
+    assert seg.dtype == np.float32 and seg.shape == (4, 2, 2)
+    length = np.linalg.norm(seg[:, 1] - seg[:, 0], axis=-1)
+    assert (np.diff(length) <= 0).all()  # longest first
+    assert detect_segments_gray(gray, max_segments=2).shape == (2, 2, 2)
+    np.testing.assert_array_equal(detect_segments_gray(gray, max_segments=2), seg[:2])
+    assert detect_segments_gray(gray, min_length=80.0).shape == (2, 2, 2)
+    assert detect_segments_gray(np.zeros((50, 50), np.uint8)).shape == (0, 2, 2)
+
+
+def test_detect_segments_gray_thin_lines_survive_downscaling():
+    # 1-px lines in a 1920x1440 image, downscaled 3x to the 640 working size: an area-averaging resize keeps them
+    # (faint), a point-sampling one drops every line that falls between its samples
+    gray = np.zeros((1440, 1920), np.uint8)
+    gray[300:1200, 600] = 255
+    gray[450, 300:1500] = 255
+    seg = detect_segments_gray(gray, working_size=640)
+    assert len(seg) >= 2, "thin lines lost when downscaling (cv2.resize interpolation flag passed as dst)"
+    xs = seg[..., 0].mean(1)
+    ys = seg[..., 1].mean(1)
+    assert (np.abs(xs - 600) < 5).any() and (np.abs(ys - 450) < 5).any()
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [
+        np.zeros((32, 32), np.float32),
+        np.zeros((32, 32), np.uint16),
+        np.zeros((32, 32, 3), np.uint8),
+        np.zeros((32,), np.uint8),
+    ],
+)
+def test_detect_segments_gray_rejects_bad_input(bad):
+    with pytest.raises(ValueError, match="uint8"):
+        detect_segments_gray(bad)
+
+
+def test_detect_segments_exception():
+    with pytest.raises(ShapeError):
+        detect_segments(torch.zeros(1, 1, 32, 32))
+    with pytest.raises(ShapeError):
+        detect_segments(torch.zeros(3, 32, 32))
+
+
+def test_line_detector_module():
+    det = LineDetector(working_size=640, min_length=10.0, max_segments=2)
+    assert len(list(det.parameters())) == 0
+    seg, mask = det(_rectangle(64, 64, 20, 43, 20, 43))
+    assert seg.shape == (1, 2, 2, 2) and mask.all()
+
+
+def test_pad_segments():
+    a = np.arange(8, dtype=np.float32).reshape(2, 2, 2)
+    b = torch.ones(3, 2, 2, dtype=torch.float64)
+    seg, mask = pad_segments([a, np.zeros((0, 2, 2)), b])
+    assert seg.shape == (3, 3, 2, 2) and seg.dtype == torch.float32
+    assert mask.tolist() == [[True, True, False], [False, False, False], [True, True, True]]
+    torch.testing.assert_close(seg[0, :2], torch.from_numpy(a))
+    assert torch.equal(seg[0, 2], torch.zeros(2, 2)) and torch.equal(seg[1], torch.zeros(3, 2, 2))
+    torch.testing.assert_close(seg[2], torch.ones(3, 2, 2))
+    # like= sets dtype and device
+    seg, mask = pad_segments([a], like=torch.zeros(1, dtype=torch.float64))
+    assert seg.dtype == torch.float64 and mask.device == seg.device
+    # all empty, or no images at all
+    seg, mask = pad_segments([np.zeros((0, 2, 2)), np.zeros((0, 2, 2))])
+    assert seg.shape == (2, 0, 2, 2) and mask.shape == (2, 0)
+    seg, mask = pad_segments([])
+    assert seg.shape == (0, 0, 2, 2) and mask.shape == (0, 0)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import replace
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -11,22 +12,37 @@ from torch import Tensor
 
 from ngp_kornia.io import as_batch
 from ngp_kornia.models import Calibration, NeuralGeometricParser, ParserConfig
+from ngp_kornia.models.weights import load_network, shipped_weights
 
-__all__ = ["WEIGHTS", "calibrate", "load_parser"]
+__all__ = ["DEFAULT_WEIGHTS", "WEIGHTS", "calibrate", "load_parser"]
 
-#: weight sets ``calibrate`` accepts; "default" is the best one shipped.
-WEIGHTS = ("default", "none")
+#: weight sets ``calibrate`` accepts by name; a path to a ZSNet weights file (``.pt``) works too.
+WEIGHTS = ("default", "none", "zsnet")
+#: what "default" means: the most accurate path this version ships (see BENCHMARKS.md).
+DEFAULT_WEIGHTS = "none"
 
 
-def load_parser(weights: str = "default", config: ParserConfig | None = None) -> NeuralGeometricParser:
+@lru_cache(maxsize=8)
+def _zsnet(path: str) -> torch.nn.Module:
+    return load_network(path, "ZSNet")
+
+
+def load_parser(weights: str | Path = "default", config: ParserConfig | None = None) -> NeuralGeometricParser:
     """The parser for a weight set.
 
     ``"none"`` is the geometric path: uniform zenith scores and frames ranked by the Manhattan score (Eq. 20).
-    ``"default"`` is the best path this version ships, which is currently that same geometric path.
+    ``"zsnet"`` scores the zenith candidates with the shipped ZSNet. ``"default"`` is :data:`DEFAULT_WEIGHTS`.
+    A path loads a ZSNet weights file written by ``ngp-train export``.
     """
-    if weights not in WEIGHTS:
-        raise ValueError(f"unknown weights {weights!r}; choose one of {', '.join(WEIGHTS)}")
-    return NeuralGeometricParser(config)
+    if isinstance(weights, str) and weights == "default":
+        weights = DEFAULT_WEIGHTS
+    if isinstance(weights, str) and weights == "none":
+        return NeuralGeometricParser(config)
+    if isinstance(weights, str) and weights == "zsnet":
+        return NeuralGeometricParser(config, zsnet=_zsnet(str(shipped_weights("zsnet"))))
+    if isinstance(weights, Path) or str(weights).endswith(".pt"):
+        return NeuralGeometricParser(config, zsnet=_zsnet(str(weights)))
+    raise ValueError(f"unknown weights {weights!r}; choose one of {', '.join(WEIGHTS)} or a path to a .pt file")
 
 
 def calibrate(
@@ -40,7 +56,8 @@ def calibrate(
     Args:
         image: a file path, an HxWx3 uint8 RGB array (HxW greyscale, RGBA and uint16 are converted), or a float
             tensor (3, H, W) or (B, 3, H, W) in [0, 1] on any device.
-        weights: ``"default"`` (the best path shipped) or ``"none"`` (the untrained geometric path).
+        weights: ``"default"`` (the best path shipped), ``"none"`` (the untrained geometric path), ``"zsnet"`` (zenith
+            candidates scored by the shipped ZSNet) or a path to ZSNet weights.
         seed: seed of the random candidate sampling; the same input and seed give the same result.
         config: pipeline settings (:class:`ngp_kornia.models.ParserConfig`).
 
@@ -52,6 +69,7 @@ def calibrate(
 
     Raises:
         ImageError: unreadable, truncated, too small (< 32 px) or NaN input; the message says what to fix.
+        WeightsError: a missing, corrupt or mismatched weights file.
         TypeError: an input type or dtype that is not supported.
 
     Example:

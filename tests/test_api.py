@@ -128,7 +128,7 @@ def test_bad_tensors_name_the_problem(tensor, error, message):
 
 
 def test_unknown_weights_lists_the_choices():
-    with pytest.raises(ValueError, match="default, none"):
+    with pytest.raises(ValueError, match="default, none, zsnet"):
         calibrate(torch.rand(3, 40, 40), weights="imagenet")
 
 

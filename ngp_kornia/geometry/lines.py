@@ -23,6 +23,7 @@ __all__ = [
     "pseudo_focal",
     "segment_lengths",
     "segments_to_lines",
+    "homogeneous_to_pseudo_camera",
     "to_pseudo_camera",
 ]
 
@@ -160,3 +161,25 @@ def to_pseudo_camera(points: Tensor, height: int, width: int) -> Tensor:
     """
     KORNIA_CHECK_SHAPE(points, ["*", "2"])
     return (points - image_center(height, width, like=points)) / pseudo_focal(height, width)
+
+
+def homogeneous_to_pseudo_camera(v: Tensor, height: int, width: int) -> Tensor:
+    """Map homogeneous points (VPs, possibly at infinity) from pixels into the pseudo camera, ``K_p^-1 v``,
+    returned with unit norm.
+
+    Args:
+        v: (..., 3) homogeneous points in pixels.
+        height: image height in pixels.
+        width: image width in pixels.
+
+    Returns:
+        (..., 3) unit homogeneous points in pseudo-camera units.
+
+    Example:
+        >>> homogeneous_to_pseudo_camera(torch.tensor([639.5, 239.5, 1.0]), 480, 640)
+        tensor([0.7071, 0.0000, 0.7071])
+    """
+    KORNIA_CHECK_SHAPE(v, ["*", "3"])
+    c = image_center(height, width, like=v)
+    xy = v[..., :2] - c * v[..., 2:]
+    return normalize(torch.cat([xy, v[..., 2:] * pseudo_focal(height, width)], -1))

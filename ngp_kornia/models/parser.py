@@ -102,6 +102,8 @@ class NeuralGeometricParser(nn.Module):
 
     Args:
         config: pipeline settings.
+        zsnet: a :class:`~ngp_kornia.models.zsnet.ZSNet` scoring the zenith candidates; None weights every valid
+            candidate equally (the geometric path).
 
     Example:
         >>> img = torch.rand(1, 3, 96, 128)
@@ -110,9 +112,10 @@ class NeuralGeometricParser(nn.Module):
         (torch.Size([1, 3, 3]), torch.Size([1, 3]), True)
     """
 
-    def __init__(self, config: ParserConfig | None = None) -> None:
+    def __init__(self, config: ParserConfig | None = None, zsnet: nn.Module | None = None) -> None:
         super().__init__()
         self.config = config or ParserConfig()
+        self.zsnet = zsnet
 
     def forward(self, images: Tensor, segments: Tensor | None = None, mask: Tensor | None = None) -> Calibration:
         """Calibrate a batch.
@@ -146,11 +149,10 @@ class NeuralGeometricParser(nn.Module):
         seg = to_pseudo_camera(segments, height, width)
         lines = segments_to_lines(seg)
         lengths = segment_lengths(segments) * mask.to(segments)
-        _, _, zenith, zenith_ok = sample_zenith_candidates(
+        lines_z, lines_z_ok, zenith, zenith_ok = sample_zenith_candidates(
             lines, lengths, mask, cfg.num_zenith_lines, cfg.num_zenith, cfg.vertical_threshold, generator
         )
-        zenith_scores = zenith_ok.to(lines)  # uniform: every candidate is in Z_c
-        weights = zenith_scores * (zenith_scores > cfg.zenith_threshold)
+        weights = self.zenith_weights(lines_z, lines_z_ok, zenith, zenith_ok)
         z_est = dominant_eigenvector(weighted_structure_tensor(zenith, weights))
         horizontal = horizontal_line_mask(seg, mask, z_est, cfg.vertical_tol, cfg.junction_radius)
         right = split_by_pseudo_horizon(lines, z_est)
@@ -163,6 +165,16 @@ class NeuralGeometricParser(nn.Module):
         cosine = line_vp_cosine(lines, frames.vps).amin(-2, keepdim=True)
         scores = manhattan_score(sharp_kernel(cosine, cfg.kernel_angle), lengths, mask)
         return frames, torch.where(frames.valid, scores, torch.zeros_like(scores))
+
+    def zenith_weights(self, lines_z: Tensor, lines_z_ok: Tensor, zenith: Tensor, zenith_ok: Tensor) -> Tensor:
+        """Weights of the zenith candidates: the ZSNet score p_z on Z_c (p_z > delta_c, Eq. 12) and zero elsewhere;
+        without ZSNet, or where no candidate passes delta_c, every valid candidate counts equally. (B, Z)."""
+        ok = zenith_ok.to(zenith)
+        if self.zsnet is None:
+            return ok
+        scores = torch.sigmoid(self.zsnet(lines_z, lines_z_ok, zenith)) * ok
+        weights = scores * (scores > self.config.zenith_threshold)
+        return torch.where((weights > 0).any(-1, keepdim=True), weights, ok)
 
     def calibrate_from_frames(self, frames: FrameCandidates, scores: Tensor, height: int, width: int) -> Calibration:
         """Top-k average (Eq. 22) of focal and zenith, yaw from the best frame, everything mapped to pixels."""

@@ -1,0 +1,89 @@
+"""ZSNet, the zenith scoring network of Sec. 3.1 (Eq. 5-7): a PointNet over near-vertical lines and zenith
+candidates that scores how close each candidate is to the true zenith."""
+
+from __future__ import annotations
+
+import torch
+from kornia.core.check import KORNIA_CHECK_SHAPE
+from torch import Tensor, nn
+
+from ngp_kornia.geometry import normalize
+
+__all__ = ["ZSNet", "canonical_homogeneous"]
+
+
+def canonical_homogeneous(v: Tensor, axis: int) -> Tensor:
+    """Unit homogeneous vectors with the sign fixed by one coordinate (made non-negative), so the network sees one
+    of the two equivalent vectors. Lines near vertical are signed by ``a`` (axis 0), zeniths by ``y`` (axis 1):
+    the coordinate that is large for them, so the sign does not flip between similar inputs.
+
+    Example:
+        >>> canonical_homogeneous(torch.tensor([[0.0, -2.0, 0.0]]), axis=1)
+        tensor([[0., 1., 0.]])
+    """
+    u = normalize(v)
+    return u * torch.where(u[..., axis : axis + 1] < 0, -1.0, 1.0).to(u) + 0.0
+
+
+def _mlp(sizes: list[int], last_activation: bool = True) -> nn.Sequential:
+    layers: list[nn.Module] = []
+    for i, (a, b) in enumerate(zip(sizes[:-1], sizes[1:], strict=True)):
+        layers.append(nn.Linear(a, b))
+        if last_activation or i < len(sizes) - 2:
+            layers.append(nn.ReLU(inplace=True))
+    return nn.Sequential(*layers)
+
+
+class ZSNet(nn.Module):
+    """Zenith scoring network.
+
+    Point features ``h_l`` of the lines L_z and ``h_z`` of the candidates Z (shared per-point MLPs, Eq. 5); the
+    lines' features are max-pooled into a global feature ``g_l`` concatenated to every candidate's feature (Eq. 6);
+    an MLP scores each candidate (Eq. 7). Padding, marked by the masks, never changes an output.
+
+    Args:
+        width: feature width of the point MLPs (the global feature has ``4 * width`` channels).
+        use_line_feature: concatenate the global line feature (the paper's design); False is the ablation that
+            scores candidates from their own coordinates alone.
+
+    Example:
+        >>> net = ZSNet(width=8)
+        >>> logits = net(torch.rand(2, 16, 3), torch.ones(2, 16, dtype=torch.bool), torch.rand(2, 10, 3))
+        >>> logits.shape
+        torch.Size([2, 10])
+    """
+
+    def __init__(self, width: int = 64, use_line_feature: bool = True) -> None:
+        super().__init__()
+        self.width, self.use_line_feature = width, use_line_feature
+        feature = 4 * width
+        self.line_net = _mlp([3, width, 2 * width, feature])
+        self.zenith_net = _mlp([3, width, 2 * width, feature])
+        head_in = 2 * feature if use_line_feature else feature
+        self.scorer = _mlp([head_in, 2 * width, width, 1], last_activation=False)
+
+    def settings(self) -> dict:
+        """The constructor arguments that rebuild this network (stored with its weights)."""
+        return {"width": self.width, "use_line_feature": self.use_line_feature}
+
+    def forward(self, lines: Tensor, line_mask: Tensor, zeniths: Tensor) -> Tensor:
+        """Score zenith candidates.
+
+        Args:
+            lines: (B, L, 3) near-vertical lines L_z in the pseudo camera.
+            line_mask: (B, L) bool, False for padding.
+            zeniths: (B, Z, 3) zenith candidates in the pseudo camera.
+
+        Returns:
+            (B, Z) logits; ``sigmoid`` gives the scores p_z of Eq. 7.
+        """
+        KORNIA_CHECK_SHAPE(lines, ["B", "L", "3"])
+        KORNIA_CHECK_SHAPE(line_mask, ["B", "L"])
+        KORNIA_CHECK_SHAPE(zeniths, ["B", "Z", "3"])
+        point = self.zenith_net(canonical_homogeneous(zeniths, axis=1))
+        if self.use_line_feature:
+            feats = self.line_net(canonical_homogeneous(lines, axis=0))
+            feats = feats.masked_fill(~line_mask[..., None], float("-inf")).amax(1)
+            glob = torch.where(line_mask.any(1, keepdim=True), feats, torch.zeros_like(feats))  # no lines: zeros
+            point = torch.cat([glob[:, None].expand(-1, point.shape[1], -1), point], -1)
+        return self.scorer(point).squeeze(-1)

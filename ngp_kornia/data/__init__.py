@@ -1,5 +1,20 @@
-"""Data sets: readers of real benchmarks with ground-truth calibration."""
+"""Data: the York Urban DB reader, CSV manifests, image folders, panorama crops and the scene renderer."""
 
+from ngp_kornia.data.folder import ImageFolder
+from ngp_kornia.data.manifest import CSVManifest, ManifestError, ManifestSample
+from ngp_kornia.data.panorama import crop_ground_truth, perspective_crops, sample_crop_params
 from ngp_kornia.data.yud import YorkUrbanDB, YUDSample, load_labelled_segments, rotation_from_yud_vps
 
-__all__ = ["YUDSample", "YorkUrbanDB", "load_labelled_segments", "rotation_from_yud_vps"]
+__all__ = [
+    "CSVManifest",
+    "ImageFolder",
+    "ManifestError",
+    "ManifestSample",
+    "YUDSample",
+    "YorkUrbanDB",
+    "crop_ground_truth",
+    "load_labelled_segments",
+    "perspective_crops",
+    "rotation_from_yud_vps",
+    "sample_crop_params",
+]

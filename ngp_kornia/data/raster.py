@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-__all__ = ["SHIFT", "Canvas", "PinholeView", "clip_polygon", "clip_segments"]
+__all__ = ["SHIFT", "Canvas", "DrawList", "PinholeView", "clip_polygon", "clip_segments"]
 
 SHIFT = 4  # fractional bits of the fixed-point coordinates handed to OpenCV (1/16 pixel)
 _SCALE = float(1 << SHIFT)
@@ -33,7 +33,8 @@ class PinholeView:
         width: image width in pixels.
         height: image height in pixels.
         near: near-plane distance; geometry closer than this along the optical axis is clipped away.
-        guard: guard band, as a fraction of the image size added on every side, beyond which geometry is clipped.
+        guard: guard band, as a fraction of the image size added on every side, beyond which geometry is clipped
+            (clipping at the image border itself would add artificial edges under the anti-aliasing).
 
     Example:
         >>> view = PinholeView(np.array([[100.0, 0, 31.5], [0, 100, 23.5], [0, 0, 1]]), np.eye(3), np.zeros(3),
@@ -49,8 +50,10 @@ class PinholeView:
     width: int
     height: int
     near: float = 0.05
-    guard: float = 0.5
+    guard: float = 2.0
     planes: np.ndarray = field(init=False, repr=False)
+    frustum: np.ndarray = field(init=False, repr=False)
+    world_frustum: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         if self.width < 1 or self.height < 1:
@@ -60,16 +63,23 @@ class PinholeView:
         self.K = np.asarray(self.K, dtype=np.float64)
         self.R = np.asarray(self.R, dtype=np.float64)
         self.center = np.asarray(self.center, dtype=np.float64).reshape(3)
-        self.planes = self._clip_planes()
+        self.planes = self._clip_planes(self.guard)
+        self.frustum = self._clip_planes(2.0 / max(self.width, self.height))
+        # world-space version of the frustum planes, to test world points without transforming them
+        self.world_frustum = np.concatenate(
+            [self.frustum[:, :3] @ self.R, (self.frustum[:, 3] - self.frustum[:, :3] @ self.R @ self.center)[:, None]],
+            1,
+        )
 
     @property
     def focal(self) -> float:
         return float(self.K[0, 0])
 
-    def _clip_planes(self) -> np.ndarray:
-        """(5, 4) planes ``(n, d)`` in camera space, a point ``p`` is kept where ``n . p + d >= 0``."""
+    def _clip_planes(self, guard: float) -> np.ndarray:
+        """(5, 4) planes ``(n, d)`` in camera space, a point ``p`` is kept where ``n . p + d >= 0``: the near plane
+        and the image borders pushed out by ``guard`` times the image size."""
         f, cx, cy = self.K[0, 0], self.K[0, 2], self.K[1, 2]
-        gx, gy = self.guard * self.width, self.guard * self.height
+        gx, gy = guard * self.width, guard * self.height
         x0, x1 = -0.5 - gx, self.width - 0.5 + gx
         y0, y1 = -0.5 - gy, self.height - 0.5 + gy
         # u = f x / z + cx >= x0  <=>  f x + (cx - x0) z >= 0 for z > 0, and likewise for the other sides
@@ -83,6 +93,12 @@ class PinholeView:
             ]
         )
         return planes / np.linalg.norm(planes[:, :3], axis=1, keepdims=True)
+
+    def sees(self, X: np.ndarray) -> bool:
+        """Whether the convex hull of world points (n, 3) may be in view: False when all of them lie outside one
+        side of the view frustum."""
+        s = X @ self.world_frustum[:, :3].T + self.world_frustum[:, 3]
+        return not bool((s < 0).all(0).any())
 
     def to_camera(self, X: np.ndarray) -> np.ndarray:
         """World points (..., 3) to camera coordinates (..., 3)."""
@@ -172,8 +188,124 @@ def _fixed(p: np.ndarray) -> np.ndarray:
     return np.round(p * _SCALE).astype(np.int32)
 
 
+class DrawList:
+    """Polygons and segments queued in drawing order, then projected and clipped all at once and drawn.
+
+    Queuing is cheap; :meth:`draw` does the geometry for every queued primitive in a few vectorised numpy calls,
+    so a scene of thousands of small polygons costs little more than the OpenCV calls themselves.
+
+    Example:
+        >>> view = PinholeView(np.array([[50.0, 0, 15.5], [0, 50, 15.5], [0, 0, 1]]), np.eye(3), np.zeros(3), 32, 32)
+        >>> todo = DrawList()
+        >>> todo.fill(np.array([[[-1.0, -1, 5], [1, -1, 5], [1, 1, 5], [-1, 1, 5]]]), (0, 255, 0))
+        >>> todo.lines(np.array([[[-1.0, -0.05, 5], [1, -0.05, 5]]]), (255, 0, 0), 0.0)
+        >>> image = np.zeros((32, 32, 3), np.uint8)
+        >>> todo.draw(view, image)
+        >>> bool(image[15, 15, 0] > 200), image[10, 15].tolist(), image[0, 0].tolist()  # line, quad, nothing
+        (True, [0, 255, 0], [0, 0, 0])
+    """
+
+    def __init__(self) -> None:
+        self._cmds: list[tuple] = []
+        self._polys: dict[int, list[np.ndarray]] = {}
+        self._npoly: dict[int, int] = {}
+        self._segs: list[np.ndarray] = []
+        self._nseg = 0
+
+    def fill(self, polys: np.ndarray, color) -> None:
+        """Queue (m, k, 3) world polygons filled with one colour. One call must hold non-overlapping polygons
+        (OpenCV fills several contours with the even-odd rule)."""
+        polys = np.asarray(polys, dtype=np.float64)
+        m, k = polys.shape[:2]
+        if m == 0:
+            return
+        start = self._npoly.get(k, 0)
+        self._polys.setdefault(k, []).append(polys)
+        self._npoly[k] = start + m
+        self._cmds.append((0, k, start, start + m, _color(color)))
+
+    def lines(self, segs: np.ndarray, color, width: float, under=None) -> None:
+        """Queue (m, 2, 3) world segments ``width`` world units wide (0: one pixel). With ``under``, the colour of
+        the surface below, a line thinner than a pixel is blended into it by its coverage, as a camera would."""
+        segs = np.asarray(segs, dtype=np.float64)
+        if len(segs) == 0:
+            return
+        start = self._nseg
+        self._segs.append(segs)
+        self._nseg += len(segs)
+        self._cmds.append((1, 0, start, self._nseg, (color, float(width), under)))
+
+    def draw(self, view: PinholeView, image: np.ndarray, antialias: bool = True) -> None:
+        """Clip, project and draw everything queued, in order, into ``image`` (H, W, 3) uint8."""
+        line_type = cv2.LINE_AA if antialias else cv2.LINE_8
+        polys = {k: _project_batch(view, np.concatenate(v)) for k, v in self._polys.items()}
+        segs = _project_segments(view, np.concatenate(self._segs)) if self._segs else None
+        for kind, k, a, b, arg in self._cmds:
+            if kind == 0:
+                contours = _contours(view, polys[k], a, b)
+                if len(contours):
+                    cv2.fillPoly(image, contours, arg, line_type, SHIFT)
+                continue
+            pts, keep, depth = segs
+            sel = keep[a:b]
+            if not sel.any():
+                continue
+            color, width, under = arg
+            px = view.focal * width / float(depth[a:b][sel].mean()) if width > 0 else 1.0
+            if px < 1.0 and under is not None:
+                c, u = np.asarray(color, dtype=np.float64), np.asarray(under, dtype=np.float64)
+                color = u + px * (c - u)
+            cv2.polylines(image, pts[a:b][sel], False, _color(color), max(1, int(round(px))), line_type, SHIFT)
+
+
+def _project_batch(view: PinholeView, P: np.ndarray):
+    """Project (M, k, 3) world polygons: fixed-point pixels (M, k, 2), camera coordinates, and which polygons are
+    entirely inside the clip volume or entirely outside one of its planes."""
+    Xc = view.to_camera(P)
+    s = Xc @ view.planes[:, :3].T + view.planes[:, 3]  # (M, k, 5)
+    inside = s >= 0
+    all_in = inside.reshape(len(P), -1).all(1)
+    dead = ~inside.any(1).all(1)
+    z = np.where(all_in[:, None], Xc[..., 2], 1.0)
+    f, cx, cy = view.focal, view.K[0, 2], view.K[1, 2]
+    pix = np.stack([f * Xc[..., 0] / z + cx, f * Xc[..., 1] / z + cy], -1)
+    pix = np.where(all_in[:, None, None], pix, 0.0)
+    return _fixed(pix), Xc, all_in, dead
+
+
+def _contours(view: PinholeView, batch, a: int, b: int):
+    pix, Xc, all_in, dead = batch
+    if b - a == 1 and (all_in[a] or dead[a]):  # the common case of a single face, without numpy indexing
+        return pix[a:b] if all_in[a] else ()
+    ok = all_in[a:b]
+    cut = np.flatnonzero(~ok & ~dead[a:b])
+    whole = pix[a:b][ok]
+    if len(cut) == 0:
+        return whole
+    contours = list(whole)
+    for i in cut:
+        P = clip_polygon(Xc[a + i], view.planes)
+        if len(P) >= 3:
+            contours.append(_fixed(view.project_camera(P)))
+    return contours
+
+
+def _project_segments(view: PinholeView, S: np.ndarray):
+    """Clip and project (M, 2, 3) world segments: fixed-point pixels (M, 2, 2), kept mask (M,), mean depth (M,)."""
+    A, B = view.to_camera(S[:, 0]), view.to_camera(S[:, 1])
+    A2, B2, keep = clip_segments(A, B, view.planes)
+    mask = np.zeros(len(S), dtype=bool)
+    mask[keep] = True
+    pts = np.zeros((len(S), 2, 2), dtype=np.int32)
+    pts[keep] = _fixed(np.stack([view.project_camera(A2), view.project_camera(B2)], 1))
+    depth = np.ones(len(S))
+    depth[keep] = 0.5 * (A2[:, 2] + B2[:, 2])
+    return pts, mask, depth
+
+
 class Canvas:
-    """An RGB uint8 image to draw world-space polygons and segments into, through a :class:`PinholeView`.
+    """An RGB uint8 image to draw world-space polygons and segments into right away, through a
+    :class:`PinholeView` (use :class:`DrawList` to draw many primitives fast).
 
     Args:
         view: the camera.
@@ -194,63 +326,21 @@ class Canvas:
             raise ValueError(f"image must be ({view.height}, {view.width}, C), got {image.shape}")
         self.view = view
         self.image = image
-        self.line_type = cv2.LINE_AA if antialias else cv2.LINE_8
-
-    def project_polygons(self, polys: np.ndarray) -> list[np.ndarray] | np.ndarray:
-        """Clip (m, k, 3) world polygons and project them to fixed-point pixel contours for OpenCV.
-
-        Returns:
-            An (m', k, 2) int32 array when no polygon needed clipping, else a list of (k_i, 2) int32 arrays.
-        """
-        view = self.view
-        Xc = view.to_camera(polys)
-        s = Xc @ view.planes[:, :3].T + view.planes[:, 3]  # (m, k, 5)
-        inside = s >= 0
-        all_in = inside.all(axis=(1, 2))
-        # a polygon entirely on the wrong side of one plane is invisible
-        dead = (~inside).all(axis=1).any(axis=1)
-        cut = np.flatnonzero(~all_in & ~dead)
-        whole = _fixed(view.project_camera(Xc[all_in]))
-        if len(cut) == 0:
-            return whole
-        contours = list(whole)
-        for i in cut:
-            P = clip_polygon(Xc[i], view.planes)
-            if len(P) >= 3:
-                contours.append(_fixed(view.project_camera(P)))
-        return contours
+        self.antialias = antialias
 
     def fill(self, polys: np.ndarray, color) -> None:
-        """Fill (m, k, 3) world polygons with one colour. Overlapping polygons of one call cancel out (even-odd
-        rule), so one call must hold non-overlapping polygons only."""
-        contours = self.project_polygons(np.asarray(polys, dtype=np.float64))
-        if len(contours):
-            cv2.fillPoly(self.image, contours, _color(color), self.line_type, SHIFT)
+        """Fill (m, k, 3) non-overlapping world polygons with one colour."""
+        todo = DrawList()
+        todo.fill(polys, color)
+        todo.draw(self.view, self.image, self.antialias)
 
     def lines(self, segs: np.ndarray, color, width: float, under=None) -> None:
-        """Draw (m, 2, 3) world segments ``width`` world units wide (at their median depth).
-
-        Args:
-            segs: (m, 2, 3) segment end points.
-            color: RGB colour.
-            width: line width in world units; 0 draws 1 px lines.
-            under: colour of the surface below; a line thinner than a pixel is then blended into it by its
-                coverage, as a camera would, instead of being drawn as a full-strength 1 px line.
-        """
-        view = self.view
-        segs = np.asarray(segs, dtype=np.float64)
-        A, B, _ = clip_segments(view.to_camera(segs[:, 0]), view.to_camera(segs[:, 1]), view.planes)
-        if len(A) == 0:
-            return
-        px = view.focal * width / float(np.median(0.5 * (A[:, 2] + B[:, 2]))) if width > 0 else 1.0
-        color = np.asarray(color, dtype=np.float64)
-        if px < 1.0 and under is not None:
-            color = np.asarray(under, dtype=np.float64) + px * (color - np.asarray(under, dtype=np.float64))
-        thickness = max(1, int(round(px)))
-        pts = _fixed(np.stack([view.project_camera(A), view.project_camera(B)], 1))
-        cv2.polylines(self.image, pts, False, _color(color), thickness, self.line_type, SHIFT)
+        """Draw (m, 2, 3) world segments, see :meth:`DrawList.lines`."""
+        todo = DrawList()
+        todo.lines(segs, color, width, under)
+        todo.draw(self.view, self.image, self.antialias)
 
 
 def _color(color) -> tuple[float, float, float]:
-    c = np.clip(np.asarray(color, dtype=np.float64), 0, 255)
-    return float(c[0]), float(c[1]), float(c[2])
+    r, g, b = (min(max(float(c), 0.0), 255.0) for c in color)
+    return r, g, b

@@ -1,0 +1,1 @@
+"""Training: LightningModules, losses and DataModules. Knows the models and the data; nothing imports it back."""

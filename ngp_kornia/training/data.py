@@ -1,0 +1,432 @@
+"""Training data: rendered scenes reduced to LSD segments and exact ground truth, cached on disk, batched for
+Lightning.
+
+Each sample depends only on its seed, so a dataset is a list of seeds; train, validation and test sets use
+disjoint seed ranges. The first pass renders and detects lines and writes one small ``.npz`` per seed into the
+cache folder; later epochs (and other processes) only read those files.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from collections.abc import Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+
+import cv2
+import lightning as L
+import numpy as np
+import torch
+from torch import Tensor
+from torch.utils.data import DataLoader, Dataset
+
+from ngp_kornia.data.folder import ImageFolder
+from ngp_kornia.data.manifest import CSVManifest
+from ngp_kornia.data.panorama import crop_ground_truth, perspective_crops, sample_crop_params
+from ngp_kornia.data.render import RenderConfig, render_scene
+from ngp_kornia.geometry import rotation_from_angles
+from ngp_kornia.io import load_image, read_image_file
+from ngp_kornia.lines import detect_segments_gray, pad_segments
+
+__all__ = [
+    "CachedScenes",
+    "ManifestDataModule",
+    "ManifestScenes",
+    "PanoramaCrops",
+    "PanoramaDataModule",
+    "RenderedDataModule",
+    "RenderedScenes",
+    "SceneBatch",
+    "SceneDataModule",
+    "collate_scenes",
+]
+
+CACHE_VERSION = 1
+
+
+@dataclass
+class SceneBatch:
+    """A batch of scenes with ground truth; all images of a batch share one size.
+
+    Attributes:
+        segments: (B, N, 2, 2) LSD segments in pixels, padded.
+        mask: (B, N) bool.
+        K: (B, 3, 3) true intrinsics.
+        R: (B, 3, 3) true world-to-camera rotation.
+        zenith: (B, 3) true zenith VP, homogeneous pixels.
+        horizon: (B, 3) true horizon line in pixels.
+        image_size: (B, 2) ``(height, width)``.
+        images: (B, 3, h, w) float RGB in [0, 1] at the network's input size, or None when not requested.
+    """
+
+    segments: Tensor
+    mask: Tensor
+    K: Tensor
+    R: Tensor
+    zenith: Tensor
+    horizon: Tensor
+    image_size: Tensor
+    images: Tensor | None = None
+
+    def __len__(self) -> int:
+        return self.segments.shape[0]
+
+
+@dataclass
+class Sample:
+    segments: np.ndarray
+    K: np.ndarray
+    R: np.ndarray
+    zenith: np.ndarray
+    horizon: np.ndarray
+    image_size: np.ndarray
+    image: np.ndarray | None = None
+
+
+def _digest(spec: dict) -> str:
+    return hashlib.sha1(json.dumps(spec, sort_keys=True, default=str).encode()).hexdigest()[:12]
+
+
+class CachedScenes(Dataset):
+    """Base of the scene datasets: ``keys[i]`` -> :class:`Sample` by :meth:`compute`, cached as one ``.npz`` per key
+    in a folder named by ``tag`` and a digest of everything that changes the samples.
+
+    Args:
+        keys: one hashable key per sample (a seed, an index, ...).
+        tag: readable prefix of the cache folder.
+        spec: everything that determines the samples besides the key (hashed into the folder name).
+        cache_dir: cache root (None: compute every time, write nothing).
+        working_size: LSD working resolution (long side), as in the parser.
+        max_segments: longest segments kept per image.
+        input_size: also keep the image resized to ``(w, h)``, the network's input (for FSNet), or None.
+    """
+
+    def __init__(
+        self,
+        keys: Sequence,
+        tag: str,
+        spec: dict,
+        cache_dir: str | Path | None = None,
+        working_size: int = 640,
+        max_segments: int = 512,
+        input_size: tuple[int, int] | None = None,
+    ) -> None:
+        self.keys = list(keys)
+        self.working_size, self.max_segments = working_size, max_segments
+        self.input_size = None if input_size is None else tuple(input_size)
+        self.cache = None
+        if cache_dir is not None:
+            full = {**spec, "v": CACHE_VERSION, "ws": working_size, "max": max_segments, "input": self.input_size}
+            self.cache = Path(cache_dir) / f"{tag}-{_digest(full)}"
+            self.cache.mkdir(parents=True, exist_ok=True)
+
+    def __len__(self) -> int:
+        return len(self.keys)
+
+    def compute(self, key) -> Sample:
+        """The sample of one key, uncached."""
+        raise NotImplementedError
+
+    def __getitem__(self, index: int) -> Sample:
+        key = self.keys[index]
+        path = None if self.cache is None else self.cache / f"{key}.npz"
+        if path is not None and path.exists():
+            with np.load(path) as data:
+                return Sample(**{f.name: data[f.name] if f.name in data else None for f in fields(Sample)})
+        sample = self.compute(key)
+        if path is not None:
+            tmp = path.with_suffix(f".{os.getpid()}.tmp.npz")
+            np.savez(tmp, **{k: v for k, v in asdict(sample).items() if v is not None})
+            tmp.replace(path)  # atomic: readers in other processes never see a partial file
+        return sample
+
+    def sample_from_image(self, rgb: np.ndarray, K, R, zenith, horizon) -> Sample:
+        """Detect segments on an HxWx3 uint8 RGB image and pack it with its ground truth."""
+        segments = detect_segments_gray(
+            cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY), self.working_size, 10.0, self.max_segments
+        )
+        image = None
+        if self.input_size is not None:
+            image = cv2.resize(rgb, self.input_size, interpolation=cv2.INTER_AREA)
+        as_np = [np.asarray(torch.as_tensor(v, dtype=torch.float64)) for v in (K, R, zenith, horizon)]
+        return Sample(segments, *as_np, image_size=np.array(rgb.shape[:2]), image=image)
+
+    def prepare(self, workers: int = 0) -> None:
+        """Fill the cache for every key (in ``workers`` processes); a no-op for cached keys."""
+        if self.cache is None:
+            return
+        todo = [i for i, k in enumerate(self.keys) if not (self.cache / f"{k}.npz").exists()]
+        if workers <= 1:
+            for i in todo:
+                self[i]
+            return
+        with ProcessPoolExecutor(workers) as pool:
+            list(pool.map(self.__getitem__, todo, chunksize=16))
+
+
+class RenderedScenes(CachedScenes):
+    """Rendered scenes, one per seed (:func:`ngp_kornia.data.render.render_scene`).
+
+    Args:
+        seeds: the scenes' seeds.
+        size: rendered image size ``(W, H)``.
+        config: renderer settings.
+        **kwargs: see :class:`CachedScenes`.
+    """
+
+    def __init__(
+        self, seeds: Sequence[int], size: tuple[int, int] = (640, 480), config: RenderConfig | None = None, **kwargs
+    ) -> None:
+        self.size, self.config = tuple(size), config or RenderConfig()
+        spec = {"size": self.size, "cfg": asdict(self.config)}
+        super().__init__(seeds, f"rendered-{self.size[0]}x{self.size[1]}", spec, **kwargs)
+
+    def compute(self, key: int) -> Sample:
+        scene = render_scene(key, self.size, self.config)
+        return self.sample_from_image(scene.image, scene.K, scene.R, scene.zenith, scene.horizon)
+
+
+class PanoramaCrops(CachedScenes):
+    """Perspective crops of equirectangular panoramas (the paper's data generation), ``crops`` per panorama, with
+    camera parameters drawn from the paper's ranges by a seed per crop.
+
+    Args:
+        panoramas: panorama image files.
+        crops: crops per panorama.
+        size: crop size ``(W, H)``.
+        seed: base seed of the crop parameters.
+        **kwargs: see :class:`CachedScenes`.
+    """
+
+    def __init__(
+        self, panoramas: Sequence[str | Path], crops: int = 10, size=(640, 480), seed: int = 0, **kwargs
+    ) -> None:
+        self.panoramas, self.crops, self.size, self.seed = [Path(p) for p in panoramas], crops, tuple(size), seed
+        files = [(str(p.resolve()), p.stat().st_mtime_ns) for p in self.panoramas]
+        spec = {"files": files, "crops": crops, "size": self.size, "seed": seed}
+        super().__init__(range(len(self.panoramas) * crops), "panorama", spec, **kwargs)
+
+    def compute(self, key: int) -> Sample:
+        pano = load_image(self.panoramas[key // self.crops])
+        params = sample_crop_params(1, torch.Generator().manual_seed(self.seed * 1_000_003 + key), dtype=torch.float64)
+        angles = (params["fov_v"], params["pitch"], params["roll"], params["yaw"])
+        crop = perspective_crops(pano.double(), *angles, size=self.size)
+        rgb = crop[0].permute(1, 2, 0).clamp(0, 1).mul(255).round().byte().numpy()
+        gt = crop_ground_truth(**params, size=self.size)
+        return self.sample_from_image(rgb, gt["K"][0], gt["R"][0], gt["zenith"][0], gt["horizon"][0])
+
+
+class ManifestScenes(CachedScenes):
+    """Labelled photos of a CSV manifest: the rows whose focal length and up direction are known (others are
+    skipped, since the networks need both).
+
+    Args:
+        manifest: the manifest.
+        **kwargs: see :class:`CachedScenes`.
+    """
+
+    def __init__(self, manifest: CSVManifest, **kwargs) -> None:
+        self.manifest = manifest
+        rows = [i for i, s in enumerate(manifest) if s.K is not None and s.zenith is not None]
+        files = [(str(p.resolve()), p.stat().st_mtime_ns) for p in manifest.image_paths]
+        super().__init__(rows, "manifest", {"files": files}, **kwargs)
+
+    def compute(self, key: int) -> Sample:
+        row = self.manifest[key]
+        R = rotation_from_angles(*(torch.tensor([v], dtype=torch.float64) for v in (row.pitch, row.roll)))[0]
+        return self.sample_from_image(read_image_file(row.image_path), row.K, R, row.zenith, row.horizon)
+
+
+def collate_scenes(samples: list[Sample]) -> SceneBatch:
+    """Stack samples into a :class:`SceneBatch`, padding segments."""
+    segments, mask = pad_segments([s.segments for s in samples])
+
+    def stack(name: str) -> Tensor:
+        return torch.from_numpy(np.stack([getattr(s, name) for s in samples]))
+
+    images = None
+    if samples[0].image is not None:
+        images = stack("image").permute(0, 3, 1, 2).float().div(255.0)
+    return SceneBatch(
+        segments=segments,
+        mask=mask,
+        K=stack("K").float(),
+        R=stack("R").float(),
+        zenith=stack("zenith").float(),
+        horizon=stack("horizon").float(),
+        image_size=stack("image_size").long(),
+        images=images,
+    )
+
+
+class SceneDataModule(L.LightningDataModule):
+    """Base of the DataModules: train / val / test :class:`CachedScenes` batched into :class:`SceneBatch`.
+
+    ``prepare_data`` fills the caches (in ``num_workers`` processes); loaders shuffle only the training set, so
+    validation and test batches are the same on every run.
+    """
+
+    def __init__(self, batch_size: int = 16, num_workers: int = 0) -> None:
+        super().__init__()
+        self.batch_size, self.num_workers = batch_size, num_workers
+        self.datasets: dict[str, CachedScenes] = {}
+
+    def make_datasets(self) -> dict[str, CachedScenes]:
+        """The ``train``, ``val`` and ``test`` datasets."""
+        raise NotImplementedError
+
+    def prepare_data(self) -> None:
+        for dataset in self.make_datasets().values():
+            dataset.prepare(self.num_workers)
+
+    def setup(self, stage: str | None = None) -> None:
+        self.datasets = self.make_datasets()
+
+    def _loader(self, name: str, shuffle: bool) -> DataLoader:
+        return DataLoader(
+            self.datasets[name],
+            batch_size=self.batch_size,
+            shuffle=shuffle,
+            num_workers=self.num_workers,
+            collate_fn=collate_scenes,
+            persistent_workers=self.num_workers > 0,
+        )
+
+    def train_dataloader(self) -> DataLoader:
+        return self._loader("train", shuffle=True)
+
+    def val_dataloader(self) -> DataLoader:
+        return self._loader("val", shuffle=False)
+
+    def test_dataloader(self) -> DataLoader:
+        return self._loader("test", shuffle=False)
+
+
+class RenderedDataModule(SceneDataModule):
+    """Rendered training, validation and test scenes on disjoint, fixed seed ranges.
+
+    Args:
+        cache_dir: on-disk cache folder (None: no cache).
+        train_size: number of training scenes (seeds ``0 .. train_size - 1``).
+        val_size: validation scenes (seeds from 1,000,000).
+        test_size: test scenes (seeds from 2,000,000).
+        size: rendered image size ``(W, H)``.
+        batch_size: batch size of every loader.
+        num_workers: loader worker processes (also used to fill the cache).
+        input_size: also load images resized to ``(w, h)``, for FSNet.
+        max_segments: longest segments kept per image.
+
+    Example:
+        >>> dm = RenderedDataModule(cache_dir=None, train_size=2, val_size=1, test_size=1, size=(160, 120))
+        >>> dm.setup("fit"); batch = next(iter(dm.train_dataloader()))
+        >>> batch.segments.shape[0], batch.K.shape
+        (2, torch.Size([2, 3, 3]))
+    """
+
+    VAL_SEED, TEST_SEED = 1_000_000, 2_000_000
+
+    def __init__(
+        self,
+        cache_dir: str | None = "cache",
+        train_size: int = 10_000,
+        val_size: int = 500,
+        test_size: int = 500,
+        size: tuple[int, int] = (640, 480),
+        batch_size: int = 16,
+        num_workers: int = 0,
+        input_size: tuple[int, int] | None = None,
+        max_segments: int = 512,
+    ) -> None:
+        super().__init__(batch_size, num_workers)
+        self.save_hyperparameters()
+
+    def make_datasets(self) -> dict[str, CachedScenes]:
+        hp = self.hparams
+        ranges = {
+            "train": (0, hp.train_size),
+            "val": (self.VAL_SEED, hp.val_size),
+            "test": (self.TEST_SEED, hp.test_size),
+        }
+        kwargs = {"cache_dir": hp.cache_dir, "max_segments": hp.max_segments, "input_size": hp.input_size}
+        return {k: RenderedScenes(range(a, a + n), tuple(hp.size), **kwargs) for k, (a, n) in ranges.items()}
+
+
+class PanoramaDataModule(SceneDataModule):
+    """Perspective crops of a folder of equirectangular panoramas; the panoramas (not the crops) are split into
+    train / val / test, so no panorama is seen in two sets.
+
+    Args:
+        panorama_dir: folder of panorama images (2:1 equirectangular).
+        crops: crops per panorama.
+        val_fraction: share of the panoramas for validation.
+        test_fraction: share of the panoramas for testing.
+        size: crop size ``(W, H)``.
+        cache_dir: on-disk cache folder.
+        batch_size: batch size.
+        num_workers: loader worker processes.
+        input_size: also load the crops resized to ``(w, h)``, for FSNet.
+        seed: seed of the crop parameters.
+    """
+
+    def __init__(
+        self,
+        panorama_dir: str,
+        crops: int = 10,
+        val_fraction: float = 0.1,
+        test_fraction: float = 0.1,
+        size: tuple[int, int] = (640, 480),
+        cache_dir: str | None = "cache",
+        batch_size: int = 16,
+        num_workers: int = 0,
+        input_size: tuple[int, int] | None = None,
+        seed: int = 0,
+    ) -> None:
+        super().__init__(batch_size, num_workers)
+        self.save_hyperparameters()
+
+    def make_datasets(self) -> dict[str, CachedScenes]:
+        hp = self.hparams
+        files = ImageFolder(hp.panorama_dir).paths
+        if len(files) < 3:
+            raise ValueError(f"{hp.panorama_dir}: found {len(files)} panorama images, need at least 3 to split")
+        n_val = max(1, round(len(files) * hp.val_fraction))
+        n_test = max(1, round(len(files) * hp.test_fraction))
+        splits = {"val": files[:n_val], "test": files[n_val : n_val + n_test], "train": files[n_val + n_test :]}
+        kwargs = {"cache_dir": hp.cache_dir, "input_size": hp.input_size}
+        return {k: PanoramaCrops(v, hp.crops, tuple(hp.size), hp.seed, **kwargs) for k, v in splits.items()}
+
+
+class ManifestDataModule(SceneDataModule):
+    """Labelled photos from CSV manifests, one per split (rows without focal length or up direction are skipped).
+
+    Args:
+        train: training manifest (CSV path).
+        val: validation manifest.
+        test: test manifest (optional; defaults to the validation one).
+        cache_dir: on-disk cache folder.
+        batch_size: batch size; photos of different sizes cannot share a batch, so use 1 for mixed sizes.
+        num_workers: loader worker processes.
+        input_size: also load images resized to ``(w, h)``, for FSNet.
+    """
+
+    def __init__(
+        self,
+        train: str,
+        val: str,
+        test: str | None = None,
+        cache_dir: str | None = "cache",
+        batch_size: int = 1,
+        num_workers: int = 0,
+        input_size: tuple[int, int] | None = None,
+    ) -> None:
+        super().__init__(batch_size, num_workers)
+        self.save_hyperparameters()
+
+    def make_datasets(self) -> dict[str, CachedScenes]:
+        hp = self.hparams
+        kwargs = {"cache_dir": hp.cache_dir, "input_size": hp.input_size}
+        paths = {"train": hp.train, "val": hp.val, "test": hp.test or hp.val}
+        return {k: ManifestScenes(CSVManifest(v), **kwargs) for k, v in paths.items()}

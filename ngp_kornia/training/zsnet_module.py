@@ -1,0 +1,120 @@
+"""Training ZSNet with Lightning: candidates are sampled from each batch's segments exactly as the parser samples
+them at inference, labelled against the true zenith (Eq. 8) and scored; loss = cross entropy + localisation."""
+
+from __future__ import annotations
+
+import lightning as L
+import torch
+from torch import Tensor
+
+from ngp_kornia.geometry import (
+    dominant_eigenvector,
+    homogeneous_to_pseudo_camera,
+    pseudo_focal,
+    segment_lengths,
+    segments_to_lines,
+    to_pseudo_camera,
+    weighted_structure_tensor,
+)
+from ngp_kornia.models.zsnet import ZSNet
+from ngp_kornia.sampling import sample_zenith_candidates
+from ngp_kornia.training.data import SceneBatch
+from ngp_kornia.training.losses import zenith_classification_loss, zenith_labels, zenith_localisation_loss
+
+__all__ = ["ZSNetModule", "zenith_error_deg"]
+
+
+def zenith_error_deg(zenith: Tensor, zenith_gt: Tensor, focal: Tensor) -> Tensor:
+    """Angle in degrees between the up directions of two zeniths given in the pseudo camera, using the true focal
+    length (pseudo-camera units): (B, 3), (B, 3), (B,) -> (B,). Sign-free.
+
+    Example:
+        >>> zenith_error_deg(torch.tensor([[0.0, 1.0, 0.0]]), torch.tensor([[0.0, -1.0, 0.0]]), torch.ones(1))
+        tensor([0.])
+    """
+    scale = torch.stack([1.0 / focal, 1.0 / focal, torch.ones_like(focal)], -1)
+    a = torch.nn.functional.normalize(zenith * scale, dim=-1)
+    b = torch.nn.functional.normalize(zenith_gt * scale, dim=-1)
+    cos = (a * b).sum(-1).abs().clamp(max=1.0)
+    return torch.rad2deg(torch.atan2((1 - cos**2).clamp_min(0).sqrt(), cos))
+
+
+class ZSNetModule(L.LightningModule):
+    """Lightning wrapper of a :class:`ZSNet`.
+
+    Args:
+        net: the network (passed in; not saved as a hyperparameter).
+        lr: Adam learning rate (the paper: 1e-3).
+        lr_step: epochs between halvings of the learning rate (the paper: 5).
+        localisation_weight: weight of the structure-tensor loss (Eq. 10-11).
+        num_lines: |L_z|.
+        num_candidates: |Z|.
+        zenith_threshold: delta_c of Eq. 12, for the logged zenith estimate.
+    """
+
+    def __init__(
+        self,
+        net: ZSNet,
+        lr: float = 1e-3,
+        lr_step: int = 5,
+        localisation_weight: float = 1.0,
+        num_lines: int = 256,
+        num_candidates: int = 256,
+        zenith_threshold: float = 0.5,
+    ) -> None:
+        super().__init__()
+        self.save_hyperparameters(ignore=["net"])
+        self.net = net
+
+    def forward(self, lines: Tensor, line_mask: Tensor, zeniths: Tensor) -> Tensor:
+        return self.net(lines, line_mask, zeniths)
+
+    def _inputs(self, batch: SceneBatch) -> tuple[Tensor, ...]:
+        height, width = (int(v) for v in batch.image_size[0])
+        lines = segments_to_lines(to_pseudo_camera(batch.segments, height, width))
+        lengths = segment_lengths(batch.segments) * batch.mask.to(lines)
+        lz, lz_ok, z, z_ok = sample_zenith_candidates(
+            lines, lengths, batch.mask, self.hparams.num_lines, self.hparams.num_candidates
+        )
+        z_gt = homogeneous_to_pseudo_camera(batch.zenith, height, width)
+        focal = batch.K[:, 0, 0] / pseudo_focal(height, width)
+        return lz, lz_ok, z, z_ok, z_gt, focal
+
+    def _step(self, batch: SceneBatch, stage: str) -> Tensor:
+        lz, lz_ok, z, z_ok, z_gt, focal = self._inputs(batch)
+        logits = self.net(lz, lz_ok, z)
+        labels, labelled = zenith_labels(z, z_gt, z_ok)
+        scores = torch.sigmoid(logits)
+        cls = zenith_classification_loss(logits, labels, labelled)
+        loc = zenith_localisation_loss(scores, z, z_ok, z_gt)
+        loss = cls + self.hparams.localisation_weight * loc
+        bs = len(batch)
+        self.log(f"{stage}/loss", loss, batch_size=bs, prog_bar=True)
+        self.log(f"{stage}/loss_cls", cls, batch_size=bs)
+        self.log(f"{stage}/loss_loc", loc, batch_size=bs)
+        if stage != "train":
+            keep = scores * z_ok * (scores > self.hparams.zenith_threshold)
+            keep = torch.where((keep > 0).any(-1, keepdim=True), keep, z_ok.to(keep))
+            est = dominant_eigenvector(weighted_structure_tensor(z, keep))
+            uniform = dominant_eigenvector(weighted_structure_tensor(z, z_ok.to(z)))
+            self.log(f"{stage}/zenith_error", zenith_error_deg(est, z_gt, focal).mean(), batch_size=bs)
+            self.log(f"{stage}/zenith_error_uniform", zenith_error_deg(uniform, z_gt, focal).mean(), batch_size=bs)
+        return loss
+
+    def training_step(self, batch: SceneBatch, batch_idx: int) -> Tensor:
+        return self._step(batch, "train")
+
+    def validation_step(self, batch: SceneBatch, batch_idx: int) -> Tensor:
+        return self._step(batch, "val")
+
+    def test_step(self, batch: SceneBatch, batch_idx: int) -> Tensor:
+        return self._step(batch, "test")
+
+    def on_save_checkpoint(self, checkpoint: dict) -> None:
+        # what ngp-train export needs to rebuild the bare network without this module
+        checkpoint["ngp_network"] = {"name": type(self.net).__name__, "settings": self.net.settings()}
+
+    def configure_optimizers(self):
+        opt = torch.optim.Adam(self.parameters(), lr=self.hparams.lr)
+        sched = torch.optim.lr_scheduler.StepLR(opt, step_size=self.hparams.lr_step, gamma=0.5)
+        return {"optimizer": opt, "lr_scheduler": sched}

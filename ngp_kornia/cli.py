@@ -25,7 +25,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     demo = sub.add_parser("demo", help="calibrate a built-in rendered example and print the estimate and the truth")
     demo.add_argument("--overlay", help="write the overlay PNG here")
-    demo.add_argument("--seed", type=int, default=7, help="which built-in scene to render")
+    demo.add_argument("--seed", type=int, default=2, help="which built-in scene to render")
     render = sub.add_parser("render", help="render synthetic scenes with exact ground truth")
     render.add_argument("outdir")
     render.add_argument("--count", type=int, default=16)

@@ -68,3 +68,29 @@ def test_installed_command_reports_errors_without_traceback(tmp_path):
         and run.stderr.strip()
         == f"ngp: error: {bad}: not a readable image (supported: JPEG, PNG, TIFF, BMP, WebP, ...)"
     )
+
+
+def test_demo_prints_estimate_next_to_truth(tmp_path, capsys):
+    overlay = tmp_path / "demo.png"
+    assert main(["demo", "--overlay", str(overlay)]) == 0
+    out = capsys.readouterr().out
+    rows = {line.split()[0]: [float(v) for v in line.split()[1:]] for line in out.splitlines()[2:7]}
+    assert set(rows) == {"focal", "fov_v", "fov_h", "pitch", "roll"}
+    assert abs(rows["pitch"][0] - rows["pitch"][1]) < 1.0 and abs(rows["roll"][0] - rows["roll"][1]) < 1.0
+    assert abs(rows["fov_v"][0] - rows["fov_v"][1]) < 3.0
+    assert cv2.imread(str(overlay)) is not None
+
+
+def test_render_writes_images_and_ground_truth(tmp_path, capsys):
+    assert main(["render", str(tmp_path / "r"), "--count", "2", "--seed", "5", "--size", "160x120"]) == 0
+    records = json.loads((tmp_path / "r" / "ground_truth.json").read_text())
+    assert len(records) == 2
+    image = cv2.imread(str(tmp_path / "r" / records[0]["image"]))
+    assert image.shape == (120, 160, 3)
+    for key in ("K", "R", "focal", "fov_v", "fov_h", "pitch", "roll", "zenith", "horizon", "vps"):
+        assert key in records[0]
+
+
+def test_render_rejects_a_bad_size(tmp_path, capsys):
+    assert main(["render", str(tmp_path), "--size", "big"]) == 2
+    assert "640x480" in capsys.readouterr().err

@@ -50,14 +50,14 @@ def _plain(value):
 
 
 def main(argv: list[str] | None = None) -> int:
-    argv = sys.argv[1:] if argv is None else argv
-    if argv[:1] == ["export"]:
-        if len(argv) != 3:
+    args = sys.argv[1:] if argv is None else argv
+    if args[:1] == ["export"]:
+        if len(args) != 3:
             print("usage: ngp-train export CHECKPOINT OUT.pt", file=sys.stderr)
             return 2
-        print(export_checkpoint(argv[1], argv[2]))
+        print(export_checkpoint(args[1], args[2]))
         return 0
-    LightningCLI(args=argv, save_config_kwargs={"overwrite": True})
+    LightningCLI(args=argv, save_config_kwargs={"overwrite": True})  # None: Lightning reads sys.argv itself
     return 0
 
 

@@ -7,7 +7,7 @@ import torch
 from kornia.core.check import KORNIA_CHECK_SHAPE
 from torch import Tensor, nn
 
-from ngp_kornia.geometry import normalize
+from ngp_kornia.geometry import line_vp_cosine, normalize, sharp_kernel
 
 __all__ = ["ZSNet", "canonical_homogeneous"]
 
@@ -41,10 +41,16 @@ class ZSNet(nn.Module):
     lines' features are max-pooled into a global feature ``g_l`` concatenated to every candidate's feature (Eq. 6);
     an MLP scores each candidate (Eq. 7). Padding, marked by the masks, never changes an output.
 
+    Beyond the paper, each candidate's point feature also sees its *support*: the share of the lines L_z that
+    pass within about 1, 2 and 5 degrees of it (sharp closeness kernels, Eq. 15's cosine). Max-pooled line features
+    cannot count how many lines meet at a point, and that count is what separates the true zenith from a
+    chance crossing; ``use_support=False`` gives the paper's network.
+
     Args:
         width: feature width of the point MLPs (the global feature has ``4 * width`` channels).
         use_line_feature: concatenate the global line feature (the paper's design); False is the ablation that
             scores candidates from their own coordinates alone.
+        use_support: add the candidates' line-support features.
 
     Example:
         >>> net = ZSNet(width=8)
@@ -53,18 +59,28 @@ class ZSNet(nn.Module):
         torch.Size([2, 10])
     """
 
-    def __init__(self, width: int = 64, use_line_feature: bool = True) -> None:
+    SUPPORT_ANGLES = (89.0, 88.0, 85.0)
+
+    def __init__(self, width: int = 64, use_line_feature: bool = True, use_support: bool = True) -> None:
         super().__init__()
-        self.width, self.use_line_feature = width, use_line_feature
+        self.width, self.use_line_feature, self.use_support = width, use_line_feature, use_support
         feature = 4 * width
         self.line_net = _mlp([3, width, 2 * width, feature])
-        self.zenith_net = _mlp([3, width, 2 * width, feature])
+        extra = len(self.SUPPORT_ANGLES) if use_support else 0
+        self.zenith_net = _mlp([3 + extra, width, 2 * width, feature])
         head_in = 2 * feature if use_line_feature else feature
         self.scorer = _mlp([head_in, 2 * width, width, 1], last_activation=False)
 
     def settings(self) -> dict:
         """The constructor arguments that rebuild this network (stored with its weights)."""
-        return {"width": self.width, "use_line_feature": self.use_line_feature}
+        return {"width": self.width, "use_line_feature": self.use_line_feature, "use_support": self.use_support}
+
+    def support(self, lines: Tensor, line_mask: Tensor, zeniths: Tensor) -> Tensor:
+        """Share of the valid lines passing near each candidate, one column per kernel width: (B, Z, 3)."""
+        cos = line_vp_cosine(lines, zeniths)  # (B, Z, L)
+        w = line_mask.to(cos)[:, None]
+        total = w.sum(-1).clamp_min(1.0)
+        return torch.stack([(sharp_kernel(cos, a) * w).sum(-1) / total for a in self.SUPPORT_ANGLES], -1)
 
     def forward(self, lines: Tensor, line_mask: Tensor, zeniths: Tensor) -> Tensor:
         """Score zenith candidates.
@@ -80,7 +96,10 @@ class ZSNet(nn.Module):
         KORNIA_CHECK_SHAPE(lines, ["B", "L", "3"])
         KORNIA_CHECK_SHAPE(line_mask, ["B", "L"])
         KORNIA_CHECK_SHAPE(zeniths, ["B", "Z", "3"])
-        point = self.zenith_net(canonical_homogeneous(zeniths, axis=1))
+        point = canonical_homogeneous(zeniths, axis=1)
+        if self.use_support:
+            point = torch.cat([point, self.support(lines, line_mask, zeniths)], -1)
+        point = self.zenith_net(point)
         if self.use_line_feature:
             feats = self.line_net(canonical_homogeneous(lines, axis=0))
             feats = feats.masked_fill(~line_mask[..., None], float("-inf")).amax(1)

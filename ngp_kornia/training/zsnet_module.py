@@ -69,19 +69,21 @@ class ZSNetModule(L.LightningModule):
     def forward(self, lines: Tensor, line_mask: Tensor, zeniths: Tensor) -> Tensor:
         return self.net(lines, line_mask, zeniths)
 
-    def _inputs(self, batch: SceneBatch) -> tuple[Tensor, ...]:
+    def _inputs(self, batch: SceneBatch, generator: torch.Generator | None = None) -> tuple[Tensor, ...]:
         height, width = (int(v) for v in batch.image_size[0])
         lines = segments_to_lines(to_pseudo_camera(batch.segments, height, width))
         lengths = segment_lengths(batch.segments) * batch.mask.to(lines)
         lz, lz_ok, z, z_ok = sample_zenith_candidates(
-            lines, lengths, batch.mask, self.hparams.num_lines, self.hparams.num_candidates
+            lines, lengths, batch.mask, self.hparams.num_lines, self.hparams.num_candidates, generator=generator
         )
         z_gt = homogeneous_to_pseudo_camera(batch.zenith, height, width)
         focal = batch.K[:, 0, 0] / pseudo_focal(height, width)
         return lz, lz_ok, z, z_ok, z_gt, focal
 
-    def _step(self, batch: SceneBatch, stage: str) -> Tensor:
-        lz, lz_ok, z, z_ok, z_gt, focal = self._inputs(batch)
+    def _step(self, batch: SceneBatch, stage: str, batch_idx: int) -> Tensor:
+        # validation and test sample the same candidates every epoch, so their figures are comparable
+        generator = None if stage == "train" else torch.Generator().manual_seed(batch_idx)
+        lz, lz_ok, z, z_ok, z_gt, focal = self._inputs(batch, generator)
         logits = self.net(lz, lz_ok, z)
         labels, labelled = zenith_labels(z, z_gt, z_ok)
         scores = torch.sigmoid(logits)
@@ -102,13 +104,13 @@ class ZSNetModule(L.LightningModule):
         return loss
 
     def training_step(self, batch: SceneBatch, batch_idx: int) -> Tensor:
-        return self._step(batch, "train")
+        return self._step(batch, "train", batch_idx)
 
     def validation_step(self, batch: SceneBatch, batch_idx: int) -> Tensor:
-        return self._step(batch, "val")
+        return self._step(batch, "val", batch_idx)
 
     def test_step(self, batch: SceneBatch, batch_idx: int) -> Tensor:
-        return self._step(batch, "test")
+        return self._step(batch, "test", batch_idx)
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         # what ngp-train export needs to rebuild the bare network without this module

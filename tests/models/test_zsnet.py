@@ -45,7 +45,7 @@ def test_sign_of_homogeneous_inputs_does_not_matter():
 
 def test_global_line_feature_changes_scores_and_ablation_ignores_lines():
     lines, mask, z = inputs(1)
-    full, ablated = ZSNet(width=8).eval(), ZSNet(width=8, use_line_feature=False).eval()
+    full, ablated = ZSNet(width=8).eval(), ZSNet(width=8, use_line_feature=False, use_support=False).eval()
     other = torch.randn_like(lines)
     assert not torch.allclose(full(lines, mask, z), full(other, mask, z))
     assert torch.allclose(ablated(lines, mask, z), ablated(other, mask, z))
@@ -84,3 +84,12 @@ def test_weights_round_trip_and_clear_errors(tmp_path):
     torch.save({"a": 1}, tmp_path / "other.pt")
     with pytest.raises(WeightsError, match="not an ngp-kornia weights file"):
         load_network(tmp_path / "other.pt", "ZSNet")
+
+
+def test_support_counts_the_lines_through_a_candidate():
+    # three lines through (0, 5), one elsewhere; candidates: that point and a point no line passes
+    lines = torch.tensor([[[1.0, 0.0, 0.0], [1.0, 0.2, -1.0], [1.0, -0.2, 1.0], [0.0, 1.0, 3.0]]])
+    z = torch.tensor([[[0.0, 5.0, 1.0], [3.0, 0.0, 1.0]]])
+    support = ZSNet(width=8).support(lines, torch.ones(1, 4, dtype=torch.bool), z)
+    assert support[0, 0].tolist() == pytest.approx([0.75, 0.75, 0.75], abs=1e-3)
+    assert float(support[0, 1].max()) < 0.01

@@ -75,7 +75,7 @@ def test_fast_dev_run_trains_and_exports(datamodule, tmp_path):
     trainer.save_checkpoint(ckpt)
     weights = export_checkpoint(ckpt, tmp_path / "zsnet.pt")
     net = load_network(weights, "ZSNet")
-    assert net.settings() == {"width": 8, "use_line_feature": True}
+    assert net.settings() == {"width": 8, "use_line_feature": True, "use_support": True}
     cal = calibrate(torch.rand(3, 64, 64), weights=str(weights))
     assert torch.isfinite(cal.focal)
 

@@ -16,18 +16,26 @@ from torch import Tensor
 __all__ = ["line_map", "closeness_maps", "manhattan_score_maps", "rasterize_segments"]
 
 
-def rasterize_segments(segments: Tensor, mask: Tensor, values: Tensor, height: int, width: int) -> Tensor:
+def rasterize_segments(
+    segments: Tensor, mask: Tensor, values: Tensor, height: int, width: int, chunk_channels: int = 96
+) -> Tensor:
     """Draw segments into (B, C, H, W) maps, each pixel a segment passes through taking that segment's values.
+
+    Every (segment, pixel) pair is written once per channel, so drawing the closeness maps of hundreds of frame
+    candidates stays cheap.
 
     Args:
         segments: (B, N, 2, 2) segment endpoints in the map's pixels.
         mask: (B, N) bool, False for padding (not drawn).
-        values: (B, N, C) per-segment values, one channel each.
+        values: (B, N, C) non-negative per-segment values, one channel each.
         height: map height.
         width: map width.
+        chunk_channels: channels scattered at once (bounds the index memory; all at once when ``values`` needs
+            gradients, since the max's backward needs the untouched output).
 
     Returns:
-        (B, C, H, W) maps, zero where no segment passes. Overlaps keep the maximum.
+        (B, C, H, W) maps, zero where no segment passes. Overlaps keep the maximum. Differentiable with respect to
+        ``values``.
 
     Example:
         >>> seg = torch.tensor([[[[0.0, 1.0], [3.0, 1.0]]]])
@@ -36,28 +44,39 @@ def rasterize_segments(segments: Tensor, mask: Tensor, values: Tensor, height: i
                 [1., 1., 1., 1.],
                 [0., 0., 0., 0.]])
     """
+    KORNIA_CHECK(height > 0 and width > 0, f"map size must be positive, got {height}x{width}")
     KORNIA_CHECK_SHAPE(segments, ["B", "N", "2", "2"])
     KORNIA_CHECK_SHAPE(mask, ["B", "N"])
     KORNIA_CHECK_SHAPE(values, ["B", "N", "C"])
-    KORNIA_CHECK(height > 0 and width > 0, f"map size must be positive, got {height}x{width}")
     B, N, C = values.shape
-    maps = values.new_zeros(B, C, height * width)
-    if N == 0:
-        return maps.reshape(B, C, height, width)
+    area = height * width
+    out = values.new_zeros(B, C, height, width)
+    if N == 0 or C == 0 or not bool(mask.any()):
+        return out
+    # sample the segments exactly as rasterize_segments does, so the pixels match the line map
     length = (segments[..., 1, :] - segments[..., 0, :]).norm(dim=-1)
-    steps = int(math.ceil(float(length[mask].max()) if bool(mask.any()) else 0.0)) + 2
+    steps = int(math.ceil(float(length[mask].max()))) + 2
     t = torch.linspace(0.0, 1.0, steps, device=segments.device, dtype=segments.dtype)
     p0, p1 = segments[..., 0, :].detach(), segments[..., 1, :].detach()
-    pts = p0[:, :, None] + (p1 - p0)[:, :, None] * t[:, None]  # (B, N, S, 2)
-    ij = pts.round().long()
+    ij = (p0[:, :, None] + (p1 - p0)[:, :, None] * t[:, None]).round().long()  # (B, N, S, 2)
     inside = (ij[..., 0] >= 0) & (ij[..., 0] < width) & (ij[..., 1] >= 0) & (ij[..., 1] < height)
     inside &= mask[:, :, None]
-    flat = (ij[..., 1].clamp(0, height - 1) * width + ij[..., 0].clamp(0, width - 1)).reshape(B, -1)
-    vals = values[:, :, None, :].expand(B, N, steps, C) * inside[..., None].to(values)
-    vals = vals.reshape(B, -1, C).transpose(1, 2)  # (B, C, N*S)
-    index = flat[:, None, :].expand(B, C, flat.shape[-1])
-    maps = maps.scatter_reduce(2, index, vals, reduce="amax", include_self=True)
-    return maps.reshape(B, C, height, width)
+    pixel = ij[..., 1] * width + ij[..., 0]
+    b, n, s = inside.nonzero(as_tuple=True)
+    key = torch.unique((b * N + n) * area + pixel[b, n, s])  # each (segment, pixel) once
+    seg, pix = key // area, key % area
+    b, n = seg // N, seg % N
+    src = values[b, n]  # (P, C)
+    base = b * (C * area) + pix  # position of channel 0 in out's (B, C, H, W) layout
+    flat = out.view(-1)
+    if torch.is_grad_enabled() and src.requires_grad:  # amax's backward needs its output: no in-place chunks
+        chunk_channels = C
+        flat = flat.clone()
+    for c0 in range(0, C, chunk_channels):
+        channel = torch.arange(c0, min(C, c0 + chunk_channels), device=values.device)
+        index = base[:, None] + channel * area  # (P, c)
+        flat = flat.scatter_reduce_(0, index.flatten(), src[:, c0 : c0 + len(channel)].flatten(), "amax")
+    return flat.view(B, C, height, width)
 
 
 def line_map(segments: Tensor, mask: Tensor, height: int, width: int) -> Tensor:

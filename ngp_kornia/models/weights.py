@@ -10,6 +10,7 @@ from pathlib import Path
 import torch
 from torch import nn
 
+from ngp_kornia.models.fsnet import FSNet
 from ngp_kornia.models.zsnet import ZSNet
 
 __all__ = ["NETWORKS", "WEIGHTS_DIR", "WeightsError", "load_network", "save_network", "shipped_weights"]
@@ -18,7 +19,7 @@ FORMAT = "ngp-kornia-weights"
 VERSION = 1
 WEIGHTS_DIR = Path(__file__).resolve().parent.parent / "weights"
 #: the networks a weights file may hold, by name
-NETWORKS: dict[str, type[nn.Module]] = {"ZSNet": ZSNet}
+NETWORKS: dict[str, type[nn.Module]] = {"FSNet": FSNet, "ZSNet": ZSNet}
 
 
 class WeightsError(ValueError):

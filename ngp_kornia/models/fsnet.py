@@ -1,0 +1,386 @@
+r"""FSNet, the frame scoring network of Sec. 3.2 (Eq. 14-19): scores how well each Manhattan-frame candidate (three
+VPs and a focal length) fits an image, from the image, its line map L (Eq. 14) and the candidate's closeness maps
+A_x, A_y, A_z (Eq. 15-16). ``sigmoid`` of the output estimates the score :math:`s_{vh}` of Eq. 19.
+
+Two variants share one interface (:class:`FSNet` with ``variant=...``):
+
+* ``"faithful"``, the paper's network: a ResNet over a 17-channel tensor per candidate (3 image + 1 line map +
+  3 closeness maps + 10 constant planes holding the candidate's 9 VP coordinates and its focal length), globally
+  pooled, then a linear layer. One full CNN pass per candidate, so its cost grows linearly with the candidates
+  (about 2.4 GMAC per candidate with the default ResNet-18 at 224 x 224: the 17-channel 7x7 stem alone is 0.67).
+* ``"shared"``: the trunk runs once per image on the image and the line map (4 channels) to a stride-16 feature
+  map; each candidate only adds a light head on that low-resolution map: its closeness maps are average-pooled to
+  the trunk's resolution (as line density and as mean closeness of the line pixels, a local form of Eq. 20), its
+  VPs and focal length go through an MLP, and two 3x3 convolutions, global average and max pooling and an MLP give
+  the score. Scoring many candidates then costs little more than scoring one.
+
+Both are equivariant to the candidates' order (each candidate is scored independently; with BatchNorm, in eval
+mode) and differentiable with respect to every input.
+
+The ablations of the paper's Table 4 are constructor switches: ``use_image=False`` ("FSNet w/o image") drops the
+image channels, ``use_maps=False`` ("w/o L and A") drops the line and closeness maps; inputs that are dropped are
+still passed (one interface) but ignored.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import NamedTuple
+
+import torch
+import torch.nn.functional as F
+from kornia.core.check import KORNIA_CHECK, KORNIA_CHECK_SHAPE
+from torch import Tensor, nn
+
+from ngp_kornia.geometry import (
+    canonical_manhattan_rotation,
+    line_map,
+    line_vp_cosine,
+    normalize,
+    rasterize_segments,
+    segments_to_lines,
+    sharp_kernel,
+    to_pseudo_camera,
+)
+from ngp_kornia.models.resnet import LAYOUTS, ResNet
+from ngp_kornia.sampling import FrameCandidates
+
+__all__ = [
+    "FSNet",
+    "FSNetInputs",
+    "NUM_PARAMS",
+    "VARIANTS",
+    "canonical_frame_vps",
+    "fsnet_inputs",
+]
+
+#: per-candidate parameters: 9 VP coordinates (three unit VPs, row-major) and the focal length
+NUM_PARAMS = 10
+VARIANTS = ("faithful", "shared")
+_MIN_CLOSENESS = 1e-6  # smaller closeness values are drawn as 0
+_DEFAULT_LAYOUT = {"faithful": LAYOUTS["resnet18"], "shared": LAYOUTS["resnet18-half-s16"]}
+_DEFAULT_NORM = {"faithful": "batch", "shared": "group"}
+
+
+class FSNetInputs(NamedTuple):
+    """The inputs of :class:`FSNet` at its input size ``S`` (``net(*inputs)``).
+
+    Attributes:
+        images: (B, 3, S, S) RGB in [0, 1].
+        line_map: (B, 1, S, S) binary line map L (Eq. 14).
+        closeness: (B, F, 3, S, S) closeness maps A_x, A_y, A_z of each candidate (Eq. 16).
+        params: (B, F, 10) each candidate's three VPs (unit vectors in the pseudo camera, flattened row-major, in the
+            order of :func:`canonical_frame_vps`) and its focal length (pseudo-camera units, 0 for invalid frames).
+    """
+
+    images: Tensor
+    line_map: Tensor
+    closeness: Tensor
+    params: Tensor
+
+
+def canonical_frame_vps(frames: FrameCandidates) -> Tensor:
+    """The three VPs of each frame in a canonical order and sign, as unit vectors in the pseudo camera.
+
+    A Manhattan frame does not say which horizontal axis is "x" nor which way an axis points, so the same frame can
+    come out of sampling in several labellings. They are resolved with
+    :func:`~ngp_kornia.geometry.canonical_manhattan_rotation`: row 1 is the vertical (pointing down, y >= 0), row 2
+    the horizontal axis closest to the optical axis (pointing forward), row 0 the remaining one (x = y cross z, so
+    pointing right). The labelling is continuous except at 45 degrees of yaw, where the two horizontal axes swap.
+
+    Args:
+        frames: candidates with rotations ``R`` (B, F, 3, 3) and focal lengths ``focal`` (B, F) in the pseudo
+            camera; invalid frames (focal 0) use focal 1, so their VPs stay finite.
+
+    Returns:
+        (B, F, 3, 3): row ``i`` is the VP ``K R_c[:, i]`` with ``K = diag(f, f, 1)``, normalised.
+
+    Example:
+        >>> eye = torch.eye(3)[[2, 1, 0]].T * torch.tensor([1.0, 1.0, -1.0])  # x and z swapped, same frame
+        >>> fr = FrameCandidates(None, None, torch.ones(1, 1), eye.expand(1, 1, 3, 3), None, torch.ones(1, 1) > 0)
+        >>> canonical_frame_vps(fr)[0, 0]
+        tensor([[1., 0., 0.],
+                [0., 1., 0.],
+                [0., 0., 1.]])
+    """
+    KORNIA_CHECK_SHAPE(frames.R, ["B", "F", "3", "3"])
+    KORNIA_CHECK_SHAPE(frames.focal, ["B", "F"])
+    R = canonical_manhattan_rotation(frames.R)
+    f = torch.where(frames.focal > 0, frames.focal, torch.ones_like(frames.focal))
+    scale = torch.stack([f, f, torch.ones_like(f)], -1)
+    return normalize(R.transpose(-1, -2) * scale[..., None, :]) + 0.0
+
+
+def fsnet_inputs(
+    images: Tensor,
+    segments: Tensor,
+    mask: Tensor,
+    frames: FrameCandidates,
+    size: int | tuple[int, int] = 224,
+    kernel_angle: float | None = 88.0,
+    chunk_size: int = 32,
+) -> FSNetInputs:
+    r"""Build FSNet's inputs for a batch of images and their frame candidates.
+
+    The image is resized to the network input (``size``, aspect ratio not kept, as the paper's 224 x 224), the
+    segments are scaled to it and drawn as the line map (Eq. 14) and, per candidate, as closeness maps (Eq. 16).
+    The closeness of a segment to a VP is measured on the segment's line in the pseudo camera of the *original*
+    image (``geometry.to_pseudo_camera``, where the candidates' VPs live), so it does not depend on ``size``.
+
+    Closeness: with ``kernel_angle=None`` it is Eq. 15, :math:`1 - |\cos|` between the line and VP vectors. That
+    is linear in the cosine: a line pointing exactly at the VP gets 1, one a few degrees off still about 0.95, and
+    unrelated lines spread over all of [0, 1] (median about 0.5 for random frames), so the maps mostly encode line
+    directions rather than which lines vanish at the VP, and the shared variant's average pooling (before any
+    non-linearity) loses the small difference. The default is therefore the sharp kernel of
+    :func:`~ngp_kornia.geometry.sharp_closeness` at 88 degrees (lines within about two degrees of the VP count):
+    the kernel the parser uses for Eq. 20, a little wider for LSD's angular noise on short segments. A network is
+    trained for one choice (:attr:`FSNet.kernel_angle`).
+
+    Args:
+        images: (B, 3, H, W) RGB in [0, 1] at the size the segments were measured in.
+        segments: (B, N, 2, 2) segments in the pixels of ``images``.
+        mask: (B, N) bool, False for padding (never drawn).
+        frames: (B, F) frame candidates in the pseudo camera of ``images`` (:mod:`ngp_kornia.sampling`).
+        size: network input size, ``S`` or ``(S_h, S_w)``.
+        kernel_angle: closeness kernel width in degrees, or None for Eq. 15.
+        chunk_size: candidates rasterised at once (bounds the memory of drawing, not of the output).
+
+    Returns:
+        :class:`FSNetInputs`. Invalid candidates get finite inputs (score them and mask the scores). Closeness
+        below 1e-6 is drawn as 0 (no subnormal floats, which are slow on CPUs). The closeness maps take
+        ``B * F * 3 * S^2`` floats: 38 MB per image for 64 candidates at 224.
+
+    Example:
+        >>> fr = FrameCandidates(None, None, torch.ones(1, 2), torch.eye(3).expand(1, 2, 3, 3), None, None)
+        >>> seg = torch.tensor([[[[10.0, 5.0], [10.0, 40.0]]]])
+        >>> x = fsnet_inputs(torch.rand(1, 3, 48, 64), seg, torch.ones(1, 1, dtype=torch.bool), fr, size=32)
+        >>> [tuple(t.shape) for t in x]
+        [(1, 3, 32, 32), (1, 1, 32, 32), (1, 2, 3, 32, 32), (1, 2, 10)]
+    """
+    KORNIA_CHECK_SHAPE(images, ["B", "3", "H", "W"])
+    KORNIA_CHECK_SHAPE(segments, ["B", "N", "2", "2"])
+    KORNIA_CHECK_SHAPE(mask, ["B", "N"])
+    KORNIA_CHECK(chunk_size > 0, "chunk_size must be positive")
+    B, _, H, W = images.shape
+    out_h, out_w = (size, size) if isinstance(size, int) else size
+    resized = images
+    if (H, W) != (out_h, out_w):
+        resized = F.interpolate(images, (out_h, out_w), mode="bilinear", align_corners=False, antialias=True)
+    segments = segments.to(images)
+    # pixel centres map to pixel centres: x' = (x + 0.5) * S / W - 0.5
+    scale = torch.tensor([out_w / W, out_h / H], device=images.device, dtype=images.dtype)
+    scaled = (segments + 0.5) * scale - 0.5
+    lmap = line_map(scaled, mask, out_h, out_w)
+
+    vps = canonical_frame_vps(frames).to(images)  # (B, F, 3, 3)
+    num = vps.shape[1]
+    lines = segments_to_lines(to_pseudo_camera(segments, H, W))
+    cosine = line_vp_cosine(lines, vps)  # (B, F, 3, N)
+    values = 1.0 - cosine if kernel_angle is None else sharp_kernel(cosine, kernel_angle)
+    # the kernel's tail is full of subnormal floats, which make CPU arithmetic on the maps many times slower
+    values = torch.where(values < _MIN_CLOSENESS, torch.zeros_like(values), values)
+    values = values.flatten(1, 2).transpose(1, 2)  # (B, N, F * 3)
+    closeness = rasterize_segments(scaled, mask, values, out_h, out_w, 3 * chunk_size)
+    closeness = closeness.reshape(B, num, 3, out_h, out_w)
+    params = torch.cat([vps.flatten(-2), frames.focal.to(images)[..., None]], -1)
+    return FSNetInputs(resized, lmap, closeness, params)
+
+
+def _mlp(sizes: Sequence[int]) -> nn.Sequential:
+    layers: list[nn.Module] = []
+    for i, (a, b) in enumerate(zip(sizes[:-1], sizes[1:], strict=True)):
+        layers.append(nn.Linear(a, b))
+        if i < len(sizes) - 2:
+            layers.append(nn.ReLU(inplace=True))
+    return nn.Sequential(*layers)
+
+
+class FSNet(nn.Module):
+    """Frame scoring network (Sec. 3.2), in the paper's per-candidate form or with a shared image trunk.
+
+    Input channels (:attr:`in_channels`, the backbone's input):
+
+    =================  ==============================  ==================================
+    switches           ``"faithful"`` (per candidate)  ``"shared"`` (trunk, once/image)
+    =================  ==============================  ==================================
+    default            17 = 3 image + 1 L + 3 A + 10   4 = 3 image + 1 L
+    use_image=False    14 = 1 L + 3 A + 10             1 = L
+    use_maps=False     13 = 3 image + 10               3 = image
+    both False         10 = params planes              0 (no trunk: params MLP only)
+    =================  ==============================  ==================================
+
+    In the shared variant each candidate's head also takes 6 low-resolution map channels (A pooled as line density
+    and as mean closeness over line pixels; dropped with ``use_maps=False``) and the 10 parameters.
+
+    Args:
+        variant: ``"faithful"`` or ``"shared"`` (see the module notes).
+        widths: backbone stage widths; default ResNet-18's ``(64, 128, 256, 512)`` for faithful, ``(32, 64, 128)``
+            (stride 16) for shared. Two stages give a stride-8 trunk.
+        depths: blocks per stage; default ``(2, 2, 2, 2)`` for faithful, ``(2, 2, 2)`` for shared (the first three
+            stages of ResNet-18 at half width).
+        norm: ``"batch"`` or ``"group"`` for the backbone; default BatchNorm for faithful (its statistics come from
+            each backbone pass, B times the chunk's candidates, and it is a free affine map at inference) and
+            GroupNorm for shared, whose trunk only sees the B images of a batch (the paper trains with B = 2).
+        head_width: channels of the shared variant's head.
+        input_size: the side the inputs are built at (:meth:`prepare_inputs`); the network itself is fully
+            convolutional and accepts any size.
+        use_image: feed the image (False: "FSNet w/o image").
+        use_maps: feed L and A (False: "FSNet w/o L and A").
+        kernel_angle: closeness kernel of the inputs (:func:`fsnet_inputs`); None for Eq. 15.
+        chunk_size: at most this many candidate images per backbone pass (faithful) or head pass (shared), so
+            memory at inference does not grow with the candidates. (With gradients every pass stays in memory.)
+        backbone: a custom backbone (interface in :mod:`ngp_kornia.models.resnet`) replacing the built-in ResNet;
+            its ``in_channels`` must match the table. Such a network has no :meth:`settings`.
+
+    Example:
+        >>> net = FSNet("shared", widths=(8, 16), depths=(1, 1), head_width=8).eval()
+        >>> x = (torch.rand(2, 3, 64, 64), torch.rand(2, 1, 64, 64), torch.rand(2, 5, 3, 64, 64), torch.rand(2, 5, 10))
+        >>> net(*x).shape, net.in_channels
+        (torch.Size([2, 5]), 4)
+    """
+
+    def __init__(
+        self,
+        variant: str = "shared",
+        widths: Sequence[int] | None = None,
+        depths: Sequence[int] | None = None,
+        norm: str | None = None,
+        head_width: int = 32,
+        input_size: int = 224,
+        use_image: bool = True,
+        use_maps: bool = True,
+        kernel_angle: float | None = 88.0,
+        chunk_size: int = 32,
+        backbone: nn.Module | None = None,
+    ) -> None:
+        super().__init__()
+        KORNIA_CHECK(variant in VARIANTS, f"unknown FSNet variant {variant!r}: use one of {VARIANTS}")
+        KORNIA_CHECK(chunk_size > 0, "chunk_size must be positive")
+        self.variant, self.head_width, self.input_size, self.chunk_size = variant, head_width, input_size, chunk_size
+        self.use_image, self.use_maps, self.kernel_angle = use_image, use_maps, kernel_angle
+        layout = _DEFAULT_LAYOUT[variant]
+        self.widths = tuple(layout[0] if widths is None else widths)
+        self.depths = tuple(layout[1] if depths is None else depths)
+        self.norm = _DEFAULT_NORM[variant] if norm is None else norm
+        self.custom_backbone = backbone is not None
+        image_ch = 3 if use_image else 0
+        if variant == "faithful":
+            self.in_channels = image_ch + (4 if use_maps else 0) + NUM_PARAMS
+        else:
+            self.in_channels = image_ch + (1 if use_maps else 0)
+        if backbone is None and self.in_channels > 0:
+            backbone = ResNet(self.in_channels, self.widths, self.depths, self.norm)
+        if backbone is not None:
+            got = getattr(backbone, "in_channels", self.in_channels)
+            KORNIA_CHECK(got == self.in_channels, f"the backbone takes {got} channels, FSNet feeds {self.in_channels}")
+        self.backbone = backbone
+        feat = 0 if backbone is None else int(backbone.out_channels)
+        if variant == "faithful":
+            self.fc = nn.Linear(feat, 1)
+            return
+        d = head_width
+        self.context = nn.Conv2d(feat, d, 1) if backbone is not None else None
+        self.map_proj = nn.Conv2d(6, d, 1, bias=False) if use_maps else None
+        self.param_mlp = _mlp([NUM_PARAMS, d, d])
+        self.conv1 = nn.Conv2d(d, d, 3, padding=1)
+        self.conv2 = nn.Conv2d(d, d, 3, padding=1)
+        self.scorer = _mlp([2 * d, d, 1])
+
+    def settings(self) -> dict:
+        """The constructor arguments that rebuild this network (stored with its weights)."""
+        if self.custom_backbone:
+            raise ValueError("an FSNet with a custom backbone cannot be rebuilt from settings; save the module itself")
+        return {
+            "variant": self.variant,
+            "widths": list(self.widths),
+            "depths": list(self.depths),
+            "norm": self.norm,
+            "head_width": self.head_width,
+            "input_size": self.input_size,
+            "use_image": self.use_image,
+            "use_maps": self.use_maps,
+            "kernel_angle": self.kernel_angle,
+            "chunk_size": self.chunk_size,
+        }
+
+    def prepare_inputs(self, images: Tensor, segments: Tensor, mask: Tensor, frames: FrameCandidates) -> FSNetInputs:
+        """:func:`fsnet_inputs` at this network's input size and closeness kernel."""
+        return fsnet_inputs(images, segments, mask, frames, self.input_size, self.kernel_angle, self.chunk_size)
+
+    def forward(self, images: Tensor, line_map: Tensor, closeness: Tensor, params: Tensor) -> Tensor:
+        """Score frame candidates.
+
+        Args:
+            images: (B, 3, H, W) RGB in [0, 1].
+            line_map: (B, 1, H, W) line map L (Eq. 14).
+            closeness: (B, F, 3, H, W) closeness maps A_x, A_y, A_z per candidate (Eq. 16).
+            params: (B, F, 10) per candidate: three unit VPs (pseudo camera, row-major) and the focal length.
+
+        Returns:
+            (B, F) logits; ``sigmoid`` estimates s_vh (Eq. 19).
+        """
+        KORNIA_CHECK_SHAPE(images, ["B", "3", "H", "W"])
+        KORNIA_CHECK_SHAPE(line_map, ["B", "1", "H", "W"])
+        KORNIA_CHECK_SHAPE(closeness, ["B", "F", "3", "H", "W"])
+        KORNIA_CHECK_SHAPE(params, ["B", "F", str(NUM_PARAMS)])
+        B, _, H, W = images.shape
+        KORNIA_CHECK(
+            line_map.shape[0] == B and line_map.shape[-2:] == (H, W) and closeness.shape[0] == B,
+            "images, line_map and closeness must share batch and size",
+        )
+        KORNIA_CHECK(closeness.shape[-2:] == (H, W), "closeness maps must have the images' size")
+        KORNIA_CHECK(params.shape[:2] == closeness.shape[:2], "params and closeness must share (B, F)")
+        num = params.shape[1]
+        if num == 0:
+            return params.new_zeros(B, 0)
+        step = max(1, self.chunk_size // B)
+        if self.variant == "faithful":
+            chunks = [
+                self._faithful(images, line_map, closeness[:, i : i + step], params[:, i : i + step])
+                for i in range(0, num, step)
+            ]
+        else:
+            context, low_l = self._trunk(images, line_map)
+            chunks = [
+                self._head(context, low_l, closeness[:, i : i + step], params[:, i : i + step])
+                for i in range(0, num, step)
+            ]
+        return torch.cat(chunks, 1)
+
+    def _faithful(self, images: Tensor, line_map: Tensor, closeness: Tensor, params: Tensor) -> Tensor:
+        B, c, _, H, W = closeness.shape
+        parts = []
+        if self.use_image:
+            parts.append(images[:, None].expand(B, c, 3, H, W))
+        if self.use_maps:
+            parts += [line_map[:, None].expand(B, c, 1, H, W), closeness]
+        parts.append(params[..., None, None].expand(B, c, NUM_PARAMS, H, W))
+        x = torch.cat(parts, 2).flatten(0, 1)
+        feats = self.backbone(x)
+        return self.fc(feats.mean((-2, -1))).reshape(B, c)
+
+    def _trunk(self, images: Tensor, line_map: Tensor) -> tuple[Tensor | None, Tensor | None]:
+        """Once per image: the trunk's context map (B, D, h, w) and the line map pooled to it (B, 1, h, w)."""
+        if self.backbone is None:
+            return None, None
+        parts = ([images] if self.use_image else []) + ([line_map] if self.use_maps else [])
+        feats = self.backbone(torch.cat(parts, 1))
+        low_l = F.adaptive_avg_pool2d(line_map, feats.shape[-2:]) if self.use_maps else None
+        return self.context(feats), low_l
+
+    def _head(self, context: Tensor | None, low_l: Tensor | None, closeness: Tensor, params: Tensor) -> Tensor:
+        B, c = params.shape[:2]
+        x = self.param_mlp(params)[..., None, None]  # (B, c, D, 1, 1)
+        if context is not None:
+            x = x + context[:, None]
+        if self.map_proj is not None and low_l is not None:
+            h, w = low_l.shape[-2:]
+            low_a = F.adaptive_avg_pool2d(closeness.flatten(0, 1), (h, w)).reshape(B, c, 3, h, w)
+            density = low_a * (closeness.shape[-1] / w)  # about the length of line per cell, in cells
+            mean = low_a / low_l[:, None].clamp_min(1e-6)  # mean closeness of the cell's line pixels (local Eq. 20)
+            maps = torch.cat([density, mean], 2).flatten(0, 1)
+            x = x + self.map_proj(maps).reshape(B, c, -1, h, w)
+        x = torch.relu(x.flatten(0, 1))
+        y = torch.relu(self.conv2(torch.relu(self.conv1(x))) + x)
+        pooled = torch.cat([y.mean((-2, -1)), y.amax((-2, -1))], -1)
+        return self.scorer(pooled).reshape(B, c)

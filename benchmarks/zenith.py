@@ -1,0 +1,138 @@
+"""Zenith estimates of the parser's first stage (the paper's Table 3 / ZSNet rows of Table 4).
+
+For every image: LSD segments, zenith candidates sampled exactly as ``calibrate()`` samples them, and the zenith
+estimate z_est (dominant eigenvector of the weighted structure tensor, Eq. 10-12) with the candidates weighted
+
+* uniformly (the untrained geometric path),
+* by each ZSNet weights file given with ``--zsnet`` (e.g. the shipped one and an ablation),
+
+scored as the angle between the estimated and the true up directions, using the true focal length. The peer
+lu-vp-detect (given the true focal length) is scored the same way on York Urban.
+
+Usage::
+
+    python benchmarks/zenith.py rendered --cache cache --count 500 --zsnet ngp_kornia/weights/zsnet.pt
+    python benchmarks/zenith.py yud /path/to/YorkUrbanDB --zsnet ngp_kornia/weights/zsnet.pt
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+from pathlib import Path
+from types import SimpleNamespace
+
+import cv2
+import numpy as np
+import torch
+
+from ngp_kornia.data.render import render_scene
+from ngp_kornia.data.yud import YorkUrbanDB
+from ngp_kornia.geometry import (
+    dominant_eigenvector,
+    homogeneous_to_pseudo_camera,
+    pseudo_focal,
+    segment_lengths,
+    segments_to_lines,
+    to_pseudo_camera,
+    weighted_structure_tensor,
+)
+from ngp_kornia.io import read_image_file
+from ngp_kornia.lines import detect_segments_gray
+from ngp_kornia.models import NeuralGeometricParser, ParserConfig
+from ngp_kornia.models.weights import load_network
+from ngp_kornia.sampling import sample_zenith_candidates
+from ngp_kornia.training.data import RenderedDataModule, RenderedScenes
+from ngp_kornia.training.zsnet_module import zenith_error_deg
+
+
+def samples_rendered(cache: str, count: int):
+    """(segments, K, zenith, height, width) of the fixed rendered test set (the DataModule's test seeds)."""
+    start = RenderedDataModule.TEST_SEED
+    data = RenderedScenes(range(start, start + count), (640, 480), cache_dir=cache)
+    for i in range(len(data)):
+        s = data[i]
+        yield s.segments, torch.as_tensor(s.K), torch.as_tensor(s.zenith), int(s.image_size[0]), int(s.image_size[1])
+
+
+def samples_yud(root: str):
+    for s in YorkUrbanDB(root):
+        gray = cv2.cvtColor(read_image_file(s.image_path), cv2.COLOR_RGB2GRAY)
+        yield detect_segments_gray(gray, 640, max_segments=1024), s.K, s.zenith, s.height, s.width
+
+
+def zenith_errors(parsers: dict[str, NeuralGeometricParser], segments: np.ndarray, K, zenith, height, width):
+    """Error (degrees) of each parser's zenith estimate on one image."""
+    seg = torch.as_tensor(segments, dtype=torch.float32)[None]
+    mask = torch.ones(seg.shape[:2], dtype=torch.bool)
+    lines = segments_to_lines(to_pseudo_camera(seg, height, width))
+    lengths = segment_lengths(seg)
+    cfg = ParserConfig()
+    gen = torch.Generator().manual_seed(cfg.seed)
+    lz, lz_ok, z, z_ok = sample_zenith_candidates(
+        lines, lengths, mask, cfg.num_zenith_lines, cfg.num_zenith, cfg.vertical_threshold, gen
+    )
+    gt = homogeneous_to_pseudo_camera(torch.as_tensor(zenith, dtype=torch.float32)[None], height, width)
+    focal = torch.tensor([float(K[0, 0]) / pseudo_focal(height, width)])
+    out = {}
+    with torch.no_grad():
+        for name, parser in parsers.items():
+            est = dominant_eigenvector(weighted_structure_tensor(z, parser.zenith_weights(lz, lz_ok, z, z_ok)))
+            out[name] = float(zenith_error_deg(est, gt, focal)[0])
+    return out
+
+
+def lu_errors(samples) -> list[float]:
+    """Up-direction error of lu-vp-detect given the true focal; samples need image_path, K and up."""
+    from calibration import make_lu  # the peer, with its OpenCV 5 shim
+
+    run = make_lu()
+    errors = []
+    for s in samples:
+        up = run(s).up
+        cos = float(torch.dot(up, s.up).abs().clamp(max=1.0))
+        errors.append(float(np.degrees(np.arccos(cos))))
+    return errors
+
+
+def rendered_files(count: int, folder: Path):
+    """The rendered test scenes written as PNG files, for the peer that reads files."""
+    folder.mkdir(parents=True, exist_ok=True)
+    for seed in range(RenderedDataModule.TEST_SEED, RenderedDataModule.TEST_SEED + count):
+        scene = render_scene(seed, (640, 480))
+        path = folder / f"{seed}.png"
+        if not path.exists():
+            cv2.imwrite(str(path), cv2.cvtColor(scene.image, cv2.COLOR_RGB2BGR))
+        yield SimpleNamespace(image_path=path, K=scene.K, up=-scene.R[:, 1])
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("dataset", choices=["rendered", "yud"])
+    p.add_argument("root", nargs="?", help="York Urban DB folder (yud)")
+    p.add_argument("--cache", default="cache", help="DataModule cache folder (rendered)")
+    p.add_argument("--count", type=int, default=500, help="rendered test images")
+    p.add_argument("--zsnet", action="append", default=[], help="ZSNet weights file (repeatable)")
+    p.add_argument("--lu-dir", help="rendered: also score lu-vp-detect, writing the test images to this folder")
+    args = p.parse_args()
+    parsers = {"uniform (untrained)": NeuralGeometricParser()}
+    for path in args.zsnet:
+        parsers[f"ZSNet {Path(path).name}"] = NeuralGeometricParser(zsnet=load_network(path, "ZSNet"))
+    source = samples_rendered(args.cache, args.count) if args.dataset == "rendered" else samples_yud(args.root)
+    errors: dict[str, list[float]] = {name: [] for name in parsers}
+    for sample in source:
+        for name, e in zenith_errors(parsers, *sample).items():
+            errors[name].append(e)
+    if args.dataset == "yud":
+        errors["lu-vp-detect (true focal)"] = lu_errors(YorkUrbanDB(args.root))
+    elif args.lu_dir:
+        errors["lu-vp-detect (true focal)"] = lu_errors(rendered_files(args.count, Path(args.lu_dir)))
+    n = len(next(iter(errors.values())))
+    print(f"zenith (up direction) error in degrees, {args.dataset}, {n} images\n")
+    print("| zenith estimate | mean | median |\n|---|---|---|")
+    for name, e in errors.items():
+        print(f"| {name} | {statistics.mean(e):.2f} | {statistics.median(e):.2f} |")
+
+
+if __name__ == "__main__":
+    main()

@@ -6,11 +6,13 @@ from dataclasses import replace
 from functools import lru_cache
 from pathlib import Path
 
+import cv2
 import numpy as np
 import torch
 from torch import Tensor
 
-from ngp_kornia.io import as_batch
+from ngp_kornia.io import as_batch, read_rgb
+from ngp_kornia.lines import detect_segments_gray, pad_segments
 from ngp_kornia.models import Calibration, NeuralGeometricParser, ParserConfig
 from ngp_kornia.models.weights import load_network, shipped_weights
 
@@ -77,9 +79,16 @@ def calibrate(
         >>> sorted(cal.to_dict())[:4]
         ['K', 'R', 'focal', 'fov_h']
     """
-    batch, batched = as_batch(image)
     cfg = replace(config or ParserConfig(), seed=seed)
+    segments = mask = None
+    if isinstance(image, Tensor):
+        batch, batched = as_batch(image)
+    else:  # detect lines on the 8-bit image we already have instead of converting back from float
+        rgb, batched = read_rgb(image), False
+        batch = torch.from_numpy(rgb).permute(2, 0, 1)[None].float().div(255.0)
+        gray = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
+        segments, mask = pad_segments([detect_segments_gray(gray, cfg.working_size, cfg.min_length, cfg.max_segments)])
     parser = load_parser(weights, cfg).to(batch.device)
     with torch.no_grad():
-        result = parser(batch)
+        result = parser(batch, segments, mask)
     return result if batched else result[0]

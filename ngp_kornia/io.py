@@ -13,7 +13,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-__all__ = ["MIN_SIZE", "ImageError", "as_batch", "load_image", "read_image_file"]
+__all__ = ["MIN_SIZE", "ImageError", "as_batch", "load_image", "read_image_file", "read_rgb"]
 
 MIN_SIZE = 32
 
@@ -93,6 +93,16 @@ def load_image(image: str | Path | np.ndarray) -> Tensor:
         >>> load_image(np.zeros((40, 50, 3), np.uint8)).shape
         torch.Size([1, 3, 40, 50])
     """
+    return torch.from_numpy(read_rgb(image)).permute(2, 0, 1)[None].float().div(255.0)
+
+
+def read_rgb(image: str | Path | np.ndarray) -> np.ndarray:
+    """A file path or an image array as a checked HxWx3 uint8 RGB array (see :func:`to_rgb_uint8`).
+
+    Example:
+        >>> read_rgb(np.zeros((40, 50), np.uint16)).shape
+        (40, 50, 3)
+    """
     if isinstance(image, (str, Path)):
         rgb, name = read_image_file(image), str(image)
     elif isinstance(image, np.ndarray):
@@ -100,7 +110,7 @@ def load_image(image: str | Path | np.ndarray) -> Tensor:
     else:
         raise TypeError(f"expected a path, a numpy array or a torch tensor, got {type(image).__name__}")
     _check_size(rgb.shape[0], rgb.shape[1], name)
-    return torch.from_numpy(rgb).permute(2, 0, 1)[None].float().div(255.0)
+    return rgb
 
 
 def as_batch(image: str | Path | np.ndarray | Tensor) -> tuple[Tensor, bool]:

@@ -59,7 +59,8 @@ class ParserConfig:
     Attributes:
         working_size: LSD runs at this long side, in pixels.
         min_length: shorter segments (working-resolution pixels) are dropped.
-        max_segments: at most this many segments per image, the longest kept.
+        max_segments: at most this many segments per image, the longest kept (512 keeps the cost of scoring
+            frames well under the line detector's; 1024 is 0.1 points of horizon AUC better on the York Urban half).
         num_zenith_lines: |L_z|.
         num_zenith: |Z|.
         vertical_threshold: delta_z of Eq. 4, degrees.
@@ -80,7 +81,7 @@ class ParserConfig:
 
     working_size: int = 640
     min_length: float = 10.0
-    max_segments: int = 1024
+    max_segments: int = 512
     num_zenith_lines: int = 256
     num_zenith: int = 256
     vertical_threshold: float = 67.5

@@ -1,19 +1,27 @@
-"""Benchmark single-image calibration on the York Urban Database (Denis, Elder and Estrada, ECCV 2008).
+"""Benchmark single-image calibration on the York Urban Database or on a folder written by ``ngp render``.
 
 Compares, on the same images and in the same process:
 
-* ``ngp_kornia.calibrate`` (this package; it estimates the focal length itself),
+* ``ngp_kornia.calibrate`` (this package; it estimates the focal length itself), once per ``--weights`` value,
 * lu-vp-detect (Lu et al., WACV 2017, the ``lu_vp_detect`` package), given the TRUE focal length and principal
   point, so its field of view is exact by construction,
 * a trivial baseline: a level horizon through the image centre (pitch = roll = 0).
 
 Usage::
 
-    python benchmarks/yud.py /path/to/YorkUrbanDB [--split all] [--limit N] [--weights none] [--out r.json]
+    python benchmarks/calibration.py yud /path/to/YorkUrbanDB [--split all] [--ground-truth orthogonal]
+    python benchmarks/calibration.py rendered /path/to/render_dir      # written by `ngp render`
+    common options: [--limit N] [--weights default] [--weights none] [--weights zsnet] [--weights w.pt]
+                    [--no-lu] [--out r.json]
+
+Both datasets are turned into the same :class:`Sample` (image path, K, up, horizon, pitch, roll, fov_v, height,
+width, and the scene kind for rendered data), so every method and metric is shared. For a render folder the
+ground truth is read from ``ground_truth.json`` (up = -R[:, 1], the stored horizon / pitch / roll / fov_v).
 
 Errors are in degrees; the horizon AUC is the area under the cumulative horizon-error curve on [0, 0.25] of
 the image height (:func:`ngp_kornia.metrics.horizon_auc`). Seconds per image is the wall time of one call
 including reading the image, measured with the methods interleaved image by image after one warm-up call each.
+The load average is printed with the results: timings taken while other jobs run are slower than on an idle machine.
 """
 
 from __future__ import annotations
@@ -21,6 +29,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import platform
 import sys
 import time
@@ -32,7 +41,6 @@ import cv2
 import numpy as np
 import torch
 
-from ngp_kornia.data.yud import YorkUrbanDB, YUDSample
 from ngp_kornia.geometry.camera import (
     horizon_from_zenith,
     pitch_roll_from_up,
@@ -47,6 +55,81 @@ from ngp_kornia.metrics import (
     summarize,
     up_vector_error,
 )
+
+
+@dataclass(frozen=True)
+class Sample:
+    """Ground truth of one image, in this package's conventions (float64 tensors, degrees)."""
+
+    name: str
+    image_path: Path
+    K: torch.Tensor  # (3, 3)
+    up: torch.Tensor  # (3,) unit up vector in camera coordinates, -R[:, 1]
+    horizon: torch.Tensor  # (3,)
+    pitch: float
+    roll: float
+    fov_v: float
+    height: int
+    width: int
+    kind: str | None = None  # rendered scene kind (street / indoor / atlanta); None for photos
+
+
+# ----------------------------------------------------------------------------------------------------------
+# datasets
+
+
+def load_yud(root: Path, split: str = "all", ground_truth: str = "orthogonal") -> list[Sample]:
+    from ngp_kornia.data.yud import YorkUrbanDB
+
+    db = YorkUrbanDB(root, split=split, ground_truth=ground_truth)
+    return [Sample(s.name, s.image_path, s.K, s.up, s.horizon, s.pitch, s.roll, s.fov_v, s.height, s.width) for s in db]
+
+
+def _t(x) -> torch.Tensor:
+    return torch.as_tensor(np.asarray(x, dtype=np.float64))
+
+
+def load_rendered(root: Path) -> list[Sample]:
+    """Samples of a folder written by ``ngp render`` (``ground_truth.json`` + images).
+
+    The stored horizon, pitch and roll are checked against the ones recomputed from K and R (they must agree,
+    they come from the same functions); a mismatch is an error, not a silent re-definition of the ground truth.
+    """
+    gt_path = root / "ground_truth.json"
+    if not gt_path.is_file():
+        raise FileNotFoundError(f"not a render folder (no ground_truth.json): {root}")
+    records = json.loads(gt_path.read_text())
+    samples = []
+    for rec in records:
+        K, R = _t(rec["K"]), _t(rec["R"])
+        up = -R[:, 1]
+        horizon = _t(rec["horizon"])
+        z = zenith_from_up(K[None], up[None])
+        h2 = horizon_from_zenith(K[None], z)[0]
+        p2, r2 = pitch_roll_from_up(up[None])
+        h_err = horizon_error(h2[None], horizon[None], int(rec["height"]), int(rec["width"]))[0]
+        if h_err > 1e-6 or abs(float(p2[0]) - rec["pitch"]) > 1e-6 or abs(float(r2[0]) - rec["roll"]) > 1e-6:
+            raise ValueError(f"{rec['image']}: stored horizon / pitch / roll disagree with K and R")
+        samples.append(
+            Sample(
+                name=Path(rec["image"]).stem,
+                image_path=root / rec["image"],
+                K=K,
+                up=up,
+                horizon=horizon,
+                pitch=float(rec["pitch"]),
+                roll=float(rec["roll"]),
+                fov_v=float(rec["fov_v"]),
+                height=int(rec["height"]),
+                width=int(rec["width"]),
+                kind=rec.get("kind"),
+            )
+        )
+    return samples
+
+
+# ----------------------------------------------------------------------------------------------------------
+# this package (and shared estimate type)
 
 
 @dataclass
@@ -64,10 +147,6 @@ class Estimate:
 def _failed() -> Estimate:
     nan3 = torch.full((3,), math.nan, dtype=torch.float64)
     return Estimate(nan3, nan3.clone(), math.nan, math.nan, math.nan)
-
-
-# ----------------------------------------------------------------------------------------------------------
-# this package
 
 
 def _unbatch(x):
@@ -88,7 +167,7 @@ def _first(x, ndim: int) -> torch.Tensor:
     return t
 
 
-def estimate_from_calibration(result, sample: YUDSample) -> Estimate:
+def estimate_from_calibration(result, sample: Sample) -> Estimate:
     """Adapter for the result of ``ngp_kornia.calibrate``: works for batched (B = 1) and unbatched results."""
     K = _first(result.K, 2)
     if getattr(result, "up", None) is not None:
@@ -112,14 +191,14 @@ def estimate_from_calibration(result, sample: YUDSample) -> Estimate:
     )
 
 
-def make_ngp(weights: str | None) -> Callable[[YUDSample], Estimate]:
+def make_ngp(weights: str | None) -> Callable[[Sample], Estimate]:
     try:
         from ngp_kornia import calibrate
     except ImportError:
         from ngp_kornia.api import calibrate
-    kwargs = {} if weights is None else {"weights": weights}
+    kwargs = {} if weights is None else {"weights": str(weights)}
 
-    def run(sample: YUDSample) -> Estimate:
+    def run(sample: Sample) -> Estimate:
         return estimate_from_calibration(calibrate(str(sample.image_path), **kwargs), sample)
 
     return run
@@ -157,7 +236,7 @@ class _Cv2Proxy:
         return _LSDReshaper(cv2.createLineSegmentDetector(*args, **kwargs))
 
 
-def make_lu() -> Callable[[YUDSample], Estimate]:
+def make_lu() -> Callable[[Sample], Estimate]:
     """lu-vp-detect with the true focal length and principal point.
 
     Its VPs are unit directions in the OpenCV camera frame (x right, y down, z forward: it lifts a pixel p to
@@ -169,7 +248,7 @@ def make_lu() -> Callable[[YUDSample], Estimate]:
     if not isinstance(vp_detection.cv2, _Cv2Proxy):
         vp_detection.cv2 = _Cv2Proxy()
 
-    def run(sample: YUDSample) -> Estimate:
+    def run(sample: Sample) -> Estimate:
         image = cv2.imread(str(sample.image_path), cv2.IMREAD_COLOR)
         if image is None:
             raise FileNotFoundError(sample.image_path)
@@ -198,7 +277,7 @@ def make_lu() -> Callable[[YUDSample], Estimate]:
 # trivial baseline
 
 
-def level_centre(sample: YUDSample) -> Estimate:
+def level_centre(sample: Sample) -> Estimate:
     """A level camera: up = (0, -1, 0), horizon y = (H - 1) / 2 (through the image centre)."""
     up = torch.tensor([0.0, -1.0, 0.0], dtype=torch.float64)
     horizon = torch.tensor([0.0, 1.0, -(sample.height - 1) / 2.0], dtype=torch.float64)
@@ -206,9 +285,10 @@ def level_centre(sample: YUDSample) -> Estimate:
 
 
 # ----------------------------------------------------------------------------------------------------------
+# evaluation
 
 
-def evaluate(samples: list[YUDSample], estimates: list[Estimate]) -> dict:
+def evaluate(samples: list[Sample], estimates: list[Estimate]) -> dict:
     """Per-image errors and summaries of one method; failed images count as misses in the AUC."""
     ok = torch.tensor([math.isfinite(e.pitch) for e in estimates])
     up = torch.stack([e.up for e in estimates])
@@ -235,12 +315,22 @@ def evaluate(samples: list[YUDSample], estimates: list[Estimate]) -> dict:
         errors[k] = torch.where(ok, errors[k], torch.full_like(errors[k], math.nan))
     summary = {k: summarize(v[ok]) for k, v in errors.items()}
     auc = horizon_auc(errors["horizon"]).item() if len(samples) else math.nan
+    by_kind = {}
+    for kind in sorted({s.kind for s in samples if s.kind is not None}):
+        idx = torch.tensor([s.kind == kind for s in samples])
+        by_kind[kind] = {"count": int(idx.sum()), "horizon_auc": horizon_auc(errors["horizon"][idx]).item()}
     return {
         "summary": summary,
         "horizon_auc": auc,
+        "horizon_auc_by_kind": by_kind,
         "failures": int((~ok).sum()),
         "per_image": [
-            {"name": s.name, **{k: float(v[i]) for k, v in errors.items()}, **estimates[i].extra}
+            {
+                "name": s.name,
+                **({"kind": s.kind} if s.kind is not None else {}),
+                **{k: float(v[i]) for k, v in errors.items()},
+                **estimates[i].extra,
+            }
             for i, s in enumerate(samples)
         ],
     }
@@ -271,35 +361,80 @@ def markdown_table(results: dict[str, dict], n_images: int) -> str:
     return "\n".join(rows)
 
 
+def kind_table(results: dict[str, dict]) -> str:
+    """Horizon AUC (%) per rendered scene kind; empty when the samples carry no kind."""
+    kinds: dict[str, int] = {}
+    for r in results.values():
+        for k, v in r["horizon_auc_by_kind"].items():
+            kinds[k] = v["count"]
+    if not kinds:
+        return ""
+    known = ("street", "indoor", "atlanta")
+    order = [k for k in known if k in kinds] + sorted(set(kinds) - set(known))
+    rows = [
+        "| method | " + " | ".join(f"{k} (n={kinds[k]})" for k in order) + f" | all (n={sum(kinds.values())}) |",
+        "|" + "---|" * (len(order) + 2),
+    ]
+    for name, r in results.items():
+        cells = [f"{100 * r['horizon_auc_by_kind'][k]['horizon_auc']:.2f}" for k in order]
+        rows.append(f"| {name} | " + " | ".join(cells) + f" | {100 * r['horizon_auc']:.2f} |")
+    return "\n".join(rows)
+
+
+def _weights_label(w: str | None) -> str:
+    return "ngp_kornia.calibrate" + (f" (weights={w})" if w is not None else " (weights=default)")
+
+
 def main(argv: list[str] | None = None) -> int:
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--limit", type=int, default=None, help="use only the first N images")
+    common.add_argument(
+        "--weights",
+        action="append",
+        default=None,
+        help="weights for ngp_kornia.calibrate: default, none, zsnet or a .pt path; repeat to compare several "
+        "(default: one run with the package default)",
+    )
+    common.add_argument("--methods", default="ngp,lu", help="comma-separated subset of: ngp, lu")
+    common.add_argument("--no-lu", action="store_true", help="skip the peer lu-vp-detect")
+    common.add_argument("--out", type=Path, default=None, help="write per-image results to this JSON file")
+
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("root", type=Path, help="York Urban DB folder (official layout)")
-    parser.add_argument("--split", default="all", choices=["all", "train", "test"])
-    parser.add_argument(
+    sub = parser.add_subparsers(dest="dataset", required=True)
+    p_yud = sub.add_parser("yud", parents=[common], help="York Urban DB folder (official layout)")
+    p_yud.add_argument("root", type=Path)
+    p_yud.add_argument("--split", default="all", choices=["all", "train", "test"])
+    p_yud.add_argument(
         "--ground-truth",
         default="orthogonal",
         choices=["orthogonal", "raw"],
         help="York Urban ground truth: vp_orthogonal (default) or the vertical of the raw vp",
     )
-    parser.add_argument("--limit", type=int, default=None, help="use only the first N images")
-    parser.add_argument("--weights", default=None, help="passed to ngp_kornia.calibrate(weights=...)")
-    parser.add_argument("--methods", default="ngp,lu", help="comma-separated subset of: ngp, lu")
-    parser.add_argument("--out", type=Path, default=None, help="write per-image results to this JSON file")
+    p_ren = sub.add_parser("rendered", parents=[common], help="folder written by `ngp render`")
+    p_ren.add_argument("root", type=Path)
     args = parser.parse_args(argv)
 
-    db = YorkUrbanDB(args.root, split=args.split, ground_truth=args.ground_truth)
-    samples = list(db)[: args.limit] if args.limit is not None else list(db)
+    if args.dataset == "yud":
+        samples = load_yud(args.root, args.split, args.ground_truth)
+        title = f"York Urban DB, split={args.split}, ground truth={args.ground_truth}"
+    else:
+        samples = load_rendered(args.root)
+        title = "rendered (ngp render)"
+    if args.limit is not None:
+        samples = samples[: args.limit]
     if not samples:
-        parser.error(f"no images found in {args.root} for split {args.split!r}")
+        parser.error(f"no images found in {args.root}")
 
     wanted = [m.strip() for m in args.methods.split(",") if m.strip()]
-    methods: dict[str, Callable[[YUDSample], Estimate]] = {}
+    if args.no_lu:
+        wanted = [m for m in wanted if m != "lu"]
+    methods: dict[str, Callable[[Sample], Estimate]] = {}
     notes: dict[str, str] = {}
     for m in wanted:
         try:
             if m == "ngp":
-                label = "ngp_kornia.calibrate" + (f" (weights={args.weights})" if args.weights else "")
-                methods[label] = make_ngp(args.weights)
+                for w in args.weights or [None]:
+                    methods[_weights_label(w)] = make_ngp(w)
             elif m == "lu":
                 methods["lu-vp-detect (true f, pp)"] = make_lu()
             else:
@@ -308,6 +443,7 @@ def main(argv: list[str] | None = None) -> int:
             notes[m] = f"skipped: {e}"
             print(f"[{m}] skipped: {e}", file=sys.stderr)
 
+    load_before = os.getloadavg()
     # warm-up: one untimed call per method
     for name, fn in methods.items():
         try:
@@ -332,6 +468,7 @@ def main(argv: list[str] | None = None) -> int:
             estimates[name].append(est)
         print(f"\r{i + 1}/{len(samples)} {sample.name}", end="", file=sys.stderr, flush=True)
     print(file=sys.stderr)
+    load_after = os.getloadavg()
 
     results: dict[str, dict] = {}
     for name in names:
@@ -345,9 +482,19 @@ def main(argv: list[str] | None = None) -> int:
     base["seconds_per_image"] = None
     results["level horizon through the centre"] = base
 
-    print(f"York Urban DB, split={args.split}, ground truth={args.ground_truth}: {len(samples)} images ({args.root})")
+    print(f"{title}: {len(samples)} images ({args.root})")
+    print(
+        f"timing: {os.cpu_count()} CPUs, torch threads {torch.get_num_threads()}, load average (1 min) "
+        f"{load_before[0]:.2f} before / {load_after[0]:.2f} after the run (other jobs running slow the timings)"
+    )
     print()
     print(markdown_table(results, len(samples)))
+    by_kind = kind_table(results)
+    if by_kind:
+        print()
+        print("horizon AUC (%) by scene kind")
+        print()
+        print(by_kind)
     for name, r in results.items():
         for msg in r.get("exceptions", [])[:5]:
             print(f"  [{name}] {msg}")
@@ -357,10 +504,11 @@ def main(argv: list[str] | None = None) -> int:
     if args.out is not None:
         payload = {
             "command": " ".join(sys.argv),
+            "dataset": args.dataset,
             "root": str(args.root),
-            "split": args.split,
-            "ground_truth": args.ground_truth,
+            **({"split": args.split, "ground_truth": args.ground_truth} if args.dataset == "yud" else {}),
             "images": [s.name for s in samples],
+            "load_average": {"before": load_before, "after": load_after},
             "versions": {
                 "python": platform.python_version(),
                 "torch": torch.__version__,

@@ -1,4 +1,4 @@
-"""The ``ngp`` command line: ``ngp calibrate IMAGE...``, ``ngp demo``, ``ngp render OUTDIR``."""
+"""The ``ngp`` command line: ``ngp calibrate IMAGE...``, ``ngp rectify IMAGE``, ``ngp demo``, ``ngp render OUTDIR``."""
 
 from __future__ import annotations
 
@@ -23,6 +23,21 @@ def _parser() -> argparse.ArgumentParser:
     cal.add_argument(
         "--overlay", help="write an overlay PNG here (for several images: a folder, one <name>_overlay.png each)"
     )
+    rect = sub.add_parser("rectify", help="calibrate a photo and write it rectified (level, upright or frontal)")
+    rect.add_argument("image", help="image file")
+    rect.add_argument(
+        "--mode",
+        choices=("level", "upright", "frontal"),
+        default="upright",
+        help="level: remove the roll; upright: remove roll and pitch; frontal: face a facade (default: upright)",
+    )
+    rect.add_argument("--axis", choices=("x", "z"), default="z", help="frontal mode: the world axis to look along")
+    rect.add_argument("-o", "--output", required=True, help="the rectified PNG to write")
+    rect.add_argument(
+        "--crop", choices=("keep", "valid"), default="keep", help="keep every pixel, or only valid pixels"
+    )
+    rect.add_argument("--weights", default="default", help="'default' (best shipped) or 'none' (geometric path)")
+    rect.add_argument("--seed", type=int, default=0, help="seed of the candidate sampling")
     demo = sub.add_parser("demo", help="calibrate a built-in rendered example and print the estimate and the truth")
     demo.add_argument("--overlay", help="write the overlay PNG here")
     demo.add_argument("--seed", type=int, default=2, help="which built-in scene to render")
@@ -68,6 +83,37 @@ def _calibrate(args: argparse.Namespace) -> int:
     return 1 if failed else 0
 
 
+def _rectify(args: argparse.Namespace) -> int:
+    import torch
+
+    from ngp_kornia.api import calibrate
+    from ngp_kornia.geometry.rectify import frontal_homography, level_homography, rectify, upright_homography
+    from ngp_kornia.io import read_image_file
+
+    try:
+        rgb = read_image_file(args.image)
+        result = calibrate(rgb, weights=args.weights, seed=args.seed)
+        K, R = result.K[None].double(), result.R[None].double()
+        if args.mode == "level":
+            homography = level_homography(K, R)
+        elif args.mode == "upright":
+            homography = upright_homography(K, R)
+        else:
+            homography = frontal_homography(K, R, axis=0 if args.axis == "x" else 2)
+        image = torch.from_numpy(rgb).permute(2, 0, 1)[None].double().div(255.0)
+        warped, _ = rectify(image, homography, crop=args.crop)
+        out = warped[0].permute(1, 2, 0).mul(255.0).round().clamp(0, 255).to(torch.uint8).numpy()
+        path = Path(args.output)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        if not cv2.imwrite(str(path), cv2.cvtColor(np.ascontiguousarray(out), cv2.COLOR_RGB2BGR)):
+            raise OSError(f"could not write the rectified image to {path}")
+    except (ValueError, TypeError, OSError) as err:
+        print(f"ngp: error: {err}", file=sys.stderr, flush=True)
+        return 1
+    print(f"{args.mode} image ({out.shape[1]}x{out.shape[0]}) written to {path}")
+    return 0
+
+
 def _demo(args: argparse.Namespace) -> int:
     from ngp_kornia.api import calibrate
     from ngp_kornia.data.render import render_scene
@@ -104,7 +150,7 @@ def _render(args: argparse.Namespace) -> int:
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``ngp`` command."""
     args = _parser().parse_args(argv)
-    commands = {"calibrate": _calibrate, "demo": _demo, "render": _render}
+    commands = {"calibrate": _calibrate, "rectify": _rectify, "demo": _demo, "render": _render}
     try:
         return commands[args.command](args)
     except KeyboardInterrupt:

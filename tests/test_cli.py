@@ -94,3 +94,38 @@ def test_render_writes_images_and_ground_truth(tmp_path, capsys):
 def test_render_rejects_a_bad_size(tmp_path, capsys):
     assert main(["render", str(tmp_path), "--size", "big"]) == 2
     assert "640x480" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("mode", ["level", "upright", "frontal"])
+def test_rectify_writes_a_png(photo, tmp_path, capsys, mode):
+    target = tmp_path / "out" / f"{mode}.png"
+    assert main(["rectify", str(photo), "--mode", mode, "-o", str(target), "--crop", "valid"]) == 0
+    written = cv2.imread(str(target))
+    assert written is not None and written.ndim == 3 and min(written.shape[:2]) > 10
+    assert str(target) in capsys.readouterr().out
+
+
+def test_rectify_keep_of_a_rendered_scene_keeps_the_pixels(tmp_path, capsys):
+    from ngp_kornia.data.render import render_scene
+
+    source = tmp_path / "scene.png"
+    cv2.imwrite(str(source), cv2.cvtColor(render_scene(1, (320, 240)).image, cv2.COLOR_RGB2BGR))
+    target = tmp_path / "upright.png"
+    assert main(["rectify", str(source), "-o", str(target)]) == 0
+    written = cv2.imread(str(target))
+    assert written.shape[0] * written.shape[1] > 320 * 240  # the tilted frame needs a larger canvas
+
+
+def test_rectify_rejects_a_bad_mode(photo, tmp_path, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main(["rectify", str(photo), "--mode", "sideways", "-o", str(tmp_path / "x.png")])
+    assert exit_info.value.code == 2
+    assert "invalid choice" in capsys.readouterr().err
+
+
+def test_rectify_missing_input_is_one_line_on_stderr(tmp_path, capsys):
+    missing = tmp_path / "missing.jpg"
+    assert main(["rectify", str(missing), "-o", str(tmp_path / "x.png")]) == 1
+    err = capsys.readouterr().err
+    assert err.strip().count("\n") == 0 and err.startswith("ngp: error: ") and "missing.jpg: file not found" in err
+    assert not (tmp_path / "x.png").exists()

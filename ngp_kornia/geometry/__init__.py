@@ -6,7 +6,9 @@ from ngp_kornia.geometry.lines import *  # noqa: F403
 from ngp_kornia.geometry.lines import __all__ as _lines_all
 from ngp_kornia.geometry.raster import *  # noqa: F403
 from ngp_kornia.geometry.raster import __all__ as _raster_all
+from ngp_kornia.geometry.rectify import *  # noqa: F403
+from ngp_kornia.geometry.rectify import __all__ as _rectify_all
 from ngp_kornia.geometry.vp import *  # noqa: F403
 from ngp_kornia.geometry.vp import __all__ as _vp_all
 
-__all__ = [*_camera_all, *_lines_all, *_raster_all, *_vp_all]
+__all__ = [*_camera_all, *_lines_all, *_raster_all, *_rectify_all, *_vp_all]

@@ -1,16 +1,36 @@
-"""Training targets and losses of the networks (Eq. 8-11 for ZSNet)."""
+"""Training targets and losses of the networks (Eq. 8-11 for ZSNet, Eq. 16-19 for FSNet)."""
 
 from __future__ import annotations
 
 import math
 
+import torch
 import torch.nn.functional as F
 from kornia.core.check import KORNIA_CHECK_SHAPE
 from torch import Tensor
 
-from ngp_kornia.geometry import cossim, structure_tensor, weighted_structure_tensor
+from ngp_kornia.geometry import (
+    cossim,
+    homogeneous_to_pseudo_camera,
+    horizon_border_points,
+    horizon_from_zenith,
+    image_center,
+    intrinsics_matrix,
+    pseudo_focal,
+    structure_tensor,
+    weighted_structure_tensor,
+)
+from ngp_kornia.sampling import FrameCandidates
 
-__all__ = ["zenith_labels", "zenith_classification_loss", "zenith_localisation_loss"]
+__all__ = [
+    "zenith_labels",
+    "zenith_classification_loss",
+    "zenith_localisation_loss",
+    "frame_horizons",
+    "frame_horizon_error",
+    "frame_labels",
+    "frame_classification_loss",
+]
 
 
 def zenith_labels(
@@ -78,3 +98,120 @@ def zenith_localisation_loss(scores: Tensor, zeniths: Tensor, mask: Tensor, zeni
     KORNIA_CHECK_SHAPE(scores, ["B", "Z"])
     mean = weighted_structure_tensor(zeniths, scores * mask.to(scores))
     return (structure_tensor(zenith_gt) - mean).flatten(1).norm(dim=-1).mean()
+
+
+def frame_horizons(frames: FrameCandidates, height: int, width: int) -> Tensor:
+    """The horizon line of each frame candidate in pixels, from its zenith and focal length (pseudo camera).
+
+    The candidate's camera is ``K = [[f fp, 0, cx], [0, f fp, cy], [0, 0, 1]]`` with ``fp`` = :func:`pseudo_focal`
+    and ``(cx, cy)`` the image centre; its zenith in pixels is ``K_p z`` with ``K_p`` the pseudo camera. Invalid
+    frames (focal 0) use focal 1 so the result stays finite.
+
+    Returns:
+        (B, F, 3) lines ``(a, b, c)`` in pixels.
+
+    Example:
+        >>> fr = FrameCandidates(torch.tensor([[[0.0, 1.0, 0.0]]]), None, torch.ones(1, 1), None, None, None)
+        >>> frame_horizons(fr, 480, 640)  # level camera: the horizon is the row through the centre
+        tensor([[[   0.0000,    1.0000, -239.5000]]])
+    """
+    KORNIA_CHECK_SHAPE(frames.zenith, ["B", "F", "3"])
+    KORNIA_CHECK_SHAPE(frames.focal, ["B", "F"])
+    z = frames.zenith
+    fp = pseudo_focal(height, width)
+    c = image_center(height, width, like=z)
+    focal = torch.where(frames.focal > 0, frames.focal, torch.ones_like(frames.focal)).to(z)
+    zenith_px = torch.cat([z[..., :2] * fp + c * z[..., 2:], z[..., 2:]], -1)
+    K = intrinsics_matrix(focal.flatten() * fp, c)
+    return horizon_from_zenith(K, zenith_px.flatten(0, 1)).reshape(z.shape)
+
+
+def frame_horizon_error(frames: FrameCandidates, horizon_gt: Tensor, height: int, width: int) -> Tensor:
+    """Horizon error of each candidate (Barinova et al.): the larger L1 distance between the candidate's and the
+    true horizon's crossings of the left and right image borders, divided by the image height.
+
+    Args:
+        frames: (B, F) candidates in the pseudo camera.
+        horizon_gt: (B, 3) true horizon line in pixels.
+        height: image height in pixels.
+        width: image width in pixels.
+
+    Returns:
+        (B, F) errors in image heights.
+
+    Example:
+        >>> fr = FrameCandidates(torch.tensor([[[0.0, 1.0, 0.0]]]), None, torch.ones(1, 1), None, None, None)
+        >>> frame_horizon_error(fr, torch.tensor([[0.0, 1.0, -287.5]]), 480, 640)  # 48 px = 0.1 heights lower
+        tensor([[0.1000]])
+    """
+    KORNIA_CHECK_SHAPE(horizon_gt, ["B", "3"])
+    h = horizon_border_points(frame_horizons(frames, height, width), width)  # (B, F, 2, 2)
+    g = horizon_border_points(horizon_gt.to(h), width)[:, None]  # (B, 1, 2, 2)
+    return (h - g).abs().sum(-1).amax(-1) / height
+
+
+def frame_labels(
+    frames: FrameCandidates,
+    zenith_gt: Tensor,
+    horizon_gt: Tensor,
+    height: int,
+    width: int,
+    sigma: float = 0.1,
+    threshold: float = 0.5,
+    horizon_scale: float = 1.0,
+) -> tuple[Tensor, Tensor, Tensor]:
+    r"""Target scores and labels of FSNet (Eq. 16-19).
+
+    * :math:`s_z = \mathrm{cossim}(z_{gt}, z_i)`, both zeniths in the pseudo camera;
+    * :math:`s_h = \exp(-\max(\|h_l - g_l\|_1, \|h_r - g_r\|_1)^2)` with the crossings of the candidate's
+      horizon (from its zenith and focal length, :func:`frame_horizons`) and of the true horizon with the left and
+      right image borders. The paper leaves the unit of the distance implicit; here it is
+      :func:`frame_horizon_error`, in image heights (the unit of the usual horizon error), divided further by
+      ``horizon_scale``. In pixels ``s_h`` would be about 0 for any error of a few pixels.
+    * :math:`s_{vh} = \exp(-((s_h + s_z) / 2 - 1)^2 / (2 \sigma^2))` and :math:`c_i = [s_{vh} \ge \delta_s]`.
+
+    With ``sigma = 0.1`` and ``threshold = 0.5`` a candidate is positive while :math:`(s_h + s_z) / 2 > 0.882`;
+    for a correct zenith that is a horizon error below about 0.52 ``horizon_scale`` image heights.
+
+    Args:
+        frames: (B, F) candidates in the pseudo camera.
+        zenith_gt: (B, 3) true zenith VP, homogeneous pixels.
+        horizon_gt: (B, 3) true horizon line in pixels.
+        height: image height in pixels.
+        width: image width in pixels.
+        sigma: sigma of Eq. 19.
+        threshold: delta_s of Eq. 18.
+        horizon_scale: unit of the horizon distance in image heights.
+
+    Returns:
+        ``s_vh`` (B, F), labels (B, F) float in {0, 1} (0 for invalid frames), valid (B, F) bool.
+
+    Example:
+        >>> fr = FrameCandidates(torch.tensor([[[0.0, 1.0, 0.0]]]), None, torch.ones(1, 1), None, None,
+        ...                      torch.ones(1, 1, dtype=torch.bool))
+        >>> s, c, ok = frame_labels(fr, torch.tensor([[0.0, 1.0, 0.0]]), torch.tensor([[0.0, 1.0, -239.5]]), 480, 640)
+        >>> s, c, ok
+        (tensor([[1.]]), tensor([[1.]]), tensor([[True]]))
+    """
+    KORNIA_CHECK_SHAPE(zenith_gt, ["B", "3"])
+    z_gt = homogeneous_to_pseudo_camera(zenith_gt.to(frames.zenith), height, width)
+    s_z = cossim(frames.zenith, z_gt[:, None])
+    s_h = torch.exp(-((frame_horizon_error(frames, horizon_gt, height, width) / horizon_scale) ** 2))
+    s_vh = torch.exp(-(((s_h + s_z) / 2 - 1) ** 2) / (2 * sigma**2))
+    valid = torch.ones_like(s_vh, dtype=torch.bool) if frames.valid is None else frames.valid
+    s_vh = torch.where(valid, s_vh, torch.zeros_like(s_vh))
+    labels = ((s_vh >= threshold) & valid).to(s_vh)
+    return s_vh, labels, valid
+
+
+def frame_classification_loss(logits: Tensor, labels: Tensor, valid: Tensor) -> Tensor:
+    """Binary cross entropy of FSNet (Eq. 17) averaged over the valid frames (0 when none is valid).
+
+    Example:
+        >>> valid = torch.tensor([[True, False]])
+        >>> frame_classification_loss(torch.zeros(1, 2), torch.tensor([[1.0, 0.0]]), valid)
+        tensor(0.6931)
+    """
+    KORNIA_CHECK_SHAPE(logits, ["B", "F"])
+    per = F.binary_cross_entropy_with_logits(logits, labels.to(logits), reduction="none") * valid.to(logits)
+    return per.sum() / valid.sum().clamp_min(1)

@@ -1,0 +1,169 @@
+"""Training FSNet with Lightning: frame candidates are sampled from each batch's segments by the parser (its
+geometric path, or with a ZSNet), the best ones by Manhattan score (plus, in training, a few random valid ones as
+negatives) are labelled against the true zenith and horizon (Eq. 16-19) and scored; loss = binary cross entropy.
+
+Validation also reports whether FSNet re-ranks the candidates better than the Manhattan score alone: the horizon
+error (in image heights) of the top-1 frame by ``s_i = sigmoid(logit) * m_i`` (Eq. 21) and by ``m_i``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import lightning as L
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from ngp_kornia.models.fsnet import FSNet, FSNetInputs
+from ngp_kornia.models.parser import NeuralGeometricParser, ParserConfig
+from ngp_kornia.sampling import FrameCandidates
+from ngp_kornia.training.data import SceneBatch
+from ngp_kornia.training.losses import frame_classification_loss, frame_horizon_error, frame_labels
+
+__all__ = ["FSNetModule", "select_frames"]
+
+
+def select_frames(frames: FrameCandidates, index: Tensor) -> FrameCandidates:
+    """The candidates ``index`` (B, K) of each image: every (B, F, ...) field gathered along F.
+
+    Example:
+        >>> fr = FrameCandidates(torch.rand(1, 3, 3), None, torch.tensor([[1.0, 2.0, 3.0]]), None, None, None)
+        >>> select_frames(fr, torch.tensor([[2, 0]])).focal
+        tensor([[3., 1.]])
+    """
+
+    def gather(t: Tensor | None) -> Tensor | None:
+        if t is None:
+            return None
+        idx = index.reshape(*index.shape, *([1] * (t.dim() - 2))).expand(*index.shape, *t.shape[2:])
+        return t.gather(1, idx)
+
+    return FrameCandidates(**{f.name: gather(getattr(frames, f.name)) for f in dataclasses.fields(frames)})
+
+
+class FSNetModule(L.LightningModule):
+    """Lightning wrapper of an :class:`FSNet`.
+
+    Args:
+        net: the network (passed in; not saved as a hyperparameter).
+        lr: Adam learning rate (the paper: 4e-4).
+        lr_step: epochs between halvings of the learning rate.
+        num_candidates: frames kept per image, the best by Manhattan score.
+        num_random: extra random valid frames per image in training (mostly negatives; 0 for none).
+        sigma: sigma of Eq. 19.
+        label_threshold: delta_s of Eq. 18.
+        horizon_scale: unit of the horizon distance of Eq. 17, in image heights (see :func:`frame_labels`).
+        parser_config: settings of the :class:`NeuralGeometricParser` sampling the candidates (a dict of
+            :class:`ParserConfig` fields; None for the defaults).
+        zsnet: an optional trained ZSNet weighting the zenith candidates (frozen, not saved with this module).
+    """
+
+    def __init__(
+        self,
+        net: FSNet,
+        lr: float = 4e-4,
+        lr_step: int = 5,
+        num_candidates: int = 16,
+        num_random: int = 4,
+        sigma: float = 0.1,
+        label_threshold: float = 0.5,
+        horizon_scale: float = 1.0,
+        parser_config: dict | None = None,
+        zsnet: nn.Module | None = None,
+    ) -> None:
+        super().__init__()
+        self.save_hyperparameters(ignore=["net", "zsnet"])
+        self.net = net
+        if zsnet is not None:
+            zsnet = zsnet.eval().requires_grad_(False)
+        parser = NeuralGeometricParser(ParserConfig(**(parser_config or {})), zsnet)
+        # not a submodule: it is neither trained, switched to train mode, nor saved with the checkpoint
+        object.__setattr__(self, "parser", parser)
+
+    def forward(self, images: Tensor, line_map: Tensor, closeness: Tensor, params: Tensor) -> Tensor:
+        return self.net(images, line_map, closeness, params)
+
+    def _candidates(
+        self, batch: SceneBatch, generator: torch.Generator, training: bool
+    ) -> tuple[FrameCandidates, Tensor]:
+        """Sample frames with the parser and keep the top ones by Manhattan score (plus random ones in training)."""
+        height, width = (int(v) for v in batch.image_size[0])
+        self.parser.to(self.device)
+        with torch.no_grad():
+            frames, manhattan = self.parser.score_frames(batch.segments, batch.mask, height, width, generator)
+        valid = frames.valid
+        num = valid.shape[1]
+        k = min(self.hparams.num_candidates, num)
+        ranked = torch.where(valid, manhattan, torch.full_like(manhattan, -1.0))
+        index = ranked.topk(k, dim=-1).indices
+        extra = min(self.hparams.num_random, num - k) if training else 0
+        if extra > 0:
+            noise = torch.rand(valid.shape, generator=generator).to(manhattan)
+            noise = torch.where(valid, noise, torch.full_like(noise, -1.0)).scatter(1, index, -2.0)
+            index = torch.cat([index, noise.topk(extra, dim=-1).indices], 1)
+        return select_frames(frames, index), manhattan.gather(1, index)
+
+    def _inputs(self, batch: SceneBatch, frames: FrameCandidates) -> FSNetInputs:
+        if batch.images is None:
+            raise ValueError(
+                "FSNet needs the images: set the DataModule's input_size (e.g. input_size: [224, 224]) so batches "
+                "carry them"
+            )
+        height, width = (int(v) for v in batch.image_size[0])
+        images = batch.images.to(self.device, torch.float32)
+        # the segments and frames live in the original image's pixels / pseudo camera: give fsnet_inputs an image
+        # of that size, then put back the stored image when it already has the network's input size
+        full = images
+        if images.shape[-2:] != (height, width):
+            full = F.interpolate(images, (height, width), mode="bilinear", align_corners=False)
+        inputs = self.net.prepare_inputs(full, batch.segments.to(full), batch.mask, frames)
+        if inputs.images.shape[-2:] == images.shape[-2:]:
+            inputs = inputs._replace(images=images)
+        return inputs
+
+    def _step(self, batch: SceneBatch, stage: str, batch_idx: int) -> Tensor:
+        training = stage == "train"
+        # validation and test sample the same candidates every epoch, so their figures are comparable
+        seed = int(torch.randint(2**31 - 1, (1,))) if training else batch_idx
+        generator = torch.Generator().manual_seed(seed)
+        frames, manhattan = self._candidates(batch, generator, training)
+        logits = self.net(*self._inputs(batch, frames))
+        height, width = (int(v) for v in batch.image_size[0])
+        hp = self.hparams
+        _, labels, valid = frame_labels(
+            frames, batch.zenith, batch.horizon, height, width, hp.sigma, hp.label_threshold, hp.horizon_scale
+        )
+        loss = frame_classification_loss(logits, labels, valid)
+        bs = len(batch)
+        self.log(f"{stage}/loss", loss, batch_size=bs, prog_bar=True)
+        if not training:
+            ok = valid.to(logits)
+            correct = ((logits > 0).to(labels) == labels).to(logits) * ok
+            self.log(f"{stage}/accuracy", correct.sum() / ok.sum().clamp_min(1), batch_size=bs)
+            self.log(f"{stage}/positive_rate", (labels * ok).sum() / ok.sum().clamp_min(1), batch_size=bs)
+            error = frame_horizon_error(frames, batch.horizon, height, width)
+            rows = torch.arange(bs, device=error.device)
+            final = torch.where(valid, torch.sigmoid(logits) * manhattan, torch.full_like(logits, -1.0))
+            by_m = torch.where(valid, manhattan, torch.full_like(manhattan, -1.0))
+            self.log(f"{stage}/horizon_error", error[rows, final.argmax(-1)].mean(), batch_size=bs)
+            self.log(f"{stage}/horizon_error_manhattan", error[rows, by_m.argmax(-1)].mean(), batch_size=bs)
+        return loss
+
+    def training_step(self, batch: SceneBatch, batch_idx: int) -> Tensor:
+        return self._step(batch, "train", batch_idx)
+
+    def validation_step(self, batch: SceneBatch, batch_idx: int) -> Tensor:
+        return self._step(batch, "val", batch_idx)
+
+    def test_step(self, batch: SceneBatch, batch_idx: int) -> Tensor:
+        return self._step(batch, "test", batch_idx)
+
+    def on_save_checkpoint(self, checkpoint: dict) -> None:
+        # what ngp-train export needs to rebuild the bare network without this module
+        checkpoint["ngp_network"] = {"name": type(self.net).__name__, "settings": self.net.settings()}
+
+    def configure_optimizers(self):
+        opt = torch.optim.Adam(self.net.parameters(), lr=self.hparams.lr)
+        sched = torch.optim.lr_scheduler.StepLR(opt, step_size=self.hparams.lr_step, gamma=0.5)
+        return {"optimizer": opt, "lr_scheduler": sched}

@@ -149,53 +149,25 @@ def _failed() -> Estimate:
     return Estimate(nan3, nan3.clone(), math.nan, math.nan, math.nan)
 
 
-def _unbatch(x):
-    """A detached CPU tensor; floating point values as float64."""
-    t = torch.as_tensor(x).detach().cpu()
-    return t.double() if t.is_floating_point() else t
-
-
-def _first(x, ndim: int) -> torch.Tensor:
-    """Value of the first image for a field whose unbatched shape has ``ndim`` dims (0 scalar, 1 vector, ...)."""
-    t = _unbatch(x)
-    if t.dim() == ndim + 1:
-        if t.shape[0] != 1:
-            raise ValueError(f"expected a single image, got a batch of {t.shape[0]}")
-        t = t[0]
-    if t.dim() != ndim:
-        raise ValueError(f"unexpected shape {tuple(t.shape)}")
-    return t
-
-
 def estimate_from_calibration(result, sample: Sample) -> Estimate:
-    """Adapter for the result of ``ngp_kornia.calibrate``: works for batched (B = 1) and unbatched results."""
-    K = _first(result.K, 2)
-    if getattr(result, "up", None) is not None:
-        up = _first(result.up, 1)
-    else:  # older result objects: the up vector from the zenith
-        from ngp_kornia.geometry.camera import up_from_zenith
+    """The fields of one image's ``Calibration`` that the evaluation uses, as float64 on the CPU."""
 
-        up = up_from_zenith(K[None], _first(result.zenith, 1)[None])[0]
-    extra = {"focal": float(_first(result.focal, 0))}
-    for name in ("valid", "score"):
-        if getattr(result, name, None) is not None:
-            v = _first(getattr(result, name), 0)
-            extra[name] = bool(v) if v.dtype == torch.bool else float(v)
+    def f64(t: torch.Tensor) -> torch.Tensor:
+        return t.detach().cpu().double()
+
     return Estimate(
-        up=up,
-        horizon=_first(result.horizon, 1),
-        pitch=float(_first(result.pitch, 0)),
-        roll=float(_first(result.roll, 0)),
-        fov_v=float(_first(result.fov_v, 0)),
-        extra=extra,
+        up=f64(result.up),
+        horizon=f64(result.horizon),
+        pitch=float(result.pitch),
+        roll=float(result.roll),
+        fov_v=float(result.fov_v),
+        extra={"focal": float(result.focal), "valid": bool(result.valid), "score": float(result.score)},
     )
 
 
 def make_ngp(weights: str | None) -> Callable[[Sample], Estimate]:
-    try:
-        from ngp_kornia import calibrate
-    except ImportError:
-        from ngp_kornia.api import calibrate
+    from ngp_kornia import calibrate
+
     kwargs = {} if weights is None else {"weights": str(weights)}
 
     def run(sample: Sample) -> Estimate:

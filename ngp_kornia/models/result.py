@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, fields
 
-import torch
 from torch import Tensor
 
 __all__ = ["Calibration"]
@@ -99,6 +98,3 @@ class Calibration:
             f"valid={bool(self.valid)})"
         )
 
-
-def _stack(results: list[Calibration]) -> Calibration:  # used by callers that calibrate image by image
-    return Calibration(**{f.name: torch.stack([getattr(r, f.name) for r in results]) for f in fields(Calibration)})

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import dataclasses
 
-import lightning as L
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
@@ -18,6 +17,7 @@ from torch import Tensor, nn
 from ngp_kornia.models.fsnet import FSNet, FSNetInputs
 from ngp_kornia.models.parser import NeuralGeometricParser, ParserConfig
 from ngp_kornia.sampling import FrameCandidates
+from ngp_kornia.training.base import NetworkModule
 from ngp_kornia.training.data import SceneBatch
 from ngp_kornia.training.losses import frame_classification_loss, frame_horizon_error, frame_labels
 
@@ -42,7 +42,7 @@ def select_frames(frames: FrameCandidates, index: Tensor) -> FrameCandidates:
     return FrameCandidates(**{f.name: gather(getattr(frames, f.name)) for f in dataclasses.fields(frames)})
 
 
-class FSNetModule(L.LightningModule):
+class FSNetModule(NetworkModule):
     """Lightning wrapper of an :class:`FSNet`.
 
     Args:
@@ -149,21 +149,3 @@ class FSNetModule(L.LightningModule):
             self.log(f"{stage}/horizon_error", error[rows, final.argmax(-1)].mean(), batch_size=bs)
             self.log(f"{stage}/horizon_error_manhattan", error[rows, by_m.argmax(-1)].mean(), batch_size=bs)
         return loss
-
-    def training_step(self, batch: SceneBatch, batch_idx: int) -> Tensor:
-        return self._step(batch, "train", batch_idx)
-
-    def validation_step(self, batch: SceneBatch, batch_idx: int) -> Tensor:
-        return self._step(batch, "val", batch_idx)
-
-    def test_step(self, batch: SceneBatch, batch_idx: int) -> Tensor:
-        return self._step(batch, "test", batch_idx)
-
-    def on_save_checkpoint(self, checkpoint: dict) -> None:
-        # what ngp-train export needs to rebuild the bare network without this module
-        checkpoint["ngp_network"] = {"name": type(self.net).__name__, "settings": self.net.settings()}
-
-    def configure_optimizers(self):
-        opt = torch.optim.Adam(self.net.parameters(), lr=self.hparams.lr)
-        sched = torch.optim.lr_scheduler.StepLR(opt, step_size=self.hparams.lr_step, gamma=0.5)
-        return {"optimizer": opt, "lr_scheduler": sched}

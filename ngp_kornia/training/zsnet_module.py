@@ -3,7 +3,6 @@ them at inference, labelled against the true zenith (Eq. 8) and scored; loss = c
 
 from __future__ import annotations
 
-import lightning as L
 import torch
 from torch import Tensor
 
@@ -18,6 +17,7 @@ from ngp_kornia.geometry import (
 )
 from ngp_kornia.models.zsnet import ZSNet
 from ngp_kornia.sampling import sample_zenith_candidates
+from ngp_kornia.training.base import NetworkModule
 from ngp_kornia.training.data import SceneBatch
 from ngp_kornia.training.losses import zenith_classification_loss, zenith_labels, zenith_localisation_loss
 
@@ -39,7 +39,7 @@ def zenith_error_deg(zenith: Tensor, zenith_gt: Tensor, focal: Tensor) -> Tensor
     return torch.rad2deg(torch.atan2((1 - cos**2).clamp_min(0).sqrt(), cos))
 
 
-class ZSNetModule(L.LightningModule):
+class ZSNetModule(NetworkModule):
     """Lightning wrapper of a :class:`ZSNet`.
 
     Args:
@@ -102,21 +102,3 @@ class ZSNetModule(L.LightningModule):
             self.log(f"{stage}/zenith_error", zenith_error_deg(est, z_gt, focal).mean(), batch_size=bs)
             self.log(f"{stage}/zenith_error_uniform", zenith_error_deg(uniform, z_gt, focal).mean(), batch_size=bs)
         return loss
-
-    def training_step(self, batch: SceneBatch, batch_idx: int) -> Tensor:
-        return self._step(batch, "train", batch_idx)
-
-    def validation_step(self, batch: SceneBatch, batch_idx: int) -> Tensor:
-        return self._step(batch, "val", batch_idx)
-
-    def test_step(self, batch: SceneBatch, batch_idx: int) -> Tensor:
-        return self._step(batch, "test", batch_idx)
-
-    def on_save_checkpoint(self, checkpoint: dict) -> None:
-        # what ngp-train export needs to rebuild the bare network without this module
-        checkpoint["ngp_network"] = {"name": type(self.net).__name__, "settings": self.net.settings()}
-
-    def configure_optimizers(self):
-        opt = torch.optim.Adam(self.parameters(), lr=self.hparams.lr)
-        sched = torch.optim.lr_scheduler.StepLR(opt, step_size=self.hparams.lr_step, gamma=0.5)
-        return {"optimizer": opt, "lr_scheduler": sched}

@@ -1,4 +1,5 @@
-"""Overlays: the horizon, the zenith direction and the Manhattan frame drawn on the image."""
+"""Overlays: the horizon, the zenith direction and the Manhattan frame drawn on the image, and virtual objects
+(a box, the world axes) placed in the estimated Manhattan frame (Fig. 1c-d of the paper)."""
 
 from __future__ import annotations
 
@@ -9,11 +10,20 @@ import torch
 from ngp_kornia.geometry import horizon_border_points, segment_vp_angle
 from ngp_kornia.models.result import Calibration
 
-__all__ = ["draw_calibration"]
+__all__ = ["BOX_EDGES", "draw_axes", "draw_calibration", "draw_frame_box", "frame_box_points"]
 
 # RGB colours of the three Manhattan axes (x, vertical, z) and of the horizon
 AXIS_COLOURS = ((230, 60, 60), (60, 200, 60), (70, 110, 255))
 HORIZON_COLOUR = (255, 220, 0)
+
+#: the twelve edges of a box as ``(corner, corner, world axis)``; bit ``a`` of a corner's index says on which side
+#: of the box along world axis ``a`` it lies (for axis 1, bit set = the top face)
+BOX_EDGES = tuple((i, i | 1 << axis, axis) for axis in range(3) for i in range(8) if not i >> axis & 1)
+# without a given centre the box stands where the ray through this point (fractions of the width and height)
+# meets the ground, one camera height below the camera, but never further than _MAX_DISTANCE camera heights
+_BOX_ANCHOR = (0.5, 0.8)
+_MAX_DISTANCE = 10.0
+_BOX_HEIGHT = 0.2  # default size: the box looks about this fraction of the image height tall
 
 
 def draw_calibration(
@@ -34,11 +44,10 @@ def draw_calibration(
     Returns:
         (H, W, 3) uint8 RGB.
     """
-    if calibration.batched:
-        raise ValueError("draw_calibration takes one image's Calibration; index the batch first (result[i])")
+    _check_unbatched(calibration, "draw_calibration")
     out = (image.astype(np.float32) * 0.6).astype(np.uint8)  # dim the photo so the drawing stands out
     h, w = out.shape[:2]
-    thick = max(1, round(max(h, w) / 400))
+    thick = _thickness(out)
     if segments is not None and len(segments):
         _draw_segments(out, segments, calibration, tolerance_deg, thick)
     (x0, y0), (x1, y1) = horizon_border_points(calibration.horizon[None].double(), w)[0].tolist()
@@ -79,3 +88,188 @@ def _draw_zenith_arrow(out: np.ndarray, cal: Calibration, thick: int) -> None:
         return
     tip = centre + direction / norm * 0.2 * h
     cv2.arrowedLine(out, _pt(*centre), _pt(*tip), AXIS_COLOURS[1], 2 * thick, cv2.LINE_AA, tipLength=0.2)
+
+
+def frame_box_points(
+    calibration: Calibration, center: np.ndarray | None = None, size: float | None = None
+) -> np.ndarray:
+    """Pixels of the corners of a cube aligned with the calibration's Manhattan frame.
+
+    The camera sits at the world origin and the world's y axis points down (README "Conventions"); lengths are in
+    camera heights, so the ground is the plane ``y = 1``. The cube stands on its bottom face, centred at ``center``,
+    with edges along the world axes: vertical edges vanish at the zenith, the others at the two horizontal VPs.
+
+    Args:
+        calibration: an unbatched :class:`Calibration` (``K`` and ``R`` are used).
+        center: (3,) world position of the centre of the bottom face. Default: the ground point seen at the
+            lower middle of the image (on the ray through it, at most 10 camera heights away when the ground is
+            not visible there).
+        size: edge length in camera heights. Default: the cube looks about a fifth of the image height tall.
+
+    Returns:
+        (8, 2) float64 pixels; corner ``i`` has bit 0 of ``i`` set on the +x side, bit 1 on the top and bit 2 on
+        the +z side (:data:`BOX_EDGES` lists the edges). Corners at or behind the camera are NaN.
+
+    Example:
+        >>> from ngp_kornia import calibrate
+        >>> cal = calibrate(torch.rand(3, 48, 64))
+        >>> frame_box_points(cal).shape
+        (8, 2)
+    """
+    _check_unbatched(calibration, "frame_box_points")
+    points = _box_homogeneous(calibration, center, size)
+    pixels = np.full((8, 2), np.nan)
+    front = points[:, 2] > 0
+    pixels[front] = points[front, :2] / points[front, 2:]
+    return pixels
+
+
+def draw_frame_box(
+    image: np.ndarray, calibration: Calibration, center: np.ndarray | None = None, size: float | None = None
+) -> np.ndarray:
+    """Draw a wireframe cube standing upright in the estimated Manhattan frame (virtual object insertion).
+
+    Edges along world x are red, vertical edges green and edges along world z blue (the colours of
+    :func:`draw_calibration`). Parts of the cube behind the camera or outside the image are clipped away.
+
+    Args:
+        image: (H, W, 3) uint8 RGB.
+        calibration: an unbatched :class:`Calibration` for that image.
+        center: (3,) world position of the centre of the cube's bottom face, in camera heights; see
+            :func:`frame_box_points` for the default.
+        size: edge length in camera heights; see :func:`frame_box_points` for the default.
+
+    Returns:
+        (H, W, 3) uint8 RGB, a copy.
+
+    Example:
+        >>> from ngp_kornia import calibrate
+        >>> cal = calibrate(torch.rand(3, 48, 64))
+        >>> draw_frame_box(np.zeros((48, 64, 3), np.uint8), cal).shape
+        (48, 64, 3)
+    """
+    _check_unbatched(calibration, "draw_frame_box")
+    out = image.copy()
+    points = _box_homogeneous(calibration, center, size)
+    thick = 2 * _thickness(out)
+    for i, j, axis in BOX_EDGES:
+        clipped = _clip_edge(points[i], points[j], out.shape[:2])
+        if clipped is not None:
+            p, q, _ = clipped
+            cv2.line(out, _pt(*p), _pt(*q), AXIS_COLOURS[axis], thick, cv2.LINE_AA)
+    return out
+
+
+def draw_axes(
+    image: np.ndarray, calibration: Calibration, origin: np.ndarray | None = None, length: float | None = None
+) -> np.ndarray:
+    """Draw the estimated Manhattan frame as three arrows from a world point: world x (red), up (green, world
+    -y) and world z (blue).
+
+    Args:
+        image: (H, W, 3) uint8 RGB.
+        calibration: an unbatched :class:`Calibration` for that image.
+        origin: (3,) world point the arrows start from, in camera heights; default: where
+            :func:`draw_frame_box` puts its cube.
+        length: arrow length in camera heights; default: the default cube's edge length.
+
+    Returns:
+        (H, W, 3) uint8 RGB, a copy.
+
+    Example:
+        >>> from ngp_kornia import calibrate
+        >>> cal = calibrate(torch.rand(3, 48, 64))
+        >>> draw_axes(np.zeros((48, 64, 3), np.uint8), cal).shape
+        (48, 64, 3)
+    """
+    _check_unbatched(calibration, "draw_axes")
+    out = image.copy()
+    K, R, shape = _camera(calibration)
+    origin, length = _placement(K, R, shape, origin, length)
+    tips = origin + length * np.diag([1.0, -1.0, 1.0])  # x, up (world y points down), z
+    thick = 2 * _thickness(out)
+    for axis, tip in enumerate(tips):
+        clipped = _clip_edge(K @ R @ origin, K @ R @ tip, out.shape[:2])
+        if clipped is None:
+            continue
+        p, q, tip_visible = clipped
+        if tip_visible:  # an arrow head only where the tip itself is in view
+            cv2.arrowedLine(out, _pt(*p), _pt(*q), AXIS_COLOURS[axis], thick, cv2.LINE_AA, tipLength=0.15)
+        else:
+            cv2.line(out, _pt(*p), _pt(*q), AXIS_COLOURS[axis], thick, cv2.LINE_AA)
+    return out
+
+
+def _check_unbatched(calibration: Calibration, name: str) -> None:
+    if calibration.batched:
+        raise ValueError(f"{name} takes one image's Calibration; index the batch first (result[i])")
+
+
+def _thickness(image: np.ndarray) -> int:
+    return max(1, round(max(image.shape[:2]) / 400))
+
+
+def _camera(calibration: Calibration) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
+    K = calibration.K.detach().cpu().double().numpy()
+    R = calibration.R.detach().cpu().double().numpy()
+    height, width = (int(v) for v in calibration.image_size)
+    return K, R, (height, width)
+
+
+def _placement(
+    K: np.ndarray, R: np.ndarray, shape: tuple[int, int], center: np.ndarray | None, size: float | None
+) -> tuple[np.ndarray, float]:
+    """The box's bottom-centre and edge length, filling in the defaults."""
+    height, width = shape
+    if center is None:
+        anchor = np.array([_BOX_ANCHOR[0] * (width - 1), _BOX_ANCHOR[1] * (height - 1), 1.0])
+        ray = R.T @ np.linalg.solve(K, anchor)  # world direction of the anchor pixel's ray
+        ray /= np.linalg.norm(ray)
+        # world y points down and the ground is y = 1: a ray going down by ray_y per unit meets it at 1 / ray_y
+        center = ray * (1.0 / ray[1] if ray[1] > 1.0 / _MAX_DISTANCE else _MAX_DISTANCE)
+    center = np.asarray(center, dtype=np.float64).reshape(3)
+    if size is None:  # an object of size s at distance d looks about f s / d pixels tall
+        size = _BOX_HEIGHT * height / K[1, 1] * float(np.linalg.norm(center))
+    return center, float(size)
+
+
+def _box_homogeneous(calibration: Calibration, center: np.ndarray | None, size: float | None) -> np.ndarray:
+    """(8, 3) corners of the box as homogeneous pixels ``K R X``, whose last coordinate is the depth."""
+    K, R, shape = _camera(calibration)
+    center, size = _placement(K, R, shape, center, size)
+    bits = (np.arange(8)[:, None] >> np.arange(3)) & 1
+    offsets = np.stack([bits[:, 0] - 0.5, -bits[:, 1], bits[:, 2] - 0.5], -1)  # the top is at -y (up)
+    return (center + size * offsets) @ (K @ R).T
+
+
+def _clip_edge(
+    a: np.ndarray, b: np.ndarray, shape: tuple[int, int]
+) -> tuple[tuple[float, float], tuple[float, float], bool] | None:
+    """The part of a 3D edge that is in front of the camera and projects into the image (plus a small margin).
+
+    Clipping happens on homogeneous pixels ``h = K R X`` before dividing by the depth ``h_w``: each bound is a
+    linear constraint on ``h`` (``h_w > 0``, ``x_min h_w <= h_x <= x_max h_w``, the same for y), so it is linear
+    along the edge too, and a corner behind the camera never gets a pixel of its own.
+
+    Returns:
+        the two end pixels and whether ``b`` itself was kept, or None when nothing of the edge is visible.
+    """
+    h, w = shape
+    margin = 2.0
+    x0, y0, x1, y1 = -margin, -margin, w - 1 + margin, h - 1 + margin
+    near = 1e-9 * max(np.abs(a).max(), np.abs(b).max(), 1e-300)
+    # each row (c, d) is the constraint c . h + d >= 0
+    bounds = [((0, 0, 1), -near), ((1, 0, -x0), 0), ((-1, 0, x1), 0), ((0, 1, -y0), 0), ((0, -1, y1), 0)]
+    lo, hi = 0.0, 1.0
+    for c, d in bounds:
+        ga, gb = float(np.dot(c, a)) + d, float(np.dot(c, b)) + d
+        if ga < 0 and gb < 0:
+            return None
+        if ga < 0:
+            lo = max(lo, ga / (ga - gb))
+        elif gb < 0:
+            hi = min(hi, ga / (ga - gb))
+    if lo > hi:
+        return None
+    p, q = a + lo * (b - a), a + hi * (b - a)
+    return (p[0] / p[2], p[1] / p[2]), (q[0] / q[2], q[1] / q[2]), hi == 1.0

@@ -8,6 +8,7 @@ Sampling is random, batched and reproducible through a ``torch.Generator``; vari
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import torch
@@ -32,7 +33,9 @@ __all__ = [
     "sample_horizontal_vps",
     "sample_pairs",
     "sample_zenith_candidates",
+    "select_frames",
     "split_by_pseudo_horizon",
+    "top_frames",
 ]
 
 
@@ -224,6 +227,36 @@ class FrameCandidates:
     R: Tensor
     vps: Tensor
     valid: Tensor
+
+
+def select_frames(frames: FrameCandidates, index: Tensor) -> FrameCandidates:
+    """The candidates ``index`` (B, K) of each image: every (B, F, ...) field gathered along F.
+
+    Example:
+        >>> fr = FrameCandidates(torch.rand(1, 3, 3), None, torch.tensor([[1.0, 2.0, 3.0]]), None, None, None)
+        >>> select_frames(fr, torch.tensor([[2, 0]])).focal
+        tensor([[3., 1.]])
+    """
+
+    def gather(t: Tensor | None) -> Tensor | None:
+        if t is None:
+            return None
+        idx = index.reshape(*index.shape, *([1] * (t.dim() - 2))).expand(*index.shape, *t.shape[2:])
+        return t.gather(1, idx)
+
+    return FrameCandidates(**{f.name: gather(getattr(frames, f.name)) for f in dataclasses.fields(frames)})
+
+
+def top_frames(frames: FrameCandidates, scores: Tensor, k: int) -> Tensor:
+    """Indices (B, min(k, F)) of the best valid frames by ``scores``, best first; invalid frames come last.
+
+    Example:
+        >>> fr = FrameCandidates(None, None, None, None, None, torch.tensor([[True, False, True]]))
+        >>> top_frames(fr, torch.tensor([[0.2, 0.9, 0.5]]), 2)
+        tensor([[2, 0]])
+    """
+    ranked = torch.where(frames.valid, scores, torch.full_like(scores, -1.0))
+    return ranked.topk(min(k, ranked.shape[-1]), dim=-1).indices
 
 
 def frames_from_vps(

@@ -2,7 +2,9 @@
 candidates -> Manhattan frames -> scores -> top-k calibration.
 
 Without networks this is the paper's geometric baseline: zenith candidates count uniformly (instead of ZSNet's
-scores) and frames are ranked by the Manhattan score ``m_i`` of Eq. 20 alone (instead of ``s_vh * m_i``).
+scores) and frames are ranked by the Manhattan score ``m_i`` of Eq. 20 alone (instead of ``s_vh * m_i``). With
+FSNet, the best ``num_scored`` frames by Manhattan score are scored again from the image (Eq. 21); gradients then
+flow from the outputs to FSNet's parameters and to the image's pixels.
 """
 
 from __future__ import annotations
@@ -46,7 +48,9 @@ from ngp_kornia.sampling import (
     sample_horizontal_pair_frames,
     sample_horizontal_vps,
     sample_zenith_candidates,
+    select_frames,
     split_by_pseudo_horizon,
+    top_frames,
 )
 
 __all__ = ["NeuralGeometricParser", "ParserConfig"]
@@ -75,6 +79,8 @@ class ParserConfig:
         focal_range: allowed focal lengths, in units of half the image's long side.
         kernel_angle: width of the sharp closeness kernel of the Manhattan score, degrees.
         top_k: k of Eq. 22.
+        num_scored: frames FSNet scores per image, the best by Manhattan score (unused without FSNet).
+        use_manhattan: with FSNet, the final score is ``s_vh * m_i`` (Eq. 21); False uses ``s_vh`` alone.
         fallback_fov: long-side field of view (degrees) reported when an image has no valid frame.
         seed: seed of the candidate sampling; every call with the same input gives the same result.
     """
@@ -94,6 +100,8 @@ class ParserConfig:
     focal_range: tuple[float, float] = (0.8, 4.0)
     kernel_angle: float = 89.0
     top_k: int = 8
+    num_scored: int = 16
+    use_manhattan: bool = True
     fallback_fov: float = 60.0
     seed: int = 0
 
@@ -105,6 +113,8 @@ class NeuralGeometricParser(nn.Module):
         config: pipeline settings.
         zsnet: a :class:`~ngp_kornia.models.zsnet.ZSNet` scoring the zenith candidates; None weights every valid
             candidate equally (the geometric path).
+        fsnet: an :class:`~ngp_kornia.models.fsnet.FSNet` scoring the best frames; None ranks the frames by the
+            Manhattan score alone.
 
     Example:
         >>> img = torch.rand(1, 3, 96, 128)
@@ -113,10 +123,13 @@ class NeuralGeometricParser(nn.Module):
         (torch.Size([1, 3, 3]), torch.Size([1, 3]), True)
     """
 
-    def __init__(self, config: ParserConfig | None = None, zsnet: nn.Module | None = None) -> None:
+    def __init__(
+        self, config: ParserConfig | None = None, zsnet: nn.Module | None = None, fsnet: nn.Module | None = None
+    ) -> None:
         super().__init__()
         self.config = config or ParserConfig()
         self.zsnet = zsnet
+        self.fsnet = fsnet
 
     def forward(self, images: Tensor, segments: Tensor | None = None, mask: Tensor | None = None) -> Calibration:
         """Calibrate a batch.
@@ -140,6 +153,8 @@ class NeuralGeometricParser(nn.Module):
             segments, mask = segments.new_zeros(len(images), 1, 2, 2), mask.new_zeros(len(images), 1)
         generator = torch.Generator().manual_seed(cfg.seed)
         frames, scores = self.score_frames(segments, mask, height, width, generator)
+        if self.fsnet is not None:
+            frames, scores = self.rescore_frames(images, segments, mask, frames, scores)
         return self.calibrate_from_frames(frames, scores, height, width)
 
     def score_frames(
@@ -165,6 +180,21 @@ class NeuralGeometricParser(nn.Module):
         # max over the three VPs of the kernel = kernel of the smallest cosine (B, F, 1, N)
         cosine = line_vp_cosine(lines, frames.vps).amin(-2, keepdim=True)
         scores = manhattan_score(sharp_kernel(cosine, cfg.kernel_angle), lengths, mask)
+        return frames, torch.where(frames.valid, scores, torch.zeros_like(scores))
+
+    def rescore_frames(
+        self, images: Tensor, segments: Tensor, mask: Tensor, frames: FrameCandidates, manhattan: Tensor
+    ) -> tuple[FrameCandidates, Tensor]:
+        """Keep the best ``num_scored`` frames by Manhattan score and score them with FSNet: ``s_vh * m_i`` (Eq. 21),
+        or ``s_vh`` alone without ``use_manhattan``. Returns the kept frames and their (B, K) scores."""
+        cfg = self.config
+        index = top_frames(frames, manhattan, cfg.num_scored)
+        frames, manhattan = select_frames(frames, index), manhattan.gather(1, index)
+        # FSNet runs in its own dtype (float32 weights on a float64 image, say)
+        dtype = next(self.fsnet.parameters()).dtype
+        inputs = self.fsnet.prepare_inputs(images.to(dtype), segments.to(dtype), mask, frames)
+        s_vh = torch.sigmoid(self.fsnet(*inputs)).to(manhattan)
+        scores = s_vh * manhattan if cfg.use_manhattan else s_vh
         return frames, torch.where(frames.valid, scores, torch.zeros_like(scores))
 
     def zenith_weights(self, lines_z: Tensor, lines_z_ok: Tensor, zenith: Tensor, zenith_ok: Tensor) -> Tensor:

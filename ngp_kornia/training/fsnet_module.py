@@ -8,38 +8,19 @@ error (in image heights) of the top-1 frame by ``s_i = sigmoid(logit) * m_i`` (E
 
 from __future__ import annotations
 
-import dataclasses
-
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
 from ngp_kornia.models.fsnet import FSNet, FSNetInputs
 from ngp_kornia.models.parser import NeuralGeometricParser, ParserConfig
-from ngp_kornia.sampling import FrameCandidates
+from ngp_kornia.models.weights import load_network, shipped_weights
+from ngp_kornia.sampling import FrameCandidates, select_frames, top_frames
 from ngp_kornia.training.base import NetworkModule
 from ngp_kornia.training.data import SceneBatch
 from ngp_kornia.training.losses import frame_classification_loss, frame_horizon_error, frame_labels
 
-__all__ = ["FSNetModule", "select_frames"]
-
-
-def select_frames(frames: FrameCandidates, index: Tensor) -> FrameCandidates:
-    """The candidates ``index`` (B, K) of each image: every (B, F, ...) field gathered along F.
-
-    Example:
-        >>> fr = FrameCandidates(torch.rand(1, 3, 3), None, torch.tensor([[1.0, 2.0, 3.0]]), None, None, None)
-        >>> select_frames(fr, torch.tensor([[2, 0]])).focal
-        tensor([[3., 1.]])
-    """
-
-    def gather(t: Tensor | None) -> Tensor | None:
-        if t is None:
-            return None
-        idx = index.reshape(*index.shape, *([1] * (t.dim() - 2))).expand(*index.shape, *t.shape[2:])
-        return t.gather(1, idx)
-
-    return FrameCandidates(**{f.name: gather(getattr(frames, f.name)) for f in dataclasses.fields(frames)})
+__all__ = ["FSNetModule"]
 
 
 class FSNetModule(NetworkModule):
@@ -57,6 +38,8 @@ class FSNetModule(NetworkModule):
         parser_config: settings of the :class:`NeuralGeometricParser` sampling the candidates (a dict of
             :class:`ParserConfig` fields; None for the defaults).
         zsnet: an optional trained ZSNet weighting the zenith candidates (frozen, not saved with this module).
+        zsnet_weights: instead of ``zsnet``, a ZSNet weights file to load, or ``"zsnet"`` for the shipped one (the
+            form a YAML config can give).
     """
 
     def __init__(
@@ -71,10 +54,14 @@ class FSNetModule(NetworkModule):
         horizon_scale: float = 1.0,
         parser_config: dict | None = None,
         zsnet: nn.Module | None = None,
+        zsnet_weights: str | None = None,
     ) -> None:
         super().__init__()
         self.save_hyperparameters(ignore=["net", "zsnet"])
         self.net = net
+        if zsnet is None and zsnet_weights is not None:
+            path = shipped_weights("zsnet") if zsnet_weights == "zsnet" else zsnet_weights
+            zsnet = load_network(path, "ZSNet")
         if zsnet is not None:
             zsnet = zsnet.eval().requires_grad_(False)
         parser = NeuralGeometricParser(ParserConfig(**(parser_config or {})), zsnet)
@@ -94,9 +81,8 @@ class FSNetModule(NetworkModule):
             frames, manhattan = self.parser.score_frames(batch.segments, batch.mask, height, width, generator)
         valid = frames.valid
         num = valid.shape[1]
-        k = min(self.hparams.num_candidates, num)
-        ranked = torch.where(valid, manhattan, torch.full_like(manhattan, -1.0))
-        index = ranked.topk(k, dim=-1).indices
+        index = top_frames(frames, manhattan, self.hparams.num_candidates)
+        k = index.shape[1]
         extra = min(self.hparams.num_random, num - k) if training else 0
         if extra > 0:
             noise = torch.rand(valid.shape, generator=generator).to(manhattan)

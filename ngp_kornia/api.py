@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import replace
 from functools import lru_cache
 from pathlib import Path
@@ -14,37 +15,48 @@ from torch import Tensor
 from ngp_kornia.io import as_batch, read_rgb
 from ngp_kornia.lines import detect_segments_gray, pad_segments
 from ngp_kornia.models import Calibration, NeuralGeometricParser, ParserConfig
-from ngp_kornia.models.weights import load_network, shipped_weights
+from ngp_kornia.models.weights import load_network, network_name, shipped_weights
 
 __all__ = ["DEFAULT_WEIGHTS", "WEIGHTS", "calibrate", "load_parser"]
 
-#: weight sets ``calibrate`` accepts by name; a path to a ZSNet weights file (``.pt``) works too.
-WEIGHTS = ("default", "none", "zsnet")
+#: weight sets ``calibrate`` accepts by name; paths to weights files (``.pt``) work too.
+WEIGHTS = ("default", "none", "zsnet", "fsnet", "full")
 #: what "default" means: the most accurate path this version ships (see BENCHMARKS.md).
 DEFAULT_WEIGHTS = "none"
+#: the shipped networks each named weight set uses
+_NAMED = {"none": (), "zsnet": ("zsnet",), "fsnet": ("fsnet",), "full": ("zsnet", "fsnet")}
 
 
 @lru_cache(maxsize=8)
-def _zsnet(path: str) -> torch.nn.Module:
-    return load_network(path, "ZSNet")
+def _network(path: str) -> torch.nn.Module:
+    return load_network(path, network_name(path))
 
 
-def load_parser(weights: str | Path = "default", config: ParserConfig | None = None) -> NeuralGeometricParser:
+def _networks(weights: str | Path | Sequence[str | Path]) -> list[torch.nn.Module]:
+    if isinstance(weights, str) and weights == "default":
+        weights = DEFAULT_WEIGHTS
+    if isinstance(weights, str) and weights in _NAMED:
+        return [_network(str(shipped_weights(name))) for name in _NAMED[weights]]
+    paths = [weights] if isinstance(weights, (str, Path)) else list(weights)
+    if not paths or not all(isinstance(p, Path) or str(p).endswith(".pt") for p in paths):
+        raise ValueError(
+            f"unknown weights {weights!r}; choose one of {', '.join(WEIGHTS)} or give paths to .pt weights files"
+        )
+    return [_network(str(p)) for p in paths]
+
+
+def load_parser(
+    weights: str | Path | Sequence[str | Path] = "default", config: ParserConfig | None = None
+) -> NeuralGeometricParser:
     """The parser for a weight set.
 
     ``"none"`` is the geometric path: uniform zenith scores and frames ranked by the Manhattan score (Eq. 20).
-    ``"zsnet"`` scores the zenith candidates with the shipped ZSNet. ``"default"`` is :data:`DEFAULT_WEIGHTS`.
-    A path loads a ZSNet weights file written by ``ngp-train export``.
+    ``"zsnet"`` scores the zenith candidates with the shipped ZSNet, ``"fsnet"`` rescores the best frames with the
+    shipped FSNet, ``"full"`` uses both (the paper's parser). ``"default"`` is :data:`DEFAULT_WEIGHTS`. A path (or
+    a list of paths) loads weights files written by ``ngp-train export``: a ZSNet file, an FSNet file, or one of each.
     """
-    if isinstance(weights, str) and weights == "default":
-        weights = DEFAULT_WEIGHTS
-    if isinstance(weights, str) and weights == "none":
-        return NeuralGeometricParser(config)
-    if isinstance(weights, str) and weights == "zsnet":
-        return NeuralGeometricParser(config, zsnet=_zsnet(str(shipped_weights("zsnet"))))
-    if isinstance(weights, Path) or str(weights).endswith(".pt"):
-        return NeuralGeometricParser(config, zsnet=_zsnet(str(weights)))
-    raise ValueError(f"unknown weights {weights!r}; choose one of {', '.join(WEIGHTS)} or a path to a .pt file")
+    nets = {type(net).__name__: net for net in _networks(weights)}
+    return NeuralGeometricParser(config, zsnet=nets.get("ZSNet"), fsnet=nets.get("FSNet"))
 
 
 def calibrate(
@@ -59,7 +71,8 @@ def calibrate(
         image: a file path, an HxWx3 uint8 RGB array (HxW greyscale, RGBA and uint16 are converted), or a float
             tensor (3, H, W) or (B, 3, H, W) in [0, 1] on any device.
         weights: ``"default"`` (the best path shipped), ``"none"`` (the untrained geometric path), ``"zsnet"`` (zenith
-            candidates scored by the shipped ZSNet) or a path to ZSNet weights.
+            candidates scored by the shipped ZSNet), ``"fsnet"`` (frames rescored by the shipped FSNet), ``"full"``
+            (both), or the path of a weights file (or a list of paths: one ZSNet and one FSNet file).
         seed: seed of the random candidate sampling; the same input and seed give the same result.
         config: pipeline settings (:class:`ngp_kornia.models.ParserConfig`).
 

@@ -9,6 +9,10 @@ import torch
 
 import ngp_kornia
 from ngp_kornia import ImageError, calibrate
+from ngp_kornia.api import load_parser
+from ngp_kornia.models.fsnet import FSNet
+from ngp_kornia.models.weights import WeightsError, save_network
+from ngp_kornia.models.zsnet import ZSNet
 
 
 @pytest.fixture
@@ -130,6 +134,23 @@ def test_bad_tensors_name_the_problem(tensor, error, message):
 def test_unknown_weights_lists_the_choices():
     with pytest.raises(ValueError, match="default, none, zsnet"):
         calibrate(torch.rand(3, 40, 40), weights="imagenet")
+
+
+def test_weights_files_are_recognised_by_the_network_they_hold(tmp_path):
+    zs = save_network(ZSNet(), tmp_path / "z.pt", ZSNet().settings())
+    fs_net = FSNet("shared", widths=(8, 16), depths=(1, 1), head_width=8, input_size=64)
+    fs = save_network(fs_net, tmp_path / "f.pt", fs_net.settings())
+    assert load_parser(zs).zsnet is not None and load_parser(zs).fsnet is None
+    assert load_parser(str(fs)).fsnet is not None and load_parser(str(fs)).zsnet is None
+    both = load_parser([zs, fs])
+    assert both.zsnet is not None and both.fsnet is not None
+    cal = calibrate(torch.rand(3, 48, 64), weights=[zs, fs])
+    assert bool(torch.isfinite(cal.focal))
+
+
+def test_missing_weights_file_is_named(tmp_path):
+    with pytest.raises(WeightsError, match="nope.pt"):
+        calibrate(torch.rand(3, 40, 40), weights=str(tmp_path / "nope.pt"))
 
 
 def test_image_without_lines_gives_a_defined_level_camera():

@@ -13,7 +13,7 @@ from torch import nn
 from ngp_kornia.models.fsnet import FSNet
 from ngp_kornia.models.zsnet import ZSNet
 
-__all__ = ["NETWORKS", "WEIGHTS_DIR", "WeightsError", "load_network", "save_network", "shipped_weights"]
+__all__ = ["NETWORKS", "WEIGHTS_DIR", "WeightsError", "load_network", "network_name", "save_network", "shipped_weights"]
 
 FORMAT = "ngp-kornia-weights"
 VERSION = 1
@@ -58,14 +58,7 @@ def load_network(path: str | Path, network: str) -> nn.Module:
         WeightsError: the file is missing, is not a weights file, holds another network, or its tensors do not fit.
     """
     path = Path(path)
-    if not path.is_file():
-        raise WeightsError(f"weights file not found: {path}")
-    try:
-        payload = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as err:  # torch raises many types for a damaged file
-        raise WeightsError(f"{path} is not a readable weights file ({type(err).__name__}: {err})") from None
-    if not isinstance(payload, dict) or payload.get("format") != FORMAT:
-        raise WeightsError(f"{path} is not an ngp-kornia weights file (expected format {FORMAT!r})")
+    payload = _read(path)
     if payload.get("network") != network:
         raise WeightsError(f"{path} holds {payload.get('network')!r} weights, expected {network!r}")
     try:
@@ -74,6 +67,30 @@ def load_network(path: str | Path, network: str) -> nn.Module:
     except (TypeError, RuntimeError, KeyError) as err:
         raise WeightsError(f"{path} does not fit a {network}: {err}") from None
     return net.eval()
+
+
+def network_name(path: str | Path) -> str:
+    """The name of the network a weights file holds (``"ZSNet"`` or ``"FSNet"``).
+
+    Raises:
+        WeightsError: the file is missing, is not a weights file, or holds an unknown network.
+    """
+    name = _read(Path(path)).get("network")
+    if name not in NETWORKS:
+        raise WeightsError(f"{path} holds weights of an unknown network {name!r}; known: {', '.join(NETWORKS)}")
+    return name
+
+
+def _read(path: Path) -> dict:
+    if not path.is_file():
+        raise WeightsError(f"weights file not found: {path}")
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as err:  # torch raises many types for a damaged file
+        raise WeightsError(f"{path} is not a readable weights file ({type(err).__name__}: {err})") from None
+    if not isinstance(payload, dict) or payload.get("format") != FORMAT:
+        raise WeightsError(f"{path} is not an ngp-kornia weights file (expected format {FORMAT!r})")
+    return payload
 
 
 def shipped_weights(name: str) -> Path:

@@ -142,9 +142,13 @@ def horizontal_line_mask(
     angle = segment_vp_angle(segments, zenith[:, None])[:, 0]
     vertical = mask & (angle < vertical_tol_deg)
     other = mask & ~vertical
-    ends = segments.flatten(1, 2)  # (B, 2N, 2)
-    dist = torch.cdist(ends, ends)  # (B, 2N, 2N)
-    near_vertical_end = (dist < junction_radius) & vertical.repeat_interleave(2, 1)[:, None, :]
+    # distances from every endpoint to the endpoints of the vertical lines only, which are few
+    count = int(vertical.sum(-1).max()) if vertical.numel() else 0
+    order = vertical.to(torch.uint8).argsort(dim=-1, descending=True, stable=True)[:, :count]  # vertical lines first
+    vert_ends = _gather(segments.flatten(2), order).reshape(len(order), 2 * count, 2)  # (B, 2V, 2)
+    vert_ok = _gather(vertical[..., None], order)[..., 0].repeat_interleave(2, 1)  # (B, 2V)
+    dist = torch.cdist(segments.flatten(1, 2), vert_ends)  # (B, 2N, 2V)
+    near_vertical_end = (dist < junction_radius) & vert_ok[:, None, :]
     at_junction = near_vertical_end.any(-1).reshape(*mask.shape, 2).any(-1)
     selected = other & at_junction
     enough = selected.sum(-1, keepdim=True) >= min_lines

@@ -20,17 +20,15 @@ from ngp_kornia.geometry import (
     canonical_manhattan_rotation,
     dominant_eigenvector,
     fov_from_focal,
+    frame_manhattan_scores,
     horizon_from_zenith,
     image_center,
     intrinsics_matrix,
-    line_vp_cosine,
-    manhattan_score,
     pitch_roll_from_up,
     pseudo_focal,
     rotation_from_vps,
     segment_lengths,
     segments_to_lines,
-    sharp_kernel,
     structure_tensor,
     to_pseudo_camera,
     topk_weighted_average,
@@ -177,9 +175,7 @@ class NeuralGeometricParser(nn.Module):
         if cfg.num_horizontal_frames > 0:
             pairs = sample_horizontal_pair_frames(h_vps, h_ok, cfg.num_horizontal_frames, cfg.focal_range, generator)
             frames = cat_frames(frames, pairs)
-        # max over the three VPs of the kernel = kernel of the smallest cosine (B, F, 1, N)
-        cosine = line_vp_cosine(lines, frames.vps).amin(-2, keepdim=True)
-        scores = manhattan_score(sharp_kernel(cosine, cfg.kernel_angle), lengths, mask)
+        scores = frame_manhattan_scores(lines, frames.vps, lengths, mask, cfg.kernel_angle)
         return frames, torch.where(frames.valid, scores, torch.zeros_like(scores))
 
     def rescore_frames(

@@ -11,7 +11,7 @@ Usage::
 
     python benchmarks/calibration.py yud /path/to/YorkUrbanDB [--split all] [--ground-truth orthogonal]
     python benchmarks/calibration.py rendered /path/to/render_dir      # written by `ngp render`
-    common options: [--limit N] [--weights default] [--weights none] [--weights zsnet] [--weights w.pt]
+    common options: [--limit N] [--weights default] [--weights none] [--weights full:top_k=4] [--weights w.pt]
                     [--no-lu] [--out r.json]
 
 Both datasets are turned into the same :class:`Sample` (image path, K, up, horizon, pitch, roll, fov_v, height,
@@ -165,13 +165,38 @@ def estimate_from_calibration(result, sample: Sample) -> Estimate:
     )
 
 
-def make_ngp(weights: str | None) -> Callable[[Sample], Estimate]:
-    from ngp_kornia import calibrate
+def parse_weights_spec(spec: str | None) -> tuple[object, dict]:
+    """``NAME[:key=value,...]`` -> (weights for calibrate, ParserConfig overrides).
 
-    kwargs = {} if weights is None else {"weights": str(weights)}
+    NAME is a weight set (none, zsnet, fsnet, full, default) or .pt paths joined by ``+``; the overrides set
+    :class:`ngp_kornia.models.ParserConfig` fields, e.g. ``full:top_k=1`` or ``fsnet:use_manhattan=false``.
+    """
+    if spec is None:
+        return "default", {}
+    name, _, rest = spec.partition(":")
+    weights: object = name.split("+") if "+" in name else name
+    overrides = {}
+    for item in filter(None, rest.split(",")):
+        key, _, value = item.partition("=")
+        overrides[key] = {"true": True, "false": False}.get(value.lower(), value)
+    return weights, overrides
+
+
+def make_ngp(spec: str | None) -> Callable[[Sample], Estimate]:
+    from dataclasses import fields
+
+    from ngp_kornia import calibrate
+    from ngp_kornia.models import ParserConfig
+
+    weights, overrides = parse_weights_spec(spec)
+    types = {f.name: type(getattr(ParserConfig(), f.name)) for f in fields(ParserConfig)}
+    unknown = set(overrides) - set(types)
+    if unknown:
+        raise SystemExit(f"unknown ParserConfig fields {sorted(unknown)} in --weights {spec!r}")
+    config = ParserConfig(**{k: v if isinstance(v, bool) else types[k](v) for k, v in overrides.items()})
 
     def run(sample: Sample) -> Estimate:
-        return estimate_from_calibration(calibrate(str(sample.image_path), **kwargs), sample)
+        return estimate_from_calibration(calibrate(str(sample.image_path), weights=weights, config=config), sample)
 
     return run
 
@@ -364,7 +389,8 @@ def main(argv: list[str] | None = None) -> int:
         "--weights",
         action="append",
         default=None,
-        help="weights for ngp_kornia.calibrate: default, none, zsnet or a .pt path; repeat to compare several "
+        help="weights for ngp_kornia.calibrate: default, none, zsnet, fsnet, full or .pt paths joined by '+', "
+        "optionally with ParserConfig overrides (full:top_k=4,use_manhattan=false); repeat to compare several "
         "(default: one run with the package default)",
     )
     common.add_argument("--methods", default="ngp,lu", help="comma-separated subset of: ngp, lu")

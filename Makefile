@@ -27,7 +27,7 @@ $(VENV)/.bench: $(VENV)/.installed
 	touch $@
 
 bench: $(VENV)/.bench
-	$(PY) benchmarks/yud.py $(YUD)
+	$(PY) benchmarks/calibration.py yud $(YUD) --weights none --weights default
 
 clean:
 	rm -rf $(VENV)

@@ -90,15 +90,17 @@ class ZSNetModule(NetworkModule):
         cls = zenith_classification_loss(logits, labels, labelled)
         loc = zenith_localisation_loss(scores, z, z_ok, z_gt)
         loss = cls + self.hparams.localisation_weight * loc
-        bs = len(batch)
-        self.log(f"{stage}/loss", loss, batch_size=bs, prog_bar=True)
-        self.log(f"{stage}/loss_cls", cls, batch_size=bs)
-        self.log(f"{stage}/loss_loc", loc, batch_size=bs)
+        # validation and test figures are epoch means: under DDP each process sees a share of the set, so average
+        # them over the processes (the checkpoint callback monitors val/zenith_error); a no-op in one process
+        opts = {"batch_size": len(batch), "sync_dist": stage != "train"}
+        self.log(f"{stage}/loss", loss, prog_bar=True, **opts)
+        self.log(f"{stage}/loss_cls", cls, **opts)
+        self.log(f"{stage}/loss_loc", loc, **opts)
         if stage != "train":
             keep = scores * z_ok * (scores > self.hparams.zenith_threshold)
             keep = torch.where((keep > 0).any(-1, keepdim=True), keep, z_ok.to(keep))
             est = dominant_eigenvector(weighted_structure_tensor(z, keep))
             uniform = dominant_eigenvector(weighted_structure_tensor(z, z_ok.to(z)))
-            self.log(f"{stage}/zenith_error", zenith_error_deg(est, z_gt, focal).mean(), batch_size=bs)
-            self.log(f"{stage}/zenith_error_uniform", zenith_error_deg(uniform, z_gt, focal).mean(), batch_size=bs)
+            self.log(f"{stage}/zenith_error", zenith_error_deg(est, z_gt, focal).mean(), **opts)
+            self.log(f"{stage}/zenith_error_uniform", zenith_error_deg(uniform, z_gt, focal).mean(), **opts)
         return loss

@@ -1,4 +1,5 @@
-"""The ``ngp`` command line: ``ngp calibrate IMAGE...``, ``ngp rectify IMAGE``, ``ngp demo``, ``ngp render OUTDIR``."""
+"""The ``ngp`` command line: ``ngp calibrate IMAGE...``, ``ngp predict FOLDER``, ``ngp rectify IMAGE``, ``ngp demo``,
+``ngp render OUTDIR``."""
 
 from __future__ import annotations
 
@@ -23,6 +24,14 @@ def _parser() -> argparse.ArgumentParser:
     cal.add_argument(
         "--overlay", help="write an overlay PNG here (for several images: a folder, one <name>_overlay.png each)"
     )
+    pred = sub.add_parser("predict", help="calibrate every image of a folder into a JSON Lines file")
+    pred.add_argument("folder", help="folder of images")
+    pred.add_argument("--out", required=True, help="the .jsonl file to write: one JSON object per image")
+    pred.add_argument("--devices", type=int, default=1, help="CPU processes to share the work (DDP, gloo)")
+    pred.add_argument("--weights", default="default", help="a weight set as for calibrate, or a weights file")
+    pred.add_argument("--recursive", action="store_true", help="also calibrate the images of sub-folders")
+    pred.add_argument("--batch-size", type=int, default=1, help="images per loader batch")
+    pred.add_argument("--seed", type=int, default=0, help="seed of the candidate sampling")
     rect = sub.add_parser("rectify", help="calibrate a photo and write it rectified (level, upright or frontal)")
     rect.add_argument("image", help="image file")
     rect.add_argument(
@@ -81,6 +90,46 @@ def _calibrate(args: argparse.Namespace) -> int:
             failed += 1
             print(f"ngp: error: {err}", file=sys.stderr, flush=True)
     return 1 if failed else 0
+
+
+def _predict(args: argparse.Namespace) -> int:
+    import logging
+
+    from ngp_kornia.predict import predict_folder
+
+    if args.devices < 1:
+        print(f"ngp: error: --devices must be at least 1, got {args.devices}", file=sys.stderr)
+        return 2
+    if args.batch_size < 1:
+        print(f"ngp: error: --batch-size must be at least 1, got {args.batch_size}", file=sys.stderr)
+        return 2
+    for name in ("lightning.pytorch", "lightning.fabric"):  # the rows go to --out; keep the terminal quiet
+        logging.getLogger(name).setLevel(logging.WARNING)
+    try:
+        counts = predict_folder(
+            args.folder,
+            args.out,
+            devices=args.devices,
+            weights=args.weights,
+            recursive=args.recursive,
+            batch_size=args.batch_size,
+            seed=args.seed,
+            progress_bar=sys.stdout.isatty(),
+        )
+    except (ValueError, OSError) as err:
+        print(f"ngp: error: {err}", file=sys.stderr, flush=True)
+        return 1
+    if counts is None:  # another process of a multi-process run: the main one reports
+        return 0
+    print(f"{counts['images']} rows written to {args.out}")
+    if counts["errors"]:
+        print(
+            f"ngp: error: {counts['errors']} of {counts['images']} images could not be read; "
+            f'see the rows with "error" in {args.out}',
+            file=sys.stderr,
+        )
+        return 1
+    return 0
 
 
 def _rectify(args: argparse.Namespace) -> int:
@@ -150,7 +199,7 @@ def _render(args: argparse.Namespace) -> int:
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``ngp`` command."""
     args = _parser().parse_args(argv)
-    commands = {"calibrate": _calibrate, "rectify": _rectify, "demo": _demo, "render": _render}
+    commands = {"calibrate": _calibrate, "predict": _predict, "rectify": _rectify, "demo": _demo, "render": _render}
     try:
         return commands[args.command](args)
     except KeyboardInterrupt:

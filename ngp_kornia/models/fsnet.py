@@ -38,6 +38,7 @@ from ngp_kornia.geometry import (
     line_vp_cosine,
     normalize,
     rasterize_segments,
+    segment_lengths,
     segments_to_lines,
     sharp_kernel,
     to_pseudo_camera,
@@ -49,13 +50,19 @@ __all__ = [
     "FSNet",
     "FSNetInputs",
     "NUM_PARAMS",
+    "NUM_SUPPORT",
     "VARIANTS",
     "canonical_frame_vps",
+    "frame_support",
     "fsnet_inputs",
 ]
 
 #: per-candidate parameters: 9 VP coordinates (three unit VPs, row-major) and the focal length
 NUM_PARAMS = 10
+#: angles (degrees) of the line-support features of ``use_support``
+SUPPORT_ANGLES = (0.25, 0.5, 1.0, 2.0, 4.0)
+#: line-support features per candidate: the share per VP and for the closest VP, at each angle
+NUM_SUPPORT = 4 * len(SUPPORT_ANGLES)
 VARIANTS = ("faithful", "shared")
 _MIN_CLOSENESS = 1e-6  # smaller closeness values are drawn as 0
 _DEFAULT_LAYOUT = {"faithful": LAYOUTS["resnet18"], "shared": LAYOUTS["resnet18-half-s16"]}
@@ -111,6 +118,38 @@ def canonical_frame_vps(frames: FrameCandidates) -> Tensor:
     return normalize(R.transpose(-1, -2) * scale[..., None, :]) + 0.0
 
 
+def frame_support(lines: Tensor, lengths: Tensor, mask: Tensor, vps: Tensor) -> Tensor:
+    """Line support of each candidate: the length-weighted share of the lines passing within each of
+    :data:`SUPPORT_ANGLES` of each VP, and of the closest of the three VPs (the Manhattan score at a hard
+    threshold). Exact, where the maps are drawn at the network's low resolution.
+
+    The angle is the one of Eq. 14-15's closeness, ``asin |cos(l, v)|``: between the VP's ray and the line's plane
+    through the camera centre.
+
+    Args:
+        lines: (B, N, 3) lines in the pseudo camera.
+        lengths: (B, N) segment lengths.
+        mask: (B, N) bool.
+        vps: (B, F, 3, 3) each candidate's three VPs (rows).
+
+    Returns:
+        (B, F, 20): for each angle, the shares of VP 0, 1, 2 and of the closest VP (angle-major).
+
+    Example:
+        >>> lines = torch.tensor([[[1.0, 0.0, 0.0], [0.0, 1.0, -0.5]]])  # x = 0 and y = 0.5
+        >>> vps = torch.eye(3)[[1, 0, 2]].expand(1, 1, 3, 3)  # VPs (0, 1, 0), (1, 0, 0), (0, 0, 1)
+        >>> frame_support(lines, torch.tensor([[3.0, 1.0]]), torch.ones(1, 2, dtype=torch.bool), vps)[0, 0, :4]
+        tensor([0.7500, 0.2500, 0.7500, 1.0000])
+    """
+    cosine = line_vp_cosine(lines, vps)  # (B, F, 3, N)
+    cosine = torch.cat([cosine, cosine.amin(2, keepdim=True)], 2)  # (B, F, 4, N)
+    w = lengths * mask.to(lengths)
+    w = w / w.sum(-1, keepdim=True).clamp_min(torch.finfo(w.dtype).eps)
+    limits = torch.tensor(SUPPORT_ANGLES, dtype=cosine.dtype, device=cosine.device).deg2rad().sin()
+    inside = (cosine[..., None, :, :] <= limits[:, None, None]).to(w)  # (B, F, A, 4, N)
+    return (inside @ w[:, None, None, :, None])[..., 0].flatten(2)
+
+
 def fsnet_inputs(
     images: Tensor,
     segments: Tensor,
@@ -119,6 +158,7 @@ def fsnet_inputs(
     size: int | tuple[int, int] = 224,
     kernel_angle: float | None = 88.0,
     chunk_size: int = 32,
+    support: bool = False,
 ) -> FSNetInputs:
     r"""Build FSNet's inputs for a batch of images and their frame candidates.
 
@@ -144,6 +184,7 @@ def fsnet_inputs(
         size: network input size, ``S`` or ``(S_h, S_w)``.
         kernel_angle: closeness kernel width in degrees, or None for Eq. 15.
         chunk_size: candidates rasterised at once (bounds the memory of drawing, not of the output).
+        support: append each candidate's :func:`frame_support` (20 values) to its parameters.
 
     Returns:
         :class:`FSNetInputs`. Invalid candidates get finite inputs (score them and mask the scores). Closeness
@@ -182,8 +223,10 @@ def fsnet_inputs(
     values = values.flatten(1, 2).transpose(1, 2)  # (B, N, F * 3)
     closeness = rasterize_segments(scaled, mask, values, out_h, out_w, 3 * chunk_size)
     closeness = closeness.reshape(B, num, 3, out_h, out_w)
-    params = torch.cat([vps.flatten(-2), frames.focal.to(images)[..., None]], -1)
-    return FSNetInputs(resized, lmap, closeness, params)
+    params = [vps.flatten(-2), frames.focal.to(images)[..., None]]
+    if support:
+        params.append(frame_support(lines, segment_lengths(segments), mask, vps))
+    return FSNetInputs(resized, lmap, closeness, torch.cat(params, -1))
 
 
 def _mlp(sizes: Sequence[int]) -> nn.Sequential:
@@ -210,7 +253,8 @@ class FSNet(nn.Module):
     =================  ==============================  ==================================
 
     In the shared variant each candidate's head also takes 6 low-resolution map channels (A pooled as line density
-    and as mean closeness over line pixels; dropped with ``use_maps=False``) and the 10 parameters.
+    and as mean closeness over line pixels; dropped with ``use_maps=False``) and the 10 parameters (30 with
+    ``use_support``).
 
     Args:
         variant: ``"faithful"`` or ``"shared"`` (see the module notes).
@@ -226,6 +270,9 @@ class FSNet(nn.Module):
             convolutional and accepts any size.
         use_image: feed the image (False: "FSNet w/o image").
         use_maps: feed L and A (False: "FSNet w/o L and A").
+        use_support: also give each candidate its exact line support (:func:`frame_support`, 20 values) with its
+            parameters (30 instead of 10; in the faithful variant as 20 more constant planes). The maps are drawn at
+            the network's resolution, where frames a few pixels apart look the same; the support tells them apart.
         kernel_angle: closeness kernel of the inputs (:func:`fsnet_inputs`); None for Eq. 15.
         chunk_size: at most this many candidate images per backbone pass (faithful) or head pass (shared), so
             memory at inference does not grow with the candidates. (With gradients every pass stays in memory.)
@@ -249,6 +296,7 @@ class FSNet(nn.Module):
         input_size: int = 224,
         use_image: bool = True,
         use_maps: bool = True,
+        use_support: bool = False,
         kernel_angle: float | None = 88.0,
         chunk_size: int = 32,
         backbone: nn.Module | None = None,
@@ -258,6 +306,8 @@ class FSNet(nn.Module):
         KORNIA_CHECK(chunk_size > 0, "chunk_size must be positive")
         self.variant, self.head_width, self.input_size, self.chunk_size = variant, head_width, input_size, chunk_size
         self.use_image, self.use_maps, self.kernel_angle = use_image, use_maps, kernel_angle
+        self.use_support = use_support
+        self.num_params = NUM_PARAMS + (NUM_SUPPORT if use_support else 0)
         layout = _DEFAULT_LAYOUT[variant]
         self.widths = tuple(layout[0] if widths is None else widths)
         self.depths = tuple(layout[1] if depths is None else depths)
@@ -265,7 +315,7 @@ class FSNet(nn.Module):
         self.custom_backbone = backbone is not None
         image_ch = 3 if use_image else 0
         if variant == "faithful":
-            self.in_channels = image_ch + (4 if use_maps else 0) + NUM_PARAMS
+            self.in_channels = image_ch + (4 if use_maps else 0) + self.num_params
         else:
             self.in_channels = image_ch + (1 if use_maps else 0)
         if backbone is None and self.in_channels > 0:
@@ -281,7 +331,7 @@ class FSNet(nn.Module):
         d = head_width
         self.context = nn.Conv2d(feat, d, 1) if backbone is not None else None
         self.map_proj = nn.Conv2d(6, d, 1, bias=False) if use_maps else None
-        self.param_mlp = _mlp([NUM_PARAMS, d, d])
+        self.param_mlp = _mlp([self.num_params, d, d])
         self.conv1 = nn.Conv2d(d, d, 3, padding=1)
         self.conv2 = nn.Conv2d(d, d, 3, padding=1)
         self.scorer = _mlp([2 * d, d, 1])
@@ -299,13 +349,16 @@ class FSNet(nn.Module):
             "input_size": self.input_size,
             "use_image": self.use_image,
             "use_maps": self.use_maps,
+            "use_support": self.use_support,
             "kernel_angle": self.kernel_angle,
             "chunk_size": self.chunk_size,
         }
 
     def prepare_inputs(self, images: Tensor, segments: Tensor, mask: Tensor, frames: FrameCandidates) -> FSNetInputs:
         """:func:`fsnet_inputs` at this network's input size and closeness kernel."""
-        return fsnet_inputs(images, segments, mask, frames, self.input_size, self.kernel_angle, self.chunk_size)
+        return fsnet_inputs(
+            images, segments, mask, frames, self.input_size, self.kernel_angle, self.chunk_size, self.use_support
+        )
 
     def forward(self, images: Tensor, line_map: Tensor, closeness: Tensor, params: Tensor) -> Tensor:
         """Score frame candidates.
@@ -322,7 +375,7 @@ class FSNet(nn.Module):
         KORNIA_CHECK_SHAPE(images, ["B", "3", "H", "W"])
         KORNIA_CHECK_SHAPE(line_map, ["B", "1", "H", "W"])
         KORNIA_CHECK_SHAPE(closeness, ["B", "F", "3", "H", "W"])
-        KORNIA_CHECK_SHAPE(params, ["B", "F", str(NUM_PARAMS)])
+        KORNIA_CHECK_SHAPE(params, ["B", "F", str(self.num_params)])
         B, _, H, W = images.shape
         KORNIA_CHECK(
             line_map.shape[0] == B and line_map.shape[-2:] == (H, W) and closeness.shape[0] == B,
@@ -354,7 +407,7 @@ class FSNet(nn.Module):
             parts.append(images[:, None].expand(B, c, 3, H, W))
         if self.use_maps:
             parts += [line_map[:, None].expand(B, c, 1, H, W), closeness]
-        parts.append(params[..., None, None].expand(B, c, NUM_PARAMS, H, W))
+        parts.append(params[..., None, None].expand(B, c, self.num_params, H, W))
         x = torch.cat(parts, 2).flatten(0, 1)
         feats = self.backbone(x)
         return self.fc(feats.mean((-2, -1))).reshape(B, c)

@@ -7,7 +7,14 @@ import pytest
 import torch
 
 from ngp_kornia.geometry import rasterize_segments, rotation_from_angles
-from ngp_kornia.models.fsnet import NUM_PARAMS, FSNet, canonical_frame_vps, fsnet_inputs
+from ngp_kornia.models.fsnet import (
+    NUM_PARAMS,
+    NUM_SUPPORT,
+    SUPPORT_ANGLES,
+    FSNet,
+    canonical_frame_vps,
+    fsnet_inputs,
+)
 from ngp_kornia.models.resnet import LAYOUTS, ResNet
 from ngp_kornia.sampling import FrameCandidates
 
@@ -211,3 +218,31 @@ def test_resnet18_layout_and_strides():
     assert ResNet(**small.settings()).settings() == small.settings()
     with pytest.raises(ValueError, match="unknown norm"):
         ResNet(3, (8,), (1,), norm="layer")
+
+
+def test_support_features_count_the_lines_through_each_vp():
+    # a vertical segment (length 80) and a horizontal one (length 160), identity frame: VP 0 = x, VP 1 = y
+    segments = torch.tensor([[[[50.0, 10.0], [50.0, 90.0]], [[20.0, 30.0], [180.0, 30.0]]]])
+    mask = torch.ones(1, 2, dtype=torch.bool)
+    tilt = rotation_from_angles(torch.tensor([0.0]), torch.tensor([3.0]), torch.tensor([0.0]))  # 3 degrees of roll
+    R = torch.stack([torch.eye(3), tilt[0]])[None]
+    fr = frames(R, torch.tensor([[1.0, 1.0]]))
+    params = fsnet_inputs(torch.rand(1, 3, 100, 200), segments, mask, fr, size=32, support=True).params
+    assert params.shape == (1, 2, NUM_PARAMS + NUM_SUPPORT)
+    support = params[0, :, NUM_PARAMS:].reshape(2, len(SUPPORT_ANGLES), 4)  # (frame, angle, VP 0 / 1 / 2 / closest)
+    assert torch.allclose(support[0, :, 0], torch.full((5,), 2 / 3))
+    assert torch.allclose(support[0, :, 1], torch.full((5,), 1 / 3))
+    assert torch.allclose(support[0, :, 3], torch.ones(5))
+    # the rolled frame misses both lines by about 3 degrees: no support below that, full support at 4 degrees
+    assert (support[1, :-1, 3] == 0).all() and float(support[1, -1, 3]) == pytest.approx(1.0)
+
+
+def test_support_network_takes_thirty_parameters_and_rebuilds():
+    net = tiny("shared", use_support=True).eval()
+    images, lmap, close, _ = random_inputs(1, 3)
+    params = torch.rand(1, 3, NUM_PARAMS + NUM_SUPPORT)
+    assert net(images, lmap, close, params).shape == (1, 3)
+    again = FSNet(**net.settings())
+    assert again.use_support and again.num_params == NUM_PARAMS + NUM_SUPPORT
+    with pytest.raises(Exception, match="30"):
+        net(images, lmap, close, params[..., :NUM_PARAMS])

@@ -13,13 +13,18 @@ import numpy as np
 
 __all__ = ["main"]
 
+WEIGHTS_HELP = (
+    "'default' (the best shipped), 'none' (geometric path), 'zsnet', 'fsnet', 'full' (both networks), or a .pt "
+    "weights file written by ngp-train export"
+)
+
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="ngp", description="Single-image camera calibration for man-made scenes.")
     sub = p.add_subparsers(dest="command", required=True)
     cal = sub.add_parser("calibrate", help="calibrate photos; prints one JSON object per image")
     cal.add_argument("images", nargs="+", help="image files")
-    cal.add_argument("--weights", default="default", help="'default' (best shipped) or 'none' (geometric path)")
+    cal.add_argument("--weights", default="default", help=WEIGHTS_HELP)
     cal.add_argument("--seed", type=int, default=0, help="seed of the candidate sampling")
     cal.add_argument(
         "--overlay", help="write an overlay PNG here (for several images: a folder, one <name>_overlay.png each)"
@@ -45,7 +50,7 @@ def _parser() -> argparse.ArgumentParser:
     rect.add_argument(
         "--crop", choices=("keep", "valid"), default="keep", help="keep every pixel, or only valid pixels"
     )
-    rect.add_argument("--weights", default="default", help="'default' (best shipped) or 'none' (geometric path)")
+    rect.add_argument("--weights", default="default", help=WEIGHTS_HELP)
     rect.add_argument("--seed", type=int, default=0, help="seed of the candidate sampling")
     demo = sub.add_parser("demo", help="calibrate a built-in rendered example and print the estimate and the truth")
     demo.add_argument("--overlay", help="write the overlay PNG here")

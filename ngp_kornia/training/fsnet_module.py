@@ -121,17 +121,22 @@ class FSNetModule(NetworkModule):
             frames, batch.zenith, batch.horizon, height, width, hp.sigma, hp.label_threshold, hp.horizon_scale
         )
         loss = frame_classification_loss(logits, labels, valid)
-        bs = len(batch)
-        self.log(f"{stage}/loss", loss, batch_size=bs, prog_bar=True)
+        # validation and test figures are averaged over DDP processes, so checkpoints are chosen on the whole set
+        opts = {"batch_size": len(batch), "sync_dist": not training}
+        self.log(f"{stage}/loss", loss, prog_bar=True, **opts)
         if not training:
             ok = valid.to(logits)
             correct = ((logits > 0).to(labels) == labels).to(logits) * ok
-            self.log(f"{stage}/accuracy", correct.sum() / ok.sum().clamp_min(1), batch_size=bs)
-            self.log(f"{stage}/positive_rate", (labels * ok).sum() / ok.sum().clamp_min(1), batch_size=bs)
+            self.log(f"{stage}/accuracy", correct.sum() / ok.sum().clamp_min(1), **opts)
+            self.log(f"{stage}/positive_rate", (labels * ok).sum() / ok.sum().clamp_min(1), **opts)
             error = frame_horizon_error(frames, batch.horizon, height, width)
-            rows = torch.arange(bs, device=error.device)
+            rows = torch.arange(len(batch), device=error.device)
             final = torch.where(valid, torch.sigmoid(logits) * manhattan, torch.full_like(logits, -1.0))
             by_m = torch.where(valid, manhattan, torch.full_like(manhattan, -1.0))
-            self.log(f"{stage}/horizon_error", error[rows, final.argmax(-1)].mean(), batch_size=bs)
-            self.log(f"{stage}/horizon_error_manhattan", error[rows, by_m.argmax(-1)].mean(), batch_size=bs)
+            top1, top1_m = error[rows, final.argmax(-1)], error[rows, by_m.argmax(-1)]
+            self.log(f"{stage}/horizon_error", top1.mean(), **opts)
+            self.log(f"{stage}/horizon_error_manhattan", top1_m.mean(), **opts)
+            # the horizon AUC on [0, 0.25] is the mean of max(0, 1 - error / 0.25): averages over batches exactly
+            self.log(f"{stage}/horizon_auc", (1 - top1 / 0.25).clamp_min(0).mean(), **opts)
+            self.log(f"{stage}/horizon_auc_manhattan", (1 - top1_m / 0.25).clamp_min(0).mean(), **opts)
         return loss

@@ -50,7 +50,7 @@ def load_parser(
 ) -> NeuralGeometricParser:
     """The parser for a weight set.
 
-    ``"none"`` is the geometric path: uniform zenith scores and frames ranked by the Manhattan score (Eq. 20).
+    ``"none"`` is the geometric path: uniform zenith scores and frames ranked by the Manhattan score (Eq. 21).
     ``"zsnet"`` scores the zenith candidates with the shipped ZSNet, ``"fsnet"`` rescores the best frames with the
     shipped FSNet, ``"full"`` uses both (the paper's parser). ``"default"`` is :data:`DEFAULT_WEIGHTS`. A path (or
     a list of paths) loads weights files written by ``ngp-train export``: a ZSNet file, an FSNet file, or one of each.

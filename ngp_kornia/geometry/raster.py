@@ -1,4 +1,4 @@
-r"""Rasterised line maps (Eq. 14), closeness maps (Eq. 16) and the map form of the Manhattan score (Eq. 20).
+r"""Rasterised line maps (Eq. 13), closeness maps (Eq. 15) and the map form of the Manhattan score (Eq. 21).
 
 Segments are drawn by sampling points about one pixel apart along each segment and writing each segment's
 value into the nearest pixel; where segments overlap a pixel keeps the largest value. The maps are
@@ -80,7 +80,7 @@ def rasterize_segments(
 
 
 def line_map(segments: Tensor, mask: Tensor, height: int, width: int) -> Tensor:
-    """Binary line-segment map L of Eq. 14: (B, N, 2, 2) -> (B, 1, H, W).
+    """Binary line-segment map L of Eq. 13: (B, N, 2, 2) -> (B, 1, H, W).
 
     Example:
         >>> seg = torch.tensor([[[[1.0, 0.0], [1.0, 2.0]]]])
@@ -94,12 +94,12 @@ def line_map(segments: Tensor, mask: Tensor, height: int, width: int) -> Tensor:
 
 
 def closeness_maps(segments: Tensor, mask: Tensor, closeness: Tensor, height: int, width: int) -> Tensor:
-    """Closeness maps A_x, A_y, A_z of Eq. 16, one per VP of a frame.
+    """Closeness maps A_x, A_y, A_z of Eq. 15, one per VP of a frame.
 
     Args:
         segments: (B, N, 2, 2) segments in the map's pixels.
         mask: (B, N) bool.
-        closeness: (B, 3, N) closeness of every segment to each of the frame's three VPs (Eq. 15, or a sharper
+        closeness: (B, 3, N) closeness of every segment to each of the frame's three VPs (Eq. 14, or a sharper
             kernel).
         height: map height.
         width: map width.
@@ -112,7 +112,7 @@ def closeness_maps(segments: Tensor, mask: Tensor, closeness: Tensor, height: in
 
 
 def manhattan_score_maps(line_map: Tensor, closeness_maps: Tensor) -> Tensor:
-    r"""Manhattan score of Eq. 20 on rasterised maps, :math:`\sum \max(A_x, A_y, A_z) / \sum L`.
+    r"""Manhattan score of Eq. 21 on rasterised maps, :math:`\sum \max(A_x, A_y, A_z) / \sum L`.
 
     Args:
         line_map: (B, 1, H, W) binary line map.

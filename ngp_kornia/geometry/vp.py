@@ -1,5 +1,5 @@
-r"""Vanishing points: structure tensors (Eq. 9-10), closeness of lines to VPs (Eq. 15), the Manhattan score
-(Eq. 20) and top-k averaging (Eq. 22).
+r"""Vanishing points: structure tensors (Eq. 9-10), closeness of lines to VPs (Eq. 14), the Manhattan score
+(Eq. 21) and top-k averaging (Eq. 23).
 
 Every function is batched, differentiable and defined on degenerate input (zero weights, points at infinity,
 padded lines), where it returns finite values.
@@ -147,7 +147,7 @@ def segment_vp_angle(segments: Tensor, vps: Tensor) -> Tensor:
 
 
 def closeness(lines: Tensor, vps: Tensor) -> Tensor:
-    r"""The paper's closeness of a line to a VP, :math:`1 - |l \cdot v| / (\|l\| \|v\|)` (Eq. 15).
+    r"""The paper's closeness of a line to a VP, :math:`1 - |l \cdot v| / (\|l\| \|v\|)` (Eq. 14).
 
     Args:
         lines: (B, N, 3) homogeneous lines.
@@ -166,7 +166,7 @@ def closeness(lines: Tensor, vps: Tensor) -> Tensor:
 def sharp_closeness(lines: Tensor, vps: Tensor, angle_deg: float = 89.0) -> Tensor:
     r"""A sharp closeness kernel, :math:`\exp(-\cos^2 / (2 \cos^2 \alpha))` with :math:`\cos` from
     :func:`line_vp_cosine` and :math:`\alpha` = ``angle_deg``: a line counts only when its vector is within about
-    ``90 - angle_deg`` degrees of orthogonal to the VP. Used for the Manhattan score of Eq. 20, where Eq. 15's
+    ``90 - angle_deg`` degrees of orthogonal to the VP. Used for the Manhattan score of Eq. 21, where Eq. 14's
     linear closeness cannot tell a line that points at the VP from one a few degrees off.
 
     Args:
@@ -198,8 +198,8 @@ def sharp_kernel(cosine: Tensor, angle_deg: float = 89.0) -> Tensor:
 
 
 def manhattan_score(closeness_to_vps: Tensor, lengths: Tensor, mask: Tensor) -> Tensor:
-    r"""Manhattan score of Eq. 20 on line segments: the length-weighted mean over lines of their best closeness to
-    the frame's three VPs. This equals Eq. 20's ratio of rasterised maps, :math:`\sum \max(A_x, A_y, A_z) /
+    r"""Manhattan score of Eq. 21 on line segments: the length-weighted mean over lines of their best closeness to
+    the frame's three VPs. This equals Eq. 21's ratio of rasterised maps, :math:`\sum \max(A_x, A_y, A_z) /
     \sum L`, when segments do not overlap, without drawing a map per candidate.
 
     Args:
@@ -225,7 +225,7 @@ def manhattan_score(closeness_to_vps: Tensor, lengths: Tensor, mask: Tensor) -> 
 def frame_manhattan_scores(
     lines: Tensor, vps: Tensor, lengths: Tensor, mask: Tensor, angle_deg: float = 89.0
 ) -> Tensor:
-    """Manhattan score (Eq. 20) of many frames at once with the sharp kernel: the same values as
+    """Manhattan score (Eq. 21) of many frames at once with the sharp kernel: the same values as
     ``manhattan_score(sharp_kernel(line_vp_cosine(lines, vps).amin(-2, keepdim=True), angle_deg), lengths, mask)``
     with fewer passes over the (B, F, 3, N) cosines, which dominate the parser's cost.
 
@@ -263,7 +263,7 @@ def frame_manhattan_scores(
 def topk_weighted_average(
     scores: Tensor, values: Tensor, k: int = 8, mask: Tensor | None = None
 ) -> tuple[Tensor, Tensor]:
-    r"""Score-weighted mean of the values of the ``k`` best candidates (Eq. 22).
+    r"""Score-weighted mean of the values of the ``k`` best candidates (Eq. 23).
 
     Args:
         scores: (B, F) non-negative candidate scores.

@@ -1,6 +1,6 @@
-r"""FSNet, the frame scoring network of Sec. 3.2 (Eq. 14-19): scores how well each Manhattan-frame candidate (three
-VPs and a focal length) fits an image, from the image, its line map L (Eq. 14) and the candidate's closeness maps
-A_x, A_y, A_z (Eq. 15-16). ``sigmoid`` of the output estimates the score :math:`s_{vh}` of Eq. 19.
+r"""FSNet, the frame scoring network of Sec. 3.2 (Eq. 13-20): scores how well each Manhattan-frame candidate (three
+VPs and a focal length) fits an image, from the image, its line map L (Eq. 13) and the candidate's closeness maps
+A_x, A_y, A_z (Eq. 14-15). ``sigmoid`` of the output estimates the score :math:`s_{vh}` of Eq. 20.
 
 Two variants share one interface (:class:`FSNet` with ``variant=...``):
 
@@ -10,7 +10,7 @@ Two variants share one interface (:class:`FSNet` with ``variant=...``):
   (about 2.4 GMAC per candidate with the default ResNet-18 at 224 x 224: the 17-channel 7x7 stem alone is 0.67).
 * ``"shared"``: the trunk runs once per image on the image and the line map (4 channels) to a stride-16 feature
   map; each candidate only adds a light head on that low-resolution map: its closeness maps are average-pooled to
-  the trunk's resolution (as line density and as mean closeness of the line pixels, a local form of Eq. 20), its
+  the trunk's resolution (as line density and as mean closeness of the line pixels, a local form of Eq. 21), its
   VPs and focal length go through an MLP, and two 3x3 convolutions, global average and max pooling and an MLP give
   the score. Scoring many candidates then costs little more than scoring one.
 
@@ -74,8 +74,8 @@ class FSNetInputs(NamedTuple):
 
     Attributes:
         images: (B, 3, S, S) RGB in [0, 1].
-        line_map: (B, 1, S, S) binary line map L (Eq. 14).
-        closeness: (B, F, 3, S, S) closeness maps A_x, A_y, A_z of each candidate (Eq. 16).
+        line_map: (B, 1, S, S) binary line map L (Eq. 13).
+        closeness: (B, F, 3, S, S) closeness maps A_x, A_y, A_z of each candidate (Eq. 15).
         params: (B, F, 10) each candidate's three VPs (unit vectors in the pseudo camera, flattened row-major, in the
             order of :func:`canonical_frame_vps`) and its focal length (pseudo-camera units, 0 for invalid frames).
     """
@@ -123,7 +123,7 @@ def frame_support(lines: Tensor, lengths: Tensor, mask: Tensor, vps: Tensor) -> 
     :data:`SUPPORT_ANGLES` of each VP, and of the closest of the three VPs (the Manhattan score at a hard
     threshold). Exact, where the maps are drawn at the network's low resolution.
 
-    The angle is the one of Eq. 14-15's closeness, ``asin |cos(l, v)|``: between the VP's ray and the line's plane
+    The angle is the one of Eq. 14's closeness, ``asin |cos(l, v)|``: between the VP's ray and the line's plane
     through the camera centre.
 
     Args:
@@ -163,17 +163,17 @@ def fsnet_inputs(
     r"""Build FSNet's inputs for a batch of images and their frame candidates.
 
     The image is resized to the network input (``size``, aspect ratio not kept, as the paper's 224 x 224), the
-    segments are scaled to it and drawn as the line map (Eq. 14) and, per candidate, as closeness maps (Eq. 16).
+    segments are scaled to it and drawn as the line map (Eq. 13) and, per candidate, as closeness maps (Eq. 15).
     The closeness of a segment to a VP is measured on the segment's line in the pseudo camera of the *original*
     image (``geometry.to_pseudo_camera``, where the candidates' VPs live), so it does not depend on ``size``.
 
-    Closeness: with ``kernel_angle=None`` it is Eq. 15, :math:`1 - |\cos|` between the line and VP vectors. That
+    Closeness: with ``kernel_angle=None`` it is Eq. 14, :math:`1 - |\cos|` between the line and VP vectors. That
     is linear in the cosine: a line pointing exactly at the VP gets 1, one a few degrees off still about 0.95, and
     unrelated lines spread over all of [0, 1] (median about 0.5 for random frames), so the maps mostly encode line
     directions rather than which lines vanish at the VP, and the shared variant's average pooling (before any
     non-linearity) loses the small difference. The default is therefore the sharp kernel of
     :func:`~ngp_kornia.geometry.sharp_closeness` at 88 degrees (lines within about two degrees of the VP count):
-    the kernel the parser uses for Eq. 20, a little wider for LSD's angular noise on short segments. A network is
+    the kernel the parser uses for Eq. 21, a little wider for LSD's angular noise on short segments. A network is
     trained for one choice (:attr:`FSNet.kernel_angle`).
 
     Args:
@@ -182,7 +182,7 @@ def fsnet_inputs(
         mask: (B, N) bool, False for padding (never drawn).
         frames: (B, F) frame candidates in the pseudo camera of ``images`` (:mod:`ngp_kornia.sampling`).
         size: network input size, ``S`` or ``(S_h, S_w)``.
-        kernel_angle: closeness kernel width in degrees, or None for Eq. 15.
+        kernel_angle: closeness kernel width in degrees, or None for Eq. 14.
         chunk_size: candidates rasterised at once (bounds the memory of drawing, not of the output).
         support: append each candidate's :func:`frame_support` (20 values) to its parameters.
 
@@ -273,7 +273,7 @@ class FSNet(nn.Module):
         use_support: also give each candidate its exact line support (:func:`frame_support`, 20 values) with its
             parameters (30 instead of 10; in the faithful variant as 20 more constant planes). The maps are drawn at
             the network's resolution, where frames a few pixels apart look the same; the support tells them apart.
-        kernel_angle: closeness kernel of the inputs (:func:`fsnet_inputs`); None for Eq. 15.
+        kernel_angle: closeness kernel of the inputs (:func:`fsnet_inputs`); None for Eq. 14.
         chunk_size: at most this many candidate images per backbone pass (faithful) or head pass (shared), so
             memory at inference does not grow with the candidates. (With gradients every pass stays in memory.)
         backbone: a custom backbone (interface in :mod:`ngp_kornia.models.resnet`) replacing the built-in ResNet;
@@ -365,12 +365,12 @@ class FSNet(nn.Module):
 
         Args:
             images: (B, 3, H, W) RGB in [0, 1].
-            line_map: (B, 1, H, W) line map L (Eq. 14).
-            closeness: (B, F, 3, H, W) closeness maps A_x, A_y, A_z per candidate (Eq. 16).
+            line_map: (B, 1, H, W) line map L (Eq. 13).
+            closeness: (B, F, 3, H, W) closeness maps A_x, A_y, A_z per candidate (Eq. 15).
             params: (B, F, 10) per candidate: three unit VPs (pseudo camera, row-major) and the focal length.
 
         Returns:
-            (B, F) logits; ``sigmoid`` estimates s_vh (Eq. 19).
+            (B, F) logits; ``sigmoid`` estimates s_vh (Eq. 20).
         """
         KORNIA_CHECK_SHAPE(images, ["B", "3", "H", "W"])
         KORNIA_CHECK_SHAPE(line_map, ["B", "1", "H", "W"])
@@ -430,7 +430,7 @@ class FSNet(nn.Module):
             h, w = low_l.shape[-2:]
             low_a = F.adaptive_avg_pool2d(closeness.flatten(0, 1), (h, w)).reshape(B, c, 3, h, w)
             density = low_a * (closeness.shape[-1] / w)  # about the length of line per cell, in cells
-            mean = low_a / low_l[:, None].clamp_min(1e-6)  # mean closeness of the cell's line pixels (local Eq. 20)
+            mean = low_a / low_l[:, None].clamp_min(1e-6)  # mean closeness of the cell's line pixels (local Eq. 21)
             maps = torch.cat([density, mean], 2).flatten(0, 1)
             x = x + self.map_proj(maps).reshape(B, c, -1, h, w)
         x = torch.relu(x.flatten(0, 1))

@@ -2,8 +2,8 @@
 candidates -> Manhattan frames -> scores -> top-k calibration.
 
 Without networks this is the paper's geometric baseline: zenith candidates count uniformly (instead of ZSNet's
-scores) and frames are ranked by the Manhattan score ``m_i`` of Eq. 20 alone (instead of ``s_vh * m_i``). With
-FSNet, the best ``num_scored`` frames by Manhattan score are scored again from the image (Eq. 21); gradients then
+scores) and frames are ranked by the Manhattan score ``m_i`` of Eq. 21 alone (instead of ``s_vh * m_i``). With
+FSNet, the best ``num_scored`` frames by Manhattan score are scored again from the image (Eq. 22); gradients then
 flow from the outputs to FSNet's parameters and to the image's pixels.
 """
 
@@ -76,9 +76,9 @@ class ParserConfig:
             camera (zenith at infinity), where a zenith and a horizontal VP cannot; 0 disables them.
         focal_range: allowed focal lengths, in units of half the image's long side.
         kernel_angle: width of the sharp closeness kernel of the Manhattan score, degrees.
-        top_k: k of Eq. 22.
+        top_k: k of Eq. 23.
         num_scored: frames FSNet scores per image, the best by Manhattan score (unused without FSNet).
-        use_manhattan: with FSNet, the final score is ``s_vh * m_i`` (Eq. 21); False uses ``s_vh`` alone.
+        use_manhattan: with FSNet, the final score is ``s_vh * m_i`` (Eq. 22); False uses ``s_vh`` alone.
         fallback_fov: long-side field of view (degrees) reported when an image has no valid frame.
         seed: seed of the candidate sampling; every call with the same input gives the same result.
     """
@@ -181,7 +181,7 @@ class NeuralGeometricParser(nn.Module):
     def rescore_frames(
         self, images: Tensor, segments: Tensor, mask: Tensor, frames: FrameCandidates, manhattan: Tensor
     ) -> tuple[FrameCandidates, Tensor]:
-        """Keep the best ``num_scored`` frames by Manhattan score and score them with FSNet: ``s_vh * m_i`` (Eq. 21),
+        """Keep the best ``num_scored`` frames by Manhattan score and score them with FSNet: ``s_vh * m_i`` (Eq. 22),
         or ``s_vh`` alone without ``use_manhattan``. Returns the kept frames and their (B, K) scores."""
         cfg = self.config
         index = top_frames(frames, manhattan, cfg.num_scored)
@@ -204,7 +204,7 @@ class NeuralGeometricParser(nn.Module):
         return torch.where((weights > 0).any(-1, keepdim=True), weights, ok)
 
     def calibrate_from_frames(self, frames: FrameCandidates, scores: Tensor, height: int, width: int) -> Calibration:
-        """Top-k average (Eq. 22) of focal and zenith, yaw from the best frame, everything mapped to pixels."""
+        """Top-k average (Eq. 23) of focal and zenith, yaw from the best frame, everything mapped to pixels."""
         cfg = self.config
         valid = frames.valid.any(-1)
         focal, _ = topk_weighted_average(scores, frames.focal, cfg.top_k, frames.valid)

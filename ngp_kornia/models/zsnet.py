@@ -42,7 +42,7 @@ class ZSNet(nn.Module):
     an MLP scores each candidate (Eq. 7). Padding, marked by the masks, never changes an output.
 
     Beyond the paper, each candidate's point feature also sees its *support*: the share of the lines L_z that
-    pass within about 1, 2 and 5 degrees of it (sharp closeness kernels, Eq. 15's cosine). Max-pooled line features
+    pass within about 1, 2 and 5 degrees of it (sharp closeness kernels, Eq. 14's cosine). Max-pooled line features
     cannot count how many lines meet at a point, and that count is what separates the true zenith from a
     chance crossing; ``use_support=False`` gives the paper's network.
 

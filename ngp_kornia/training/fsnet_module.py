@@ -1,9 +1,9 @@
 """Training FSNet with Lightning: frame candidates are sampled from each batch's segments by the parser (its
 geometric path, or with a ZSNet), the best ones by Manhattan score (plus, in training, a few random valid ones as
-negatives) are labelled against the true zenith and horizon (Eq. 16-19) and scored; loss = binary cross entropy.
+negatives) are labelled against the true zenith and horizon (Eq. 16-20) and scored; loss = binary cross entropy.
 
 Validation also reports whether FSNet re-ranks the candidates better than the Manhattan score alone: the horizon
-error (in image heights) of the top-1 frame by ``s_i = sigmoid(logit) * m_i`` (Eq. 21) and by ``m_i``.
+error (in image heights) of the top-1 frame by ``s_i = sigmoid(logit) * m_i`` (Eq. 22) and by ``m_i``.
 """
 
 from __future__ import annotations
@@ -32,8 +32,8 @@ class FSNetModule(NetworkModule):
         lr_step: epochs between halvings of the learning rate.
         num_candidates: frames kept per image, the best by Manhattan score.
         num_random: extra random valid frames per image in training (mostly negatives; 0 for none).
-        sigma: sigma of Eq. 19.
-        label_threshold: delta_s of Eq. 18.
+        sigma: sigma of Eq. 20.
+        label_threshold: delta_s of Eq. 19.
         horizon_scale: unit of the horizon distance of Eq. 17, in image heights (see :func:`frame_labels`).
         parser_config: settings of the :class:`NeuralGeometricParser` sampling the candidates (a dict of
             :class:`ParserConfig` fields; None for the defaults).

@@ -1,4 +1,4 @@
-"""Training targets and losses of the networks (Eq. 8-11 for ZSNet, Eq. 16-19 for FSNet)."""
+"""Training targets and losses of the networks (Eq. 8-11 for ZSNet, Eq. 16-20 for FSNet)."""
 
 from __future__ import annotations
 
@@ -160,7 +160,7 @@ def frame_labels(
     threshold: float = 0.5,
     horizon_scale: float = 1.0,
 ) -> tuple[Tensor, Tensor, Tensor]:
-    r"""Target scores and labels of FSNet (Eq. 16-19).
+    r"""Target scores and labels of FSNet (Eq. 16-20).
 
     * :math:`s_z = \mathrm{cossim}(z_{gt}, z_i)`, both zeniths in the pseudo camera;
     * :math:`s_h = \exp(-\max(\|h_l - g_l\|_1, \|h_r - g_r\|_1)^2)` with the crossings of the candidate's
@@ -179,8 +179,8 @@ def frame_labels(
         horizon_gt: (B, 3) true horizon line in pixels.
         height: image height in pixels.
         width: image width in pixels.
-        sigma: sigma of Eq. 19.
-        threshold: delta_s of Eq. 18.
+        sigma: sigma of Eq. 20.
+        threshold: delta_s of Eq. 19.
         horizon_scale: unit of the horizon distance in image heights.
 
     Returns:
@@ -205,7 +205,7 @@ def frame_labels(
 
 
 def frame_classification_loss(logits: Tensor, labels: Tensor, valid: Tensor) -> Tensor:
-    """Binary cross entropy of FSNet (Eq. 17) averaged over the valid frames (0 when none is valid).
+    """Binary cross entropy of FSNet (Eq. 18) averaged over the valid frames (0 when none is valid).
 
     Example:
         >>> valid = torch.tensor([[True, False]])

@@ -1,5 +1,5 @@
-"""Tests of ngp_kornia.geometry.raster: rasterised line maps (Eq. 14), closeness maps (Eq. 16) and the map form of
-the Manhattan score (Eq. 20)."""
+"""Tests of ngp_kornia.geometry.raster: rasterised line maps (Eq. 13), closeness maps (Eq. 15) and the map form of
+the Manhattan score (Eq. 21)."""
 
 import pytest
 import torch

@@ -1,5 +1,5 @@
-"""Tests of ngp_kornia.geometry.vp: structure tensors (Eq. 9-10), closeness (Eq. 15), Manhattan score (Eq. 20) and
-top-k averaging (Eq. 22)."""
+"""Tests of ngp_kornia.geometry.vp: structure tensors (Eq. 9-10), closeness (Eq. 14), Manhattan score (Eq. 21) and
+top-k averaging (Eq. 23)."""
 
 import math
 
@@ -269,7 +269,7 @@ def test_sharp_closeness_vs_closeness_ordering():
     s = sharp_closeness(lines, vp)[0, 0]
     assert (c[1:] < c[:-1]).all() and (s[1:] < s[:-1]).all()
     assert torch.equal(torch.argsort(c), torch.argsort(s))
-    assert c[4] > 0.9 and s[4] < 0.05  # about 3 degrees off: still "close" for Eq. 15, not for the sharp kernel
+    assert c[4] > 0.9 and s[4] < 0.05  # about 3 degrees off: still "close" for Eq. 14, not for the sharp kernel
     assert s[1] > 0.9
 
 
@@ -432,7 +432,7 @@ def test_manhattan_score_exception_and_gradcheck():
 
 
 # ---------------------------------------------------------------------------------------------------------------
-# topk_weighted_average (Eq. 22)
+# topk_weighted_average (Eq. 23)
 
 
 def test_topk_weighted_average_known():

@@ -117,7 +117,7 @@ def test_fsnet_inputs_draw_segments_with_their_closeness():
     col = round(50.5 * size / W - 0.5)  # pixel centres map to pixel centres
     row = round(30.5 * size / H - 0.5)
     c = -0.495  # x of the vertical segment in the pseudo camera: (50 - 99.5) / 100
-    expect_x = 1 - 1 / math.sqrt(1 + c**2)  # Eq. 15 of the line (1, 0, -c) and the VP (1, 0, 0)
+    expect_x = 1 - 1 / math.sqrt(1 + c**2)  # Eq. 14 of the line (1, 0, -c) and the VP (1, 0, 0)
     expect_z = 1 - abs(c) / math.sqrt(1 + c**2)
     assert (x.line_map[:, 0, 10:55, col] == 1).all()
     vertical = x.closeness[0, 0, :, 25:55, col]  # below the crossing with the horizontal line (which keeps the max)

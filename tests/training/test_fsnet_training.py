@@ -1,4 +1,4 @@
-"""FSNet training: labels of Eq. 16-19 with known answers, the loss's masking, a Lightning fast_dev_run."""
+"""FSNet training: labels of Eq. 16-20 with known answers, the loss's masking, a Lightning fast_dev_run."""
 
 import math
 

@@ -148,6 +148,15 @@ def test_weights_files_are_recognised_by_the_network_they_hold(tmp_path):
     assert bool(torch.isfinite(cal.focal))
 
 
+@pytest.mark.parametrize(("weights", "zsnet", "fsnet"), [("none", False, False), ("zsnet", True, False),
+                                                       ("fsnet", False, True), ("full", True, True)])
+def test_shipped_weight_sets(photo, weights, zsnet, fsnet):
+    parser = load_parser(weights)
+    assert (parser.zsnet is not None, parser.fsnet is not None) == (zsnet, fsnet)
+    cal = calibrate(photo, weights=weights)
+    assert bool(torch.isfinite(cal.K).all()) and cal.K.shape == (3, 3)
+
+
 def test_missing_weights_file_is_named(tmp_path):
     with pytest.raises(WeightsError, match="nope.pt"):
         calibrate(torch.rand(3, 40, 40), weights=str(tmp_path / "nope.pt"))

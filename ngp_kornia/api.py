@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from copy import deepcopy
 from dataclasses import replace
 from functools import lru_cache
 from pathlib import Path
@@ -54,8 +55,15 @@ def load_parser(
     ``"zsnet"`` scores the zenith candidates with the shipped ZSNet, ``"fsnet"`` rescores the best frames with the
     shipped FSNet, ``"full"`` uses both (the paper's parser). ``"default"`` is :data:`DEFAULT_WEIGHTS`. A path (or
     a list of paths) loads weights files written by ``ngp-train export``: a ZSNet file, an FSNet file, or one of each.
+
+    The networks are the caller's own copies, in eval mode: training them (as a layer of a larger model) or moving
+    them does not change what :func:`calibrate` computes.
     """
-    nets = {type(net).__name__: net for net in _networks(weights)}
+    return _parser(weights, config, copy=True)
+
+
+def _parser(weights, config: ParserConfig | None, copy: bool) -> NeuralGeometricParser:
+    nets = {type(net).__name__: deepcopy(net) if copy else net for net in _networks(weights)}
     return NeuralGeometricParser(config, zsnet=nets.get("ZSNet"), fsnet=nets.get("FSNet"))
 
 
@@ -101,7 +109,7 @@ def calibrate(
         batch = torch.from_numpy(rgb).permute(2, 0, 1)[None].float().div(255.0)
         gray = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
         segments, mask = pad_segments([detect_segments_gray(gray, cfg.working_size, cfg.min_length, cfg.max_segments)])
-    parser = load_parser(weights, cfg).to(batch.device)
+    parser = _parser(weights, cfg, copy=False).to(batch.device)  # the cached networks, read only
     with torch.no_grad():
         result = parser(batch, segments, mask)
     return result if batched else result[0]

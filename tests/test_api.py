@@ -157,6 +157,17 @@ def test_shipped_weight_sets(photo, weights, zsnet, fsnet):
     assert bool(torch.isfinite(cal.K).all()) and cal.K.shape == (3, 3)
 
 
+def test_training_a_loaded_parser_leaves_calibrate_unchanged(photo):
+    before = calibrate(photo, weights="fsnet")
+    parser = load_parser("fsnet").train()
+    with torch.no_grad():
+        for p in parser.fsnet.parameters():
+            p.add_(1.0)
+    after = calibrate(photo, weights="fsnet")
+    assert torch.equal(before.K, after.K) and torch.equal(before.R, after.R)
+    assert not load_parser("fsnet").fsnet.training
+
+
 def test_missing_weights_file_is_named(tmp_path):
     with pytest.raises(WeightsError, match="nope.pt"):
         calibrate(torch.rand(3, 40, 40), weights=str(tmp_path / "nope.pt"))

@@ -196,7 +196,8 @@ def make_ngp(spec: str | None) -> Callable[[Sample], Estimate]:
     config = ParserConfig(**{k: v if isinstance(v, bool) else types[k](v) for k, v in overrides.items()})
 
     def run(sample: Sample) -> Estimate:
-        return estimate_from_calibration(calibrate(str(sample.image_path), weights=weights, config=config), sample)
+        result = calibrate(str(sample.image_path), weights=weights, seed=config.seed, config=config)
+        return estimate_from_calibration(result, sample)
 
     return run
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -91,6 +92,8 @@ def _calibrate(args: argparse.Namespace) -> int:
             print(json.dumps({"image": image, **result.to_dict()}), flush=True)
             if args.overlay:
                 _write_overlay(_overlay_path(args.overlay, image, len(args.images) > 1), rgb, result)
+        except BrokenPipeError:  # the reader of stdout went away (e.g. `| head`): not this image's fault
+            raise
         except (ValueError, TypeError, OSError) as err:
             failed += 1
             print(f"ngp: error: {err}", file=sys.stderr, flush=True)
@@ -209,6 +212,9 @@ def main(argv: list[str] | None = None) -> int:
         return commands[args.command](args)
     except KeyboardInterrupt:
         return 130
+    except BrokenPipeError:  # stop quietly, like other command-line tools, when the output is cut short
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
     except Exception as err:  # a one-line message instead of a traceback, whatever went wrong
         print(f"ngp: error: {type(err).__name__}: {err}", file=sys.stderr)
         return 1

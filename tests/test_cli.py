@@ -129,3 +129,16 @@ def test_rectify_missing_input_is_one_line_on_stderr(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.strip().count("\n") == 0 and err.startswith("ngp: error: ") and "missing.jpg: file not found" in err
     assert not (tmp_path / "x.png").exists()
+
+
+def test_output_cut_short_stops_quietly(photo):
+    # `ngp calibrate *.jpg | head -c 20`: the closed pipe is not reported as a failure of the images
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "ngp_kornia.cli", "calibrate", *[str(photo)] * 20],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
+    proc.stdout.read(20)
+    proc.stdout.close()
+    assert proc.wait(timeout=120) == 141
+    assert b"error" not in proc.stderr.read()

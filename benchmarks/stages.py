@@ -87,8 +87,8 @@ def stage_table(image: str, weights: str, repeat: int, with_lu: bool) -> str:
 
     parser = load_parser(weights)
     timer = instrument(parser)
-    original_load = api.load_parser
-    api.load_parser = lambda *a, **k: parser  # calibrate() uses the instrumented parser (and its config's seed)
+    original_parser = api._parser
+    api._parser = lambda *a, **k: parser  # calibrate() uses the instrumented parser (and its config's seed)
     detect = lines.detect_segments_gray
     lsd = StageTimer()
     api.detect_segments_gray = lambda *a, **k: _timed(lsd, "line detection (LSD)", detect, *a, **k)
@@ -100,7 +100,7 @@ def stage_table(image: str, weights: str, repeat: int, with_lu: bool) -> str:
             for fn in order:
                 fn(image, weights, timer, lsd, lu, rows, keep=i > 0)
     finally:
-        api.load_parser = original_load
+        api._parser = original_parser
         api.detect_segments_gray = detect
     lines_out = [f"| stage ({weights}) | ms per image |", "|---|---:|"]
     for name, values in rows.items():

@@ -20,16 +20,14 @@ from dataclasses import replace
 from pathlib import Path
 from typing import IO, NamedTuple
 
-import cv2
 import lightning as L
 import torch
 from lightning.pytorch.callbacks import BasePredictionWriter
 from torch import Tensor
 from torch.utils.data import DataLoader, Dataset
 
-from ngp_kornia.api import load_parser
+from ngp_kornia.api import load_parser, segments_of_rgb
 from ngp_kornia.data.folder import IMAGE_EXTENSIONS, ImageFolder
-from ngp_kornia.lines import detect_segments_gray, pad_segments
 from ngp_kornia.models import Calibration, NeuralGeometricParser, ParserConfig
 
 __all__ = ["FolderImages", "FolderItem", "FolderPredictor", "JsonlWriter", "merge_parts", "predict_folder"]
@@ -80,12 +78,10 @@ class FolderPredictor(L.LightningModule):
 
     def calibrate(self, image: Tensor) -> Calibration:
         """Calibrate one (3, H, W) image as :func:`ngp_kornia.calibrate` does for a file."""
-        cfg = self.parser.config
         # back to the exact 8-bit pixels the file decoded to (the float image is uint8 / 255), since calibrate()
         # runs LSD on those and the lines decide the answer
         rgb = image.mul(255.0).round().to(torch.uint8).permute(1, 2, 0).contiguous().numpy()
-        gray = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
-        segments, mask = pad_segments([detect_segments_gray(gray, cfg.working_size, cfg.min_length, cfg.max_segments)])
+        segments, mask = segments_of_rgb(rgb, self.parser.config)
         return self.parser(image[None].to(self.device), segments, mask)[0]
 
     def predict_step(self, batch: list[FolderItem], batch_idx: int) -> list[tuple[int, dict]]:

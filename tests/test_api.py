@@ -173,8 +173,9 @@ def test_missing_weights_file_is_named(tmp_path):
         calibrate(torch.rand(3, 40, 40), weights=str(tmp_path / "nope.pt"))
 
 
-def test_image_without_lines_gives_a_defined_level_camera():
-    cal = calibrate(torch.full((3, 64, 80), 0.5))
+@pytest.mark.parametrize("weights", ["none", "fsnet", "full"])
+def test_image_without_lines_gives_a_defined_level_camera(weights):
+    cal = calibrate(torch.full((3, 64, 80), 0.5), weights=weights)
     assert not bool(cal.valid)
     assert float(cal.pitch) == pytest.approx(0.0, abs=1e-5) and float(cal.roll) == pytest.approx(0.0, abs=1e-5)
     assert float(cal.fov_h) == pytest.approx(60.0, abs=1e-3)  # the documented fallback on the long side

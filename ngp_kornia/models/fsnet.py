@@ -34,7 +34,6 @@ from torch import Tensor, nn
 
 from ngp_kornia.geometry import (
     canonical_manhattan_rotation,
-    line_map,
     line_vp_cosine,
     normalize,
     rasterize_segments,
@@ -211,8 +210,6 @@ def fsnet_inputs(
     # pixel centres map to pixel centres: x' = (x + 0.5) * S / W - 0.5
     scale = torch.tensor([out_w / W, out_h / H], device=images.device, dtype=images.dtype)
     scaled = (segments + 0.5) * scale - 0.5
-    lmap = line_map(scaled, mask, out_h, out_w)
-
     vps = canonical_frame_vps(frames).to(images)  # (B, F, 3, 3)
     num = vps.shape[1]
     lines = segments_to_lines(to_pseudo_camera(segments, H, W))
@@ -221,8 +218,10 @@ def fsnet_inputs(
     # the kernel's tail is full of subnormal floats, which make CPU arithmetic on the maps many times slower
     values = torch.where(values < _MIN_CLOSENESS, torch.zeros_like(values), values)
     values = values.flatten(1, 2).transpose(1, 2)  # (B, N, F * 3)
-    closeness = rasterize_segments(scaled, mask, values, out_h, out_w, 3 * chunk_size)
-    closeness = closeness.reshape(B, num, 3, out_h, out_w)
+    # the line map L is one more channel of ones: the segments' pixels are found once for all maps
+    values = torch.cat([torch.ones_like(values[..., :1]), values], -1)
+    maps = rasterize_segments(scaled, mask, values, out_h, out_w, 3 * chunk_size + 1)
+    lmap, closeness = maps[:, :1], maps[:, 1:].reshape(B, num, 3, out_h, out_w)
     params = [vps.flatten(-2), frames.focal.to(images)[..., None]]
     if support:
         params.append(frame_support(lines, segment_lengths(segments), mask, vps))

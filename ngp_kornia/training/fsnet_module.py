@@ -34,7 +34,9 @@ class FSNetModule(NetworkModule):
         num_random: extra random valid frames per image in training (mostly negatives; 0 for none).
         sigma: sigma of Eq. 20.
         label_threshold: delta_s of Eq. 19.
-        horizon_scale: unit of the horizon distance of Eq. 17, in image heights (see :func:`frame_labels`).
+        horizon_scale: unit of the horizon distance of Eq. 17, in image heights (see :func:`frame_labels`). The
+            default makes a frame positive within about 2.6% of the image height; with 1.0 nearly every frame of the
+            top 16 is positive and the network learns nothing (BENCHMARKS.md).
         parser_config: settings of the :class:`NeuralGeometricParser` sampling the candidates (a dict of
             :class:`ParserConfig` fields; None for the defaults).
         zsnet: an optional trained ZSNet weighting the zenith candidates (frozen, not saved with this module).
@@ -51,7 +53,7 @@ class FSNetModule(NetworkModule):
         num_random: int = 4,
         sigma: float = 0.1,
         label_threshold: float = 0.5,
-        horizon_scale: float = 1.0,
+        horizon_scale: float = 0.05,
         parser_config: dict | None = None,
         zsnet: nn.Module | None = None,
         zsnet_weights: str | None = None,

@@ -1,0 +1,189 @@
+"""How close the calibration gets to what the York Urban ground truth allows.
+
+The York Urban ground truth (``vp_orthogonal``) was made from hand-labelled segments and the calibrated camera,
+whose principal point is (307.6, 251.5), 12 px from the image centre in each direction. This benchmark scores,
+with the same metrics as ``benchmarks/calibration.py``:
+
+* the true up vector with the principal point at the image centre (what every method that assumes a centred
+  principal point, as this package does, would report if its rotation were exact);
+* the parser on LSD segments (what ``calibrate()`` does) and on the hand-labelled segments of the database, with
+  each ``--weights`` spec: the gap between the two is what line detection costs;
+* the least-squares Manhattan frame of the hand-labelled segments with their labels: the rotation (and the focal
+  length, with the centred principal point) that minimises the length-weighted squared sine between each
+  segment's interpretation plane and its direction. Started from the ground truth; it is the best a
+  least-squares fit of perfect lines does against this ground truth.
+
+Usage::
+
+    python benchmarks/ceiling.py /path/to/YorkUrbanDB [--weights none] [--weights full] [--seeds 0,1,2,3,4]
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+from dataclasses import fields, replace
+from pathlib import Path
+
+import torch
+from kornia.geometry.conversions import axis_angle_to_rotation_matrix
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from calibration import (  # noqa: E402
+    Estimate,
+    estimate_from_calibration,
+    evaluate,
+    load_yud,
+    parse_weights_spec,
+)
+
+from ngp_kornia.api import load_parser, segments_of_rgb  # noqa: E402
+from ngp_kornia.data.yud import YorkUrbanDB, load_labelled_segments  # noqa: E402
+from ngp_kornia.geometry import (  # noqa: E402
+    fov_from_focal,
+    horizon_from_zenith,
+    image_center,
+    intrinsics_matrix,
+    normalize,
+    pitch_roll_from_up,
+    segment_lengths,
+    zenith_from_up,
+)
+from ngp_kornia.io import read_image_file  # noqa: E402
+from ngp_kornia.models import ParserConfig  # noqa: E402
+
+
+def estimate_from_camera(K: torch.Tensor, R: torch.Tensor, height: int) -> Estimate:
+    up = -R[:, 1]
+    pitch, roll = pitch_roll_from_up(up[None])
+    horizon = horizon_from_zenith(K[None], zenith_from_up(K[None], up[None]))[0]
+    return Estimate(up, horizon, float(pitch), float(roll), float(fov_from_focal(K[0, 0], height)))
+
+
+def centred(K: torch.Tensor, height: int, width: int) -> torch.Tensor:
+    """K with its principal point moved to the image centre."""
+    return intrinsics_matrix(K[0, 0][None], image_center(height, width, like=K[0, 0][None]))[0]
+
+
+def least_squares_frame(
+    segments: torch.Tensor, labels: torch.Tensor, K: torch.Tensor, R: torch.Tensor, free_focal: bool
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Rotation (and focal length) minimising sum_i len_i * (n_i . R[:, label_i])^2, n_i the unit normal of
+    segment i's interpretation plane K^T l_i. Starts from (K, R); returns the fitted (K, R)."""
+    ends = torch.cat([segments, torch.ones_like(segments[..., :1])], -1)
+    lines = torch.linalg.cross(ends[:, 0], ends[:, 1])
+    weights = segment_lengths(segments)
+    rotvec = torch.zeros(3, dtype=R.dtype, requires_grad=True)
+    log_f = torch.zeros((), dtype=R.dtype, requires_grad=True)
+
+    def camera() -> tuple[torch.Tensor, torch.Tensor]:
+        scale = torch.stack([log_f.exp(), log_f.exp(), log_f.new_ones(())])
+        return K * scale[:, None], axis_angle_to_rotation_matrix(rotvec[None])[0] @ R
+
+    def loss() -> torch.Tensor:
+        K_, R_ = camera()
+        sines = (normalize(lines @ K_) @ R_).gather(1, labels[:, None])[:, 0]
+        return (weights * sines.square()).sum() / weights.sum() * 1e4  # scaled: LBFGS tolerances are absolute
+
+    opt = torch.optim.LBFGS([rotvec, log_f] if free_focal else [rotvec], max_iter=100, line_search_fn="strong_wolfe")
+
+    def closure() -> torch.Tensor:
+        opt.zero_grad()
+        value = loss()
+        value.backward()
+        return value
+
+    opt.step(closure)
+    with torch.no_grad():
+        return camera()
+
+
+def summary_row(name: str, runs: list[dict]) -> str:
+    aucs = [100 * r["horizon_auc"] for r in runs]
+    cells = [f"{statistics.mean(aucs):.2f}" + (f" ({min(aucs):.2f}-{max(aucs):.2f})" if len(aucs) > 1 else "")]
+    for key in ("up", "fov_v"):
+        if key in runs[0]["summary"]:
+            mean = statistics.mean(r["summary"][key]["mean"] for r in runs)
+            median = statistics.mean(r["summary"][key]["median"] for r in runs)
+            cells.append(f"{mean:.2f} / {median:.2f}")
+        else:
+            cells.append("n.a.")
+    return f"| {name} | " + " | ".join(cells) + " |"
+
+
+def with_mask(segments: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    return segments, torch.ones(segments.shape[:2], dtype=torch.bool)
+
+
+def parser_for(spec: str):
+    weights, overrides = parse_weights_spec(spec)
+    types = {f.name: type(getattr(ParserConfig(), f.name)) for f in fields(ParserConfig)}
+    config = ParserConfig(**{k: v if isinstance(v, bool) else types[k](v) for k, v in overrides.items()})
+    return load_parser(weights, config)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("root", type=Path)
+    ap.add_argument("--weights", action="append", default=None, help="weight spec as in calibration.py; repeatable")
+    ap.add_argument("--seeds", default="0,1,2,3,4", help="comma-separated sampling seeds (results are averaged)")
+    args = ap.parse_args(argv)
+    torch.set_num_threads(1)
+    samples = load_yud(args.root)
+    rotations = [s.R for s in YorkUrbanDB(args.root)]  # same images, same order; column 1 = world down
+    seeds = [int(s) for s in args.seeds.split(",")]
+    rows = []
+
+    # the exact rotation, reported through a centred principal point
+    exact = [
+        estimate_from_camera(centred(s.K, s.height, s.width), R, s.height)
+        for s, R in zip(samples, rotations, strict=True)
+    ]
+    rows.append(summary_row("true rotation and focal, principal point at the image centre", [evaluate(samples, exact)]))
+
+    images, detected, labelled = [], [], []
+    for s in samples:
+        rgb = read_image_file(s.image_path)
+        images.append(torch.from_numpy(rgb).permute(2, 0, 1)[None].double() / 255.0)
+        detected.append(segments_of_rgb(rgb, ParserConfig()))
+        seg, labels = load_labelled_segments(s.image_path.parent / f"{s.name}LinesAndVP.mat")
+        labelled.append((seg, labels))
+
+    for spec in args.weights or ["none"]:
+        parser = parser_for(spec)
+        for source, segs in (("LSD segments", detected), ("hand-labelled segments", None)):
+            runs = []
+            for seed in seeds:
+                parser.config = replace(parser.config, seed=seed)
+                estimates = []
+                for i, s in enumerate(samples):
+                    seg, mask = segs[i] if segs is not None else with_mask(labelled[i][0][None])
+                    with torch.no_grad():
+                        out = parser(images[i].float(), seg.float(), mask)
+                    estimates.append(estimate_from_calibration(out[0], s))
+                runs.append(evaluate(samples, estimates))
+            rows.append(summary_row(f"parser ({spec}) on {source}", runs))
+
+    for label, free_focal, use_centre in (
+        ("true K", False, False),
+        ("principal point at the image centre, focal fitted", True, True),
+    ):
+        estimates = []
+        for s, R0, (seg, labels) in zip(samples, rotations, labelled, strict=True):
+            K0 = centred(s.K, s.height, s.width) if use_centre else s.K
+            K, R = least_squares_frame(seg, labels, K0, R0, free_focal)
+            estimates.append(estimate_from_camera(K, R, s.height))
+        name = f"least-squares frame of the hand-labelled segments, {label}"
+        rows.append(summary_row(name, [evaluate(samples, estimates)]))
+
+    print(f"York Urban DB: {len(samples)} images ({args.root}); seeds {seeds}; torch {torch.__version__}")
+    print()
+    print("| estimate | horizon AUC (%) mean (range) | up error (deg) mean / median | FoV_v error (deg) mean / med. |")
+    print("|---|---|---|---|")
+    print("\n".join(rows))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

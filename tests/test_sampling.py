@@ -11,11 +11,9 @@ from torch.autograd import gradcheck
 from ngp_kornia.geometry import (
     cossim,
     dominant_eigenvector,
-    image_center,
     intrinsics_matrix,
     is_near_vertical,
     pseudo_focal,
-    rotation_from_angles,
     segment_lengths,
     segments_to_lines,
     to_pseudo_camera,
@@ -34,10 +32,8 @@ from ngp_kornia.sampling import (
     sample_zenith_candidates,
     split_by_pseudo_horizon,
 )
+from tests.synthetic_camera import BATCHES, DTYPES, H, W, camera_from_angles
 
-BATCHES = [1, 2, 5]
-DTYPES = [torch.float32, torch.float64]
-H, W = 480, 640
 FP = pseudo_focal(H, W)
 
 
@@ -51,8 +47,7 @@ class _Camera:
     def __init__(self, pitch, roll, yaw, focal, dtype=torch.float64):
         t = lambda v: torch.as_tensor(v, dtype=torch.float64).reshape(-1)  # noqa: E731
         self.focal = t(focal)
-        self.K = intrinsics_matrix(self.focal, image_center(H, W, like=self.focal))
-        self.R = rotation_from_angles(t(pitch), t(roll), t(yaw))
+        self.K, self.R = camera_from_angles(t(pitch), t(roll), t(yaw), self.focal)
         self.b = self.R.shape[0]
         self.dtype = dtype
         f = self.focal / FP

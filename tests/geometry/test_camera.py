@@ -27,10 +27,7 @@ from ngp_kornia.geometry.camera import (
     zenith_from_horizon,
     zenith_from_up,
 )
-
-BATCHES = [1, 2, 5]
-DTYPES = [torch.float32, torch.float64]
-H, W = 480, 640
+from tests.synthetic_camera import BATCHES, DTYPES, H, W, camera_from_angles
 
 
 def _angles(b, seed=0, dtype=torch.float64):
@@ -42,11 +39,6 @@ def _angles(b, seed=0, dtype=torch.float64):
     yaw = ((torch.rand(b, generator=g) - 0.5) * 80).to(dtype)
     focal = (300 + 500 * torch.rand(b, generator=g)).to(dtype)
     return pitch, roll, yaw, focal
-
-
-def _camera(pitch, roll, yaw, focal, h=H, w=W):
-    K = intrinsics_matrix(focal, image_center(h, w, like=focal))
-    return K, rotation_from_angles(pitch, roll, yaw)
 
 
 def _project(K, R, X):
@@ -246,7 +238,7 @@ def test_up_from_rotation():
 
 def test_convention_world_y_down():
     # level camera: the world up direction (0, -1, 0) is the camera's -y (image up); the zenith is at infinity upwards
-    K, R = _camera(_one(0), _one(0), _one(0), _one(500))
+    K, R = camera_from_angles(_one(0), _one(0), _one(0), _one(500))
     up = up_from_rotation(R)
     torch.testing.assert_close(up, torch.tensor([[0.0, -1.0, 0.0]], dtype=torch.float64))
     z = zenith_from_up(K, up)
@@ -259,7 +251,7 @@ def test_convention_world_y_down():
 @pytest.mark.parametrize("pitch", [5.0, 20.0, 45.0])
 def test_convention_pitch_positive_horizon_below_centre(pitch):
     f = 500.0
-    K, R = _camera(_one(pitch), _one(0), _one(0), _one(f))
+    K, R = camera_from_angles(_one(pitch), _one(0), _one(0), _one(f))
     cx, cy = (W - 1) / 2, (H - 1) / 2
     up = up_from_rotation(R)
     p, r = pitch_roll_from_up(up)
@@ -282,7 +274,7 @@ def test_convention_pitch_positive_horizon_below_centre(pitch):
 
 @pytest.mark.parametrize("roll", [3.0, 10.0, 30.0])
 def test_convention_roll_positive_horizon_falls_left_to_right(roll):
-    K, R = _camera(_one(5.0), _one(roll), _one(0), _one(500))
+    K, R = camera_from_angles(_one(5.0), _one(roll), _one(0), _one(500))
     up = up_from_rotation(R)
     assert up[0, 0] > 0  # the scene's up leans to the right
     _, r = pitch_roll_from_up(up)
@@ -293,7 +285,7 @@ def test_convention_roll_positive_horizon_falls_left_to_right(roll):
     assert yr > yl  # right end lower (larger y)
     assert (yr - yl) / (xr - xl) == pytest.approx(math.tan(math.radians(roll)))
     # negative roll: the other way round
-    K, R = _camera(_one(5.0), _one(-roll), _one(0), _one(500))
+    K, R = camera_from_angles(_one(5.0), _one(-roll), _one(0), _one(500))
     horizon = horizon_from_zenith(K, zenith_from_up(K, up_from_rotation(R)))
     (_, yl), (_, yr) = horizon_border_points(horizon, W)[0].tolist()
     assert yr < yl
@@ -302,7 +294,7 @@ def test_convention_roll_positive_horizon_falls_left_to_right(roll):
 @pytest.mark.parametrize("yaw", [10.0, 30.0, 60.0])
 def test_convention_yaw_positive_turned_right(yaw):
     f = 400.0
-    K, R = _camera(_one(0), _one(0), _one(yaw), _one(f))
+    K, R = camera_from_angles(_one(0), _one(0), _one(yaw), _one(f))
     cx, cy = (W - 1) / 2, (H - 1) / 2
     # a world point straight ahead along world +z appears left of the centre
     x = _project(K, R, torch.tensor([[[0.0, 0.0, 10.0]]], dtype=torch.float64))[0, 0]
@@ -350,7 +342,7 @@ def test_angles_gradcheck():
 @pytest.mark.parametrize("dtype", DTYPES)
 def test_convention_round_trip_up_zenith(b, dtype):
     pitch, roll, yaw, focal = _angles(b, dtype=dtype)
-    K, R = _camera(pitch, roll, yaw, focal)
+    K, R = camera_from_angles(pitch, roll, yaw, focal)
     up = up_from_rotation(R)
     zenith = zenith_from_up(K, up)
     assert zenith.shape == (b, 3) and zenith.dtype == dtype
@@ -364,7 +356,7 @@ def test_convention_round_trip_up_zenith(b, dtype):
 
 def test_up_from_zenith_at_infinity():
     # level camera with roll: the zenith is a point at infinity, the up vector still comes out (unit, pointing up)
-    K, R = _camera(_one(0), _one(10), _one(0), _one(500))
+    K, R = camera_from_angles(_one(0), _one(10), _one(0), _one(500))
     up = up_from_rotation(R)
     zenith = zenith_from_up(K, up)
     assert abs(zenith[0, 2]) < 1e-12
@@ -377,7 +369,7 @@ def test_up_from_zenith_at_infinity():
 @pytest.mark.parametrize("dtype", DTYPES)
 def test_convention_round_trip_horizon_zenith(b, dtype):
     pitch, roll, yaw, focal = _angles(b, dtype=dtype)
-    K, R = _camera(pitch, roll, yaw, focal)
+    K, R = camera_from_angles(pitch, roll, yaw, focal)
     zenith = zenith_from_up(K, up_from_rotation(R))
     horizon = horizon_from_zenith(K, zenith)
     assert horizon.shape == (b, 3) and horizon.dtype == dtype
@@ -394,7 +386,7 @@ def test_convention_round_trip_horizon_zenith(b, dtype):
 @pytest.mark.parametrize("dtype", DTYPES)
 def test_convention_horizon_normalisation(dtype):
     pitch, roll, yaw, focal = _angles(5, seed=3, dtype=dtype)
-    K, R = _camera(pitch, roll, yaw, focal)
+    K, R = camera_from_angles(pitch, roll, yaw, focal)
     zenith = zenith_from_up(K, up_from_rotation(R))
     for z in (zenith, -zenith, 7 * zenith):
         h = horizon_from_zenith(K, z)
@@ -406,7 +398,7 @@ def test_convention_horizon_normalisation(dtype):
 def test_horizon_is_image_of_horizontal_points():
     # every world point at infinity in a horizontal direction projects onto the horizon
     pitch, roll, yaw, focal = _angles(3, seed=5)
-    K, R = _camera(pitch, roll, yaw, focal)
+    K, R = camera_from_angles(pitch, roll, yaw, focal)
     horizon = horizon_from_zenith(K, zenith_from_up(K, up_from_rotation(R)))
     az = torch.linspace(-0.6, 0.6, 7, dtype=torch.float64)
     dirs = torch.stack([torch.sin(az), torch.zeros_like(az), torch.cos(az)], -1)  # (7, 3) world, in front
@@ -439,7 +431,7 @@ def test_zenith_horizon_exceptions():
 
 def test_zenith_horizon_gradcheck():
     pitch, roll, yaw, focal = _angles(2, seed=1)
-    K, R = _camera(pitch, roll, yaw, focal)
+    K, R = camera_from_angles(pitch, roll, yaw, focal)
     up = up_from_rotation(R)
     zenith = zenith_from_up(K, up)
     horizon = horizon_from_zenith(K, zenith)
@@ -487,7 +479,7 @@ def test_horizon_border_points_vertical_horizon_finite():
 @pytest.mark.parametrize("dtype", DTYPES)
 def test_vanishing_points_from_rotation(b, dtype):
     pitch, roll, yaw, focal = _angles(b, dtype=dtype)
-    K, R = _camera(pitch, roll, yaw, focal)
+    K, R = camera_from_angles(pitch, roll, yaw, focal)
     vps = vanishing_points_from_rotation(K, R)
     assert vps.shape == (b, 3, 3) and vps.dtype == dtype
     tol = 1e-5 if dtype == torch.float32 else 1e-12
@@ -501,7 +493,7 @@ def test_vanishing_points_from_rotation(b, dtype):
 
 def test_vanishing_points_far_points_converge():
     # a far point along world axis i projects at the (finite) VP of axis i
-    K, R = _camera(_one(15), _one(5), _one(30), _one(500))
+    K, R = camera_from_angles(_one(15), _one(5), _one(30), _one(500))
     vps = vanishing_points_from_rotation(K, R)
     for i in range(3):
         d = torch.zeros(1, 1, 3, dtype=torch.float64)
@@ -519,7 +511,7 @@ def test_vanishing_points_exception():
 @pytest.mark.parametrize("dtype", DTYPES)
 def test_focal_from_orthogonal_vps_recovers_focal(b, dtype):
     pitch, roll, yaw, focal = _angles(b, dtype=dtype)
-    K, R = _camera(pitch, roll, yaw, focal)
+    K, R = camera_from_angles(pitch, roll, yaw, focal)
     vps = (K @ R).transpose(-1, -2)
     pp = image_center(H, W, like=focal)
     for i, j in ((0, 1), (1, 2), (0, 2)):
@@ -556,7 +548,7 @@ def test_focal_from_orthogonal_vps_exception():
 
 
 def test_focal_from_orthogonal_vps_gradcheck():
-    K, R = _camera(*_angles(2, seed=4))
+    K, R = camera_from_angles(*_angles(2, seed=4))
     vps = (K @ R).transpose(-1, -2)
     v1 = vps[:, 0].clone().requires_grad_()
     v2 = vps[:, 1].clone().requires_grad_()
@@ -568,7 +560,7 @@ def test_focal_from_orthogonal_vps_gradcheck():
 @pytest.mark.parametrize("dtype", DTYPES)
 def test_rotation_from_vps_recovers_rotation(b, dtype):
     pitch, roll, yaw, focal = _angles(b, dtype=dtype)
-    K, R = _camera(pitch, roll, yaw, focal)
+    K, R = camera_from_angles(pitch, roll, yaw, focal)
     vps = (K @ R).transpose(-1, -2)
     tol = 1e-4 if dtype == torch.float32 else 1e-10
     for hi in (0, 2):  # either horizontal VP, any homogeneous sign
@@ -585,7 +577,7 @@ def test_rotation_from_vps_recovers_rotation(b, dtype):
 
 
 def test_rotation_from_vps_non_orthogonal_input():
-    K, R = _camera(*_angles(3, seed=2))
+    K, R = camera_from_angles(*_angles(3, seed=2))
     vps = (K @ R).transpose(-1, -2)
     noisy = vps[:, 0] + torch.tensor([5.0, -3.0, 0.0], dtype=torch.float64) * vps[:, 0, 2:]
     out = rotation_from_vps(K, vps[:, 1], noisy)
@@ -594,7 +586,7 @@ def test_rotation_from_vps_non_orthogonal_input():
 
 
 def test_rotation_from_vps_gradcheck():
-    K, R = _camera(*_angles(2, seed=6))
+    K, R = camera_from_angles(*_angles(2, seed=6))
     vps = (K @ R).transpose(-1, -2)
     z = vps[:, 1].clone().requires_grad_()
     h = vps[:, 0].clone().requires_grad_()

@@ -10,7 +10,7 @@ import torch
 from kornia.core.exceptions import ShapeError
 from torch.autograd import gradcheck
 
-from ngp_kornia.geometry.camera import image_center, intrinsics_matrix, rotation_from_angles
+from ngp_kornia.geometry.camera import image_center, intrinsics_matrix
 from ngp_kornia.geometry.lines import (
     cossim,
     intersect_lines,
@@ -20,10 +20,9 @@ from ngp_kornia.geometry.lines import (
     segments_to_lines,
     to_pseudo_camera,
 )
+from tests.synthetic_camera import BATCHES, DTYPES, camera_from_angles
 
-BATCHES = [1, 2, 5]
 COUNTS = [1, 3, 17]
-DTYPES = [torch.float32, torch.float64]
 
 
 def _segments(b, n, seed=0, dtype=torch.float64):
@@ -153,8 +152,7 @@ def test_intersect_lines_recovers_vp_of_parallel_3d_lines(b, dtype):
     roll = ((torch.rand(b, generator=g) - 0.5) * 20).double()
     yaw = (20 + 10 * torch.rand(b, generator=g)).double()
     focal = (400 + 200 * torch.rand(b, generator=g)).double()
-    K = intrinsics_matrix(focal, image_center(480, 640, like=focal))
-    R = rotation_from_angles(pitch, roll, yaw)
+    K, R = camera_from_angles(pitch, roll, yaw, focal, 480, 640)
     base = torch.tensor([[-2.0, -1.0, 8.0], [1.5, 0.5, 9.0], [0.0, 2.0, 12.0], [2.0, -2.0, 10.0]], dtype=torch.float64)
     for axis in range(3):
         e = torch.zeros(3, dtype=torch.float64)

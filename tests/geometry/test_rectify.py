@@ -15,10 +15,7 @@ from ngp_kornia.geometry.camera import (
     rotation_from_angles,
 )
 from ngp_kornia.geometry.rectify import frontal_homography, level_homography, rectify, upright_homography
-
-BATCHES = [1, 2, 5]
-DTYPES = [torch.float32, torch.float64]
-H, W = 480, 640
+from tests.synthetic_camera import BATCHES, DTYPES, H, W, camera_from_angles
 
 
 def _camera(b, seed=0, dtype=torch.float64):
@@ -28,8 +25,7 @@ def _camera(b, seed=0, dtype=torch.float64):
         [[30.0], [20.0], [40.0]]
     )
     focal = 300 + 600 * torch.rand(b, generator=g, dtype=torch.float64)
-    K = intrinsics_matrix(focal, torch.tensor([(W - 1) / 2, (H - 1) / 2], dtype=torch.float64))
-    R = rotation_from_angles(pitch, roll, yaw).to(torch.float64)
+    K, R = camera_from_angles(pitch, roll, yaw, focal)
     return K.to(dtype), R.to(dtype), pitch, roll
 
 

@@ -22,10 +22,9 @@ from ngp_kornia.geometry.vp import (
     topk_weighted_average,
     weighted_structure_tensor,
 )
+from tests.synthetic_camera import BATCHES, DTYPES, camera_from_angles
 
-BATCHES = [1, 2, 5]
 COUNTS = [1, 4, 16]
-DTYPES = [torch.float32, torch.float64]
 
 
 def _randn(*shape, seed=0, dtype=torch.float64):
@@ -379,8 +378,7 @@ def test_manhattan_score_true_frame_beats_wrong_frame():
     # segments of a box seen by a known camera, in the pseudo camera (where the scores are used): the true frame
     # scores higher than a slightly rotated one
     h, w = 480, 640
-    K = intrinsics_matrix(torch.tensor([500.0], dtype=torch.float64), image_center(h, w))
-    R = rotation_from_angles(*(torch.tensor([v], dtype=torch.float64) for v in (10.0, 5.0, 30.0)))
+    K, R = camera_from_angles(*(torch.tensor([v], dtype=torch.float64) for v in (10.0, 5.0, 30.0, 500.0)), h, w)
     base = torch.tensor([[-2.0, -1.0, 8.0], [1.5, 0.5, 9.0], [0.0, 2.0, 12.0], [2.0, -2.0, 10.0]], dtype=torch.float64)
     segs = []
     for axis in range(3):

@@ -148,8 +148,10 @@ def test_weights_files_are_recognised_by_the_network_they_hold(tmp_path):
     assert bool(torch.isfinite(cal.focal))
 
 
-@pytest.mark.parametrize(("weights", "zsnet", "fsnet"), [("none", False, False), ("zsnet", True, False),
-                                                       ("fsnet", False, True), ("full", True, True)])
+@pytest.mark.parametrize(
+    ("weights", "zsnet", "fsnet"),
+    [("none", False, False), ("zsnet", True, False), ("fsnet", False, True), ("full", True, True)],
+)
 def test_shipped_weight_sets(photo, weights, zsnet, fsnet):
     parser = load_parser(weights)
     assert (parser.zsnet is not None, parser.fsnet is not None) == (zsnet, fsnet)

@@ -41,7 +41,11 @@ def test_sorted_and_filtered(folder):
     deep = ImageFolder(folder, recursive=True)
     assert deep.names == flat.names[:6] + ["sub/d.png", "sub/deeper/e.bmp", "tiny.png"]
     assert ImageFolder(folder, recursive=True, extensions=["PNG", ".bmp"]).names == [
-        "b.png", "broken.png", "sub/d.png", "sub/deeper/e.bmp", "tiny.png"
+        "b.png",
+        "broken.png",
+        "sub/d.png",
+        "sub/deeper/e.bmp",
+        "tiny.png",
     ]
     assert ImageFolder(folder, extensions=".jpeg").names == ["c.jpeg"]
     assert ".png" in IMAGE_EXTENSIONS and "images=7" in repr(flat)

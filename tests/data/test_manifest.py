@@ -55,8 +55,15 @@ def _truth(width, height, fov, pitch, roll, yaw) -> dict:
     zenith = zenith_from_up(K, up)
     horizon = horizon_from_zenith(K, zenith)
     ends = horizon_border_points(horizon, width)[0]
-    return {"K": K[0], "up": up[0], "focal": float(focal[0]), "zenith": normalize(zenith)[0],
-            "horizon": horizon[0], "ends": ends.flatten().tolist(), "zenith_raw": (zenith[0] * 7.0).tolist()}
+    return {
+        "K": K[0],
+        "up": up[0],
+        "focal": float(focal[0]),
+        "zenith": normalize(zenith)[0],
+        "horizon": horizon[0],
+        "ends": ends.flatten().tolist(),
+        "zenith_raw": (zenith[0] * 7.0).tolist(),
+    }
 
 
 def _row(name: str, columns: list[str]) -> list:
@@ -137,10 +144,7 @@ def test_root_paths_header_and_extra_columns(folder, tmp_path):
     elsewhere.mkdir()
     path = elsewhere / "m.csv"
     path.write_text(
-        "\ufeff Image , Focal_PX ,split\n"
-        f"a.jpg,300,train\n"
-        "\n"
-        f"{folder / 'b.png'},400,test\n",
+        f"\ufeff Image , Focal_PX ,split\na.jpg,300,train\n\n{folder / 'b.png'},400,test\n",
         encoding="utf-8",
     )
     data = CSVManifest(path, root=folder)

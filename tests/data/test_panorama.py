@@ -176,8 +176,9 @@ def test_batch_equals_single_crops_and_shared_panorama():
     p = sample_crop_params(3, g)
     batch = perspective_crops(panos, p["fov_v"], p["pitch"], p["roll"], p["yaw"], size=(20, 16))
     for i in range(3):
-        one = perspective_crops(panos[i : i + 1], p["fov_v"][i : i + 1], p["pitch"][i], p["roll"][i], p["yaw"][i],
-                                size=(20, 16))
+        one = perspective_crops(
+            panos[i : i + 1], p["fov_v"][i : i + 1], p["pitch"][i], p["roll"][i], p["yaw"][i], size=(20, 16)
+        )
         assert torch.allclose(batch[i], one[0], atol=1e-6)
     shared = perspective_crops(panos[:1], p["fov_v"], p["pitch"], p["roll"], p["yaw"], size=(20, 16))
     assert torch.allclose(shared[0], batch[0]) and shared.shape == batch.shape
@@ -194,6 +195,7 @@ def test_dtype_and_gradient(dtype):
 
 def test_gradcheck_wrt_panorama():
     pano = torch.rand(1, 1, 4, 8, dtype=torch.float64, requires_grad=True)
+
     def crop(x):
         return perspective_crops(x, 80.0, 10.0, 5.0, 170.0, size=(4, 3))
 

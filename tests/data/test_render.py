@@ -92,7 +92,7 @@ def test_axis_aligned_box_edges_meet_the_true_vps(kind):
                 pa, pb = ca[ok] @ K.T, cb[ok] @ K.T
                 pa, pb = pa[:, :2] / pa[:, 2:], pb[:, :2] / pb[:, 2:]
                 long = np.linalg.norm(pb - pa, axis=1) > 1.0
-                err = _angle_to_vps(pa[long], pb[long], r.vps.numpy()[axis:axis + 1])
+                err = _angle_to_vps(pa[long], pb[long], r.vps.numpy()[axis : axis + 1])
                 assert np.all(err < 1e-6)
                 checked += int(long.sum())
     assert checked > 20
@@ -115,9 +115,12 @@ def test_atlanta_frames_explain_the_other_blocks():
         assert r.frames[0] == 0.0 and len(r.frames) > 1
         lines = cv2.createLineSegmentDetector().detect(cv2.cvtColor(r.image, cv2.COLOR_RGB2GRAY))[0].reshape(-1, 4)
         seg = lines[np.hypot(lines[:, 2] - lines[:, 0], lines[:, 3] - lines[:, 1]) > 20].astype(np.float64)
-        vps = [vanishing_points_from_rotation(r.K[None], rotation_from_angles(r.pitch[None], r.roll[None],
-                                                                               r.yaw[None] - yaw))[0].numpy()
-               for yaw in r.frames]
+        vps = [
+            vanishing_points_from_rotation(
+                r.K[None], rotation_from_angles(r.pitch[None], r.roll[None], r.yaw[None] - yaw)
+            )[0].numpy()
+            for yaw in r.frames
+        ]
         assert np.allclose(vps[0], r.vps.numpy())  # the ground-truth frame is the dominant group's
         err = [_angle_to_vps(seg[:, :2], seg[:, 2:], v).min(1) for v in vps]
         dominant.append(err[0])
@@ -160,8 +163,14 @@ def test_sky_and_ground_meet_on_the_horizon():
 
 
 def test_config_ranges_respected():
-    cfg = RenderConfig(fov_v=(50.0, 55.0), pitch=(-5.0, 5.0), roll=(2.0, 3.0), yaw=(10.0, 20.0), kinds={"indoor": 1.0},
-                       indoor_camera_height=(1.2, 1.3))
+    cfg = RenderConfig(
+        fov_v=(50.0, 55.0),
+        pitch=(-5.0, 5.0),
+        roll=(2.0, 3.0),
+        yaw=(10.0, 20.0),
+        kinds={"indoor": 1.0},
+        indoor_camera_height=(1.2, 1.3),
+    )
     for seed in range(5):
         r = render_scene(seed, SMALL, cfg)
         assert r.kind == "indoor"
@@ -172,8 +181,17 @@ def test_config_ranges_respected():
     assert kinds == {"street", "atlanta"}
 
 
-@pytest.mark.parametrize("bad", [dict(fov_v=(10.0, 190.0)), dict(pitch=(5.0, -5.0)), dict(kinds={"forest": 1.0}),
-                                 dict(kinds={"street": 0.0}), dict(jpeg_prob=1.5), dict(clutter=-1.0)])
+@pytest.mark.parametrize(
+    "bad",
+    [
+        dict(fov_v=(10.0, 190.0)),
+        dict(pitch=(5.0, -5.0)),
+        dict(kinds={"forest": 1.0}),
+        dict(kinds={"street": 0.0}),
+        dict(jpeg_prob=1.5),
+        dict(clutter=-1.0),
+    ],
+)
 def test_bad_config_raises(bad):
     with pytest.raises(ValueError):
         RenderConfig(**bad)
@@ -202,8 +220,21 @@ def test_sizes_and_finite_ground_truth(size):
 
 def test_to_dict_is_plain_json():
     d = render_scene(2, SMALL).to_dict()
-    for key in ("K", "R", "focal", "fov_v", "fov_h", "pitch", "roll", "zenith", "horizon", "vps", "width", "height",
-                "seed"):
+    for key in (
+        "K",
+        "R",
+        "focal",
+        "fov_v",
+        "fov_h",
+        "pitch",
+        "roll",
+        "zenith",
+        "horizon",
+        "vps",
+        "width",
+        "height",
+        "seed",
+    ):
         assert key in d
     back = json.loads(json.dumps(d))
     assert back == d
@@ -231,9 +262,11 @@ def test_near_plane_clipping_matches_ray_casting():
     gt = camera_ground_truth(70.0, 5.0, 3.0, 20.0, (160, 120))
     view = PinholeView(gt["K"].numpy(), gt["R"].numpy(), np.zeros(3), 160, 120)
     # a long wall passing beside and behind the camera, a box straddling the camera's plane, one fully behind
-    boxes = [(np.array([-3.0, -4.0, -30.0]), np.array([-2.0, 1.5, 30.0])),
-             (np.array([1.0, -1.0, -5.0]), np.array([4.0, 1.5, 6.0])),
-             (np.array([-1.0, -2.0, -20.0]), np.array([1.0, 1.0, -15.0]))]
+    boxes = [
+        (np.array([-3.0, -4.0, -30.0]), np.array([-2.0, 1.5, 30.0])),
+        (np.array([1.0, -1.0, -5.0]), np.array([4.0, 1.5, 6.0])),
+        (np.array([-1.0, -2.0, -20.0]), np.array([1.0, 1.0, -15.0])),
+    ]
     scene = Scene("street", 1.5)
     for lo, hi in boxes:
         c = 0.5 * (lo + hi)

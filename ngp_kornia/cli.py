@@ -176,14 +176,14 @@ def _demo(args: argparse.Namespace) -> int:
     from ngp_kornia.data.render import render_scene
 
     scene = render_scene(args.seed)
-    result = calibrate(scene.image).to_dict()
-    truth = scene.to_dict()
+    calibration = calibrate(scene.image)
+    result, truth = calibration.to_dict(), scene.to_dict()
     print(f"built-in example: rendered scene (seed {args.seed}), {scene.image.shape[1]}x{scene.image.shape[0]} px")
     print(f"{'':8}{'estimate':>10}{'truth':>10}")
     for key in ("focal", "fov_v", "fov_h", "pitch", "roll"):
         print(f"{key:8}{result[key]:10.2f}{truth[key]:10.2f}")
     if args.overlay:
-        _write_overlay(Path(args.overlay), scene.image, calibrate(scene.image))
+        _write_overlay(Path(args.overlay), scene.image, calibration)
         print(f"overlay written to {args.overlay}")
     return 0
 

@@ -23,7 +23,7 @@ __all__ = ["DEFAULT_WEIGHTS", "WEIGHTS", "calibrate", "load_parser"]
 #: weight sets ``calibrate`` accepts by name; paths to weights files (``.pt``) work too.
 WEIGHTS = ("default", "none", "zsnet", "fsnet", "full")
 #: what "default" means: the most accurate path this version ships (see BENCHMARKS.md).
-DEFAULT_WEIGHTS = "none"
+DEFAULT_WEIGHTS = "fsnet"
 #: the shipped networks each named weight set uses
 _NAMED = {"none": (), "zsnet": ("zsnet",), "fsnet": ("fsnet",), "full": ("zsnet", "fsnet")}
 

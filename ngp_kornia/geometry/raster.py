@@ -13,7 +13,7 @@ import torch
 from kornia.core.check import KORNIA_CHECK, KORNIA_CHECK_SHAPE
 from torch import Tensor
 
-__all__ = ["line_map", "closeness_maps", "manhattan_score_maps", "rasterize_segments"]
+__all__ = ["line_map", "closeness_maps", "manhattan_score_maps", "line_map_and_pooled_maps", "rasterize_segments"]
 
 
 def rasterize_segments(
@@ -53,19 +53,7 @@ def rasterize_segments(
     out = values.new_zeros(B, C, height, width)
     if N == 0 or C == 0 or not bool(mask.any()):
         return out
-    # sample the segments exactly as rasterize_segments does, so the pixels match the line map
-    length = (segments[..., 1, :] - segments[..., 0, :]).norm(dim=-1)
-    steps = int(math.ceil(float(length[mask].max()))) + 2
-    t = torch.linspace(0.0, 1.0, steps, device=segments.device, dtype=segments.dtype)
-    p0, p1 = segments[..., 0, :].detach(), segments[..., 1, :].detach()
-    ij = (p0[:, :, None] + (p1 - p0)[:, :, None] * t[:, None]).round().long()  # (B, N, S, 2)
-    inside = (ij[..., 0] >= 0) & (ij[..., 0] < width) & (ij[..., 1] >= 0) & (ij[..., 1] < height)
-    inside &= mask[:, :, None]
-    pixel = ij[..., 1] * width + ij[..., 0]
-    b, n, s = inside.nonzero(as_tuple=True)
-    key = torch.unique((b * N + n) * area + pixel[b, n, s])  # each (segment, pixel) once
-    seg, pix = key // area, key % area
-    b, n = seg // N, seg % N
+    b, n, pix = _segment_pixels(segments, mask, height, width)
     src = values[b, n]  # (P, C)
     base = b * (C * area) + pix  # position of channel 0 in out's (B, C, H, W) layout
     flat = out.view(-1)
@@ -77,6 +65,74 @@ def rasterize_segments(
         index = base[:, None] + channel * area  # (P, c)
         flat = flat.scatter_reduce_(0, index.flatten(), src[:, c0 : c0 + len(channel)].flatten(), "amax")
     return flat.view(B, C, height, width)
+
+
+def line_map_and_pooled_maps(
+    segments: Tensor, mask: Tensor, values: Tensor, height: int, width: int, cell: int
+) -> tuple[Tensor, Tensor]:
+    """The line map (Eq. 13) at full resolution and, per channel of ``values``, the block means over ``cell`` x
+    ``cell`` pixels of the maps :func:`rasterize_segments` draws, without drawing those: only the pixels the
+    segments pass through are visited, so many channels at a coarse resolution cost little.
+
+    Args:
+        segments: (B, N, 2, 2) segment endpoints in the (full-resolution) map's pixels.
+        mask: (B, N) bool, False for padding.
+        values: (B, N, C) non-negative per-segment values.
+        height: full map height, a multiple of ``cell``.
+        width: full map width, a multiple of ``cell``.
+        cell: side of the pooling cells in pixels.
+
+    Returns:
+        (B, 1, height, width) line map, equal to :func:`line_map`, and (B, C, height // cell, width // cell) pooled
+        maps, equal to ``F.avg_pool2d(rasterize_segments(segments, mask, values, height, width), cell)``. The pooled
+        maps are differentiable with respect to ``values``.
+
+    Example:
+        >>> seg = torch.tensor([[[[0.0, 1.0], [3.0, 1.0]]]])
+        >>> lines, pooled = line_map_and_pooled_maps(seg, torch.tensor([[True]]), torch.ones(1, 1, 1), 4, 4, 2)
+        >>> pooled[0, 0]
+        tensor([[0.5000, 0.5000],
+                [0.0000, 0.0000]])
+    """
+    KORNIA_CHECK(cell > 0 and height % cell == 0 and width % cell == 0, f"{height}x{width} is not a multiple of {cell}")
+    KORNIA_CHECK_SHAPE(segments, ["B", "N", "2", "2"])
+    KORNIA_CHECK_SHAPE(mask, ["B", "N"])
+    KORNIA_CHECK_SHAPE(values, ["B", "N", "C"])
+    B, N, C = values.shape
+    area, rows, cols = height * width, height // cell, width // cell
+    lines = values.new_zeros(B * area)
+    pooled = values.new_zeros(B * rows * cols, C)
+    if N > 0 and C > 0 and bool(mask.any()):
+        b, n, pix = _segment_pixels(segments, mask, height, width)
+        # where segments overlap, a pixel keeps the largest value (as drawn), then each cell sums its pixels
+        pixels, which = torch.unique(b * area + pix, return_inverse=True)
+        lines[pixels] = 1.0
+        per_pixel = values.new_zeros(len(pixels), C).scatter_reduce(
+            0, which[:, None].expand(-1, C), values[b, n], "amax"
+        )
+        image, pix = pixels // area, pixels % area
+        pooled = pooled.index_add(0, (image * rows + pix // width // cell) * cols + pix % width // cell, per_pixel)
+    pooled = (pooled / (cell * cell)).view(B, rows, cols, C).permute(0, 3, 1, 2)
+    return lines.view(B, 1, height, width), pooled
+
+
+def _segment_pixels(segments: Tensor, mask: Tensor, height: int, width: int) -> tuple[Tensor, Tensor, Tensor]:
+    """Every (segment, pixel) pair a drawn segment covers, once: image index, segment index and flat pixel index
+    (``y * width + x``), from points sampled about one pixel apart and rounded to the nearest pixel."""
+    N = segments.shape[1]
+    area = height * width
+    length = (segments[..., 1, :] - segments[..., 0, :]).norm(dim=-1)
+    steps = int(math.ceil(float(length[mask].max()))) + 2
+    t = torch.linspace(0.0, 1.0, steps, device=segments.device, dtype=segments.dtype)
+    p0, p1 = segments[..., 0, :].detach(), segments[..., 1, :].detach()
+    ij = (p0[:, :, None] + (p1 - p0)[:, :, None] * t[:, None]).round().long()  # (B, N, S, 2)
+    inside = (ij[..., 0] >= 0) & (ij[..., 0] < width) & (ij[..., 1] >= 0) & (ij[..., 1] < height)
+    inside &= mask[:, :, None]
+    pixel = ij[..., 1] * width + ij[..., 0]
+    b, n, s = inside.nonzero(as_tuple=True)
+    key = torch.unique((b * N + n) * area + pixel[b, n, s])  # each (segment, pixel) once
+    seg, pix = key // area, key % area
+    return seg // N, seg % N, pix
 
 
 def line_map(segments: Tensor, mask: Tensor, height: int, width: int) -> Tensor:

@@ -34,6 +34,7 @@ from torch import Tensor, nn
 
 from ngp_kornia.geometry import (
     canonical_manhattan_rotation,
+    line_map_and_pooled_maps,
     line_vp_cosine,
     normalize,
     rasterize_segments,
@@ -74,7 +75,9 @@ class FSNetInputs(NamedTuple):
     Attributes:
         images: (B, 3, S, S) RGB in [0, 1].
         line_map: (B, 1, S, S) binary line map L (Eq. 13).
-        closeness: (B, F, 3, S, S) closeness maps A_x, A_y, A_z of each candidate (Eq. 15).
+        closeness: (B, F, 3, S, S) closeness maps A_x, A_y, A_z of each candidate (Eq. 15), or their means over
+            cells of ``c`` x ``c`` pixels, (B, F, 3, S / c, S / c), when built with ``pool=c`` (what the shared
+            variant uses of them).
         params: (B, F, 10) each candidate's three VPs (unit vectors in the pseudo camera, flattened row-major, in the
             order of :func:`canonical_frame_vps`) and its focal length (pseudo-camera units, 0 for invalid frames).
     """
@@ -158,6 +161,7 @@ def fsnet_inputs(
     kernel_angle: float | None = 88.0,
     chunk_size: int = 32,
     support: bool = False,
+    pool: int | None = None,
 ) -> FSNetInputs:
     r"""Build FSNet's inputs for a batch of images and their frame candidates.
 
@@ -184,6 +188,8 @@ def fsnet_inputs(
         kernel_angle: closeness kernel width in degrees, or None for Eq. 14.
         chunk_size: candidates rasterised at once (bounds the memory of drawing, not of the output).
         support: append each candidate's :func:`frame_support` (20 values) to its parameters.
+        pool: give the closeness maps as means over cells of ``pool`` x ``pool`` pixels (the size must be a multiple
+            of it), computed without drawing the full maps (:func:`~ngp_kornia.geometry.line_map_and_pooled_maps`).
 
     Returns:
         :class:`FSNetInputs`. Invalid candidates get finite inputs (score them and mask the scores). Closeness
@@ -218,10 +224,14 @@ def fsnet_inputs(
     # the kernel's tail is full of subnormal floats, which make CPU arithmetic on the maps many times slower
     values = torch.where(values < _MIN_CLOSENESS, torch.zeros_like(values), values)
     values = values.flatten(1, 2).transpose(1, 2)  # (B, N, F * 3)
-    # the line map L is one more channel of ones: the segments' pixels are found once for all maps
-    values = torch.cat([torch.ones_like(values[..., :1]), values], -1)
-    maps = rasterize_segments(scaled, mask, values, out_h, out_w, 3 * chunk_size + 1)
-    lmap, closeness = maps[:, :1], maps[:, 1:].reshape(B, num, 3, out_h, out_w)
+    if pool is None:
+        # the line map L is one more channel of ones: the segments' pixels are found once for all maps
+        ones = torch.ones_like(values[..., :1])
+        maps = rasterize_segments(scaled, mask, torch.cat([ones, values], -1), out_h, out_w, 3 * chunk_size + 1)
+        lmap, closeness = maps[:, :1], maps[:, 1:].reshape(B, num, 3, out_h, out_w)
+    else:
+        lmap, closeness = line_map_and_pooled_maps(scaled, mask, values, out_h, out_w, pool)
+        closeness = closeness.reshape(B, num, 3, out_h // pool, out_w // pool)
     params = [vps.flatten(-2), frames.focal.to(images)[..., None]]
     if support:
         params.append(frame_support(lines, segment_lengths(segments), mask, vps))
@@ -354,10 +364,29 @@ class FSNet(nn.Module):
         }
 
     def prepare_inputs(self, images: Tensor, segments: Tensor, mask: Tensor, frames: FrameCandidates) -> FSNetInputs:
-        """:func:`fsnet_inputs` at this network's input size and closeness kernel."""
+        """:func:`fsnet_inputs` at this network's input size and closeness kernel; the shared variant gets its
+        closeness maps already pooled to the trunk's resolution (the same scores, without the full maps)."""
+        size = self.input_size
         return fsnet_inputs(
-            images, segments, mask, frames, self.input_size, self.kernel_angle, self.chunk_size, self.use_support
+            images,
+            segments,
+            mask,
+            frames,
+            size,
+            self.kernel_angle,
+            self.chunk_size,
+            self.use_support,
+            pool=self.pool_cell(size, size),
         )
+
+    def pool_cell(self, height: int, width: int) -> int | None:
+        """The cell size (the trunk's stride) at which the shared variant takes pooled closeness maps for an input
+        of this size, or None where it needs full maps (faithful variant, custom backbone, no maps, or a size that
+        is not a multiple of the stride)."""
+        stride = getattr(self.backbone, "stride", None) if not self.custom_backbone else None
+        if self.variant != "shared" or not self.use_maps or stride is None:
+            return None
+        return stride if height % stride == 0 and width % stride == 0 else None
 
     def forward(self, images: Tensor, line_map: Tensor, closeness: Tensor, params: Tensor) -> Tensor:
         """Score frame candidates.
@@ -365,7 +394,8 @@ class FSNet(nn.Module):
         Args:
             images: (B, 3, H, W) RGB in [0, 1].
             line_map: (B, 1, H, W) line map L (Eq. 13).
-            closeness: (B, F, 3, H, W) closeness maps A_x, A_y, A_z per candidate (Eq. 15).
+            closeness: (B, F, 3, H, W) closeness maps A_x, A_y, A_z per candidate (Eq. 15); the shared variant
+                also takes them pooled to (B, F, 3, H / c, W / c) with ``c`` = :meth:`pool_cell`.
             params: (B, F, 10) per candidate: three unit VPs (pseudo camera, row-major) and the focal length.
 
         Returns:
@@ -380,7 +410,12 @@ class FSNet(nn.Module):
             line_map.shape[0] == B and line_map.shape[-2:] == (H, W) and closeness.shape[0] == B,
             "images, line_map and closeness must share batch and size",
         )
-        KORNIA_CHECK(closeness.shape[-2:] == (H, W), "closeness maps must have the images' size")
+        cell = self.pool_cell(H, W)
+        pooled = cell is not None and closeness.shape[-2:] == (H // cell, W // cell)
+        KORNIA_CHECK(
+            closeness.shape[-2:] == (H, W) or pooled,
+            "closeness maps must have the images' size" + (f" or be pooled by {cell}" if cell else ""),
+        )
         KORNIA_CHECK(params.shape[:2] == closeness.shape[:2], "params and closeness must share (B, F)")
         num = params.shape[1]
         if num == 0:
@@ -394,7 +429,7 @@ class FSNet(nn.Module):
         else:
             context, low_l = self._trunk(images, line_map)
             chunks = [
-                self._head(context, low_l, closeness[:, i : i + step], params[:, i : i + step])
+                self._head(context, low_l, closeness[:, i : i + step], params[:, i : i + step], W)
                 for i in range(0, num, step)
             ]
         return torch.cat(chunks, 1)
@@ -421,15 +456,20 @@ class FSNet(nn.Module):
         low_l = F.adaptive_avg_pool2d(line_map, feats.shape[-2:]) if self.use_maps else None
         return self.context(feats), low_l
 
-    def _head(self, context: Tensor | None, low_l: Tensor | None, closeness: Tensor, params: Tensor) -> Tensor:
+    def _head(
+        self, context: Tensor | None, low_l: Tensor | None, closeness: Tensor, params: Tensor, width: int
+    ) -> Tensor:
         B, c = params.shape[:2]
         x = self.param_mlp(params)[..., None, None]  # (B, c, D, 1, 1)
         if context is not None:
             x = x + context[:, None]
         if self.map_proj is not None and low_l is not None:
             h, w = low_l.shape[-2:]
-            low_a = F.adaptive_avg_pool2d(closeness.flatten(0, 1), (h, w)).reshape(B, c, 3, h, w)
-            density = low_a * (closeness.shape[-1] / w)  # about the length of line per cell, in cells
+            low_a = closeness.flatten(0, 1)
+            if low_a.shape[-2:] != (h, w):
+                low_a = F.adaptive_avg_pool2d(low_a, (h, w))
+            low_a = low_a.reshape(B, c, 3, h, w)
+            density = low_a * (width / w)  # about the length of line per cell, in cells
             mean = low_a / low_l[:, None].clamp_min(1e-6)  # mean closeness of the cell's line pixels (local Eq. 21)
             maps = torch.cat([density, mean], 2).flatten(0, 1)
             x = x + self.map_proj(maps).reshape(B, c, -1, h, w)

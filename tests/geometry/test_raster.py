@@ -3,11 +3,18 @@ the Manhattan score (Eq. 21)."""
 
 import pytest
 import torch
+import torch.nn.functional as F
 from kornia.core.exceptions import BaseError, ShapeError
 from torch.autograd import gradcheck
 
 from ngp_kornia.geometry.lines import segment_lengths, segments_to_lines
-from ngp_kornia.geometry.raster import closeness_maps, line_map, manhattan_score_maps, rasterize_segments
+from ngp_kornia.geometry.raster import (
+    closeness_maps,
+    line_map,
+    line_map_and_pooled_maps,
+    manhattan_score_maps,
+    rasterize_segments,
+)
 from ngp_kornia.geometry.vp import closeness, manhattan_score
 
 BATCHES = [1, 2, 5]
@@ -120,6 +127,46 @@ def test_rasterize_segments_gradcheck_values():
     (grad,) = torch.autograd.grad(out.sum(), values)
     torch.testing.assert_close(grad[0, :, 0], torch.tensor([7.0, 5.0, 4.0], dtype=torch.float64))
     assert grad[1, 1].abs().sum() == 0  # masked: no gradient
+
+
+@pytest.mark.parametrize("b", BATCHES)
+@pytest.mark.parametrize("dtype", DTYPES)
+@pytest.mark.parametrize("cell", [1, 4, 8])
+def test_pooled_maps_equal_drawn_maps_averaged(b, dtype, cell):
+    g = torch.Generator().manual_seed(b + cell)
+    seg = (torch.rand(b, 12, 2, 2, generator=g) * 50 - 5).to(dtype)  # some leave the map
+    seg[:, 0] = torch.tensor([[3.0, 4.0], [3.0, 4.0]], dtype=dtype)  # a point
+    seg[:, 1] = torch.tensor([[0.0, 9.0], [39.0, 9.0]], dtype=dtype)  # crosses others: overlaps keep the max
+    mask = torch.rand(b, 12, generator=g) < 0.8
+    values = torch.rand(b, 12, 5, generator=g).to(dtype)
+    lines, pooled = line_map_and_pooled_maps(seg, mask, values, 32, 40, cell)
+    assert lines.shape == (b, 1, 32, 40) and pooled.shape == (b, 5, 32 // cell, 40 // cell)
+    assert lines.dtype == pooled.dtype == dtype
+    torch.testing.assert_close(lines, line_map(seg, mask, 32, 40), rtol=0, atol=0)
+    torch.testing.assert_close(pooled, F.avg_pool2d(rasterize_segments(seg, mask, values, 32, 40), cell))
+
+
+def test_pooled_maps_gradients_equal_the_drawn_maps():
+    g = torch.Generator().manual_seed(0)
+    seg = torch.rand(2, 8, 2, 2, generator=g, dtype=torch.float64) * 16
+    mask = torch.rand(2, 8, generator=g) > 0.2
+    values = (torch.rand(2, 8, 3, generator=g, dtype=torch.float64) + 0.1).requires_grad_()
+    assert gradcheck(lambda v: line_map_and_pooled_maps(seg, mask, v, 16, 16, 4)[1], (values,))
+    weights = torch.rand(2, 3, 4, 4, generator=g, dtype=torch.float64)
+    (grad,) = torch.autograd.grad((line_map_and_pooled_maps(seg, mask, values, 16, 16, 4)[1] * weights).sum(), values)
+    drawn = F.avg_pool2d(rasterize_segments(seg, mask, values, 16, 16), 4)
+    (reference,) = torch.autograd.grad((drawn * weights).sum(), values)
+    torch.testing.assert_close(grad, reference)
+
+
+def test_pooled_maps_empty_and_exceptions():
+    seg, values = torch.zeros(1, 2, 2, 2), torch.ones(1, 2, 3)
+    lines, pooled = line_map_and_pooled_maps(seg, torch.zeros(1, 2, dtype=torch.bool), values, 8, 8, 4)
+    assert not lines.any() and not pooled.any() and pooled.shape == (1, 3, 2, 2)
+    with pytest.raises(BaseError, match="not a multiple of 3"):
+        line_map_and_pooled_maps(seg, torch.ones(1, 2, dtype=torch.bool), values, 8, 8, 3)
+    with pytest.raises(ShapeError):
+        line_map_and_pooled_maps(seg, torch.ones(1, 2, dtype=torch.bool), values[0], 8, 8, 4)
 
 
 def test_line_map_known():

@@ -156,6 +156,37 @@ def test_chunked_drawing_matches_drawing_all_channels_at_once():
         assert torch.equal(rasterize_segments(segments, mask, values, 50, 60, chunk_channels=7), reference)
 
 
+def test_shared_variant_scores_pooled_maps_as_the_full_maps():
+    net = tiny("shared", input_size=32).eval()  # stride 8: pooled to 4 x 4
+    g = torch.Generator().manual_seed(1)
+    segments = torch.rand(2, 30, 2, 2, generator=g) * torch.tensor([80.0, 48.0])
+    mask = torch.rand(2, 30, generator=g) > 0.2
+    R = rotation_from_angles(torch.rand(12, generator=g) * 20, torch.rand(12, generator=g) * 10).view(2, 6, 3, 3)
+    fr = frames(R, torch.rand(2, 6, generator=g) + 0.8)
+    images = torch.rand(2, 3, 48, 80, generator=g)
+    full = fsnet_inputs(images, segments, mask, fr, 32)
+    pooled = net.prepare_inputs(images, segments, mask, fr)
+    assert net.pool_cell(32, 32) == 8 and pooled.closeness.shape == (2, 6, 3, 4, 4)
+    assert torch.equal(pooled.line_map, full.line_map)
+    torch.testing.assert_close(net(*pooled), net(*full))
+    with pytest.raises(Exception, match="pooled by 8"):
+        net(full.images, full.line_map, full.closeness[..., :16, :16], full.params)
+
+
+def test_full_maps_where_the_network_cannot_take_pooled_ones():
+    assert tiny("faithful").pool_cell(32, 32) is None
+    assert tiny("shared").pool_cell(36, 32) is None  # not a multiple of the stride
+    assert tiny("shared", use_maps=False).pool_cell(32, 32) is None
+    net = tiny("faithful", input_size=32)
+    x = net.prepare_inputs(
+        torch.rand(1, 3, 40, 40),
+        torch.rand(1, 3, 2, 2) * 40,
+        torch.ones(1, 3, dtype=torch.bool),
+        frames(torch.eye(3).expand(1, 2, 3, 3), torch.ones(1, 2)),
+    )
+    assert x.closeness.shape == (1, 2, 3, 32, 32)
+
+
 def test_closeness_maps_pass_gradients_to_the_frames():
     R = rotation_from_angles(torch.tensor([3.0, -4.0]), torch.tensor([2.0, 1.0]), torch.tensor([10.0, 30.0]))
     R = R[None].requires_grad_(True)

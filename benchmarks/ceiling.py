@@ -11,16 +11,21 @@ with the same metrics as ``benchmarks/calibration.py``:
 * the least-squares Manhattan frame of the hand-labelled segments with their labels: the rotation (and the focal
   length, with the centred principal point) that minimises the length-weighted squared sine between each
   segment's interpretation plane and its direction. Started from the ground truth; it is the best a
-  least-squares fit of perfect lines does against this ground truth.
+  least-squares fit of perfect lines does against this ground truth;
+* with ``--oracle-zenith DEG``: the parser on LSD segments with the zenith candidates weighted by the ground truth
+  (1 where the candidate's up direction, through the true camera, is within DEG degrees of the true one; uniform
+  where none is): what a perfect ZSNet would give the whole calibration.
 
 Usage::
 
     python benchmarks/ceiling.py /path/to/YorkUrbanDB [--weights none] [--weights full] [--seeds 0,1,2,3,4]
+                                 [--oracle-zenith 0.5 --oracle-zenith 2]
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import statistics
 import sys
 from dataclasses import fields, replace
@@ -47,11 +52,12 @@ from ngp_kornia.geometry import (  # noqa: E402
     intrinsics_matrix,
     normalize,
     pitch_roll_from_up,
+    pseudo_focal,
     segment_lengths,
     zenith_from_up,
 )
 from ngp_kornia.io import read_image_file  # noqa: E402
-from ngp_kornia.models import ParserConfig  # noqa: E402
+from ngp_kornia.models import NeuralGeometricParser, ParserConfig  # noqa: E402
 
 
 def estimate_from_camera(K: torch.Tensor, R: torch.Tensor, height: int) -> Estimate:
@@ -112,6 +118,24 @@ def summary_row(name: str, runs: list[dict]) -> str:
     return f"| {name} | " + " | ".join(cells) + " |"
 
 
+class OracleZenithParser(NeuralGeometricParser):
+    """The parser with its zenith candidates weighted by the ground truth instead of ZSNet (set ``true_K`` and
+    ``true_up`` before each call): 1 within ``max_angle`` degrees of the true up direction, else 0."""
+
+    def __init__(self, base: NeuralGeometricParser, max_angle: float, height: int, width: int) -> None:
+        super().__init__(base.config, base.zsnet, base.fsnet)
+        self.cos_limit = math.cos(math.radians(max_angle))
+        f = torch.tensor([pseudo_focal(height, width)])
+        self.K_pseudo = intrinsics_matrix(f, image_center(height, width, like=f))[0]  # pseudo camera -> pixels
+        self.true_K = self.true_up = None
+
+    def zenith_weights(self, lines_z, lines_z_ok, zenith, zenith_ok):
+        pixels = zenith.double() @ self.K_pseudo.double().T
+        up = normalize(pixels @ torch.linalg.inv(self.true_K).T)
+        near = zenith_ok & ((up @ self.true_up).abs() > self.cos_limit)
+        return torch.where(near.any(-1, keepdim=True), near, zenith_ok).to(zenith)
+
+
 def with_mask(segments: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     return segments, torch.ones(segments.shape[:2], dtype=torch.bool)
 
@@ -128,6 +152,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("root", type=Path)
     ap.add_argument("--weights", action="append", default=None, help="weight spec as in calibration.py; repeatable")
     ap.add_argument("--seeds", default="0,1,2,3,4", help="comma-separated sampling seeds (results are averaged)")
+    ap.add_argument(
+        "--oracle-zenith", type=float, action="append", default=[], help="add rows with ground-truth zenith weights"
+    )
     args = ap.parse_args(argv)
     torch.set_num_threads(1)
     samples = load_yud(args.root)
@@ -164,6 +191,20 @@ def main(argv: list[str] | None = None) -> int:
                     estimates.append(estimate_from_calibration(out[0], s))
                 runs.append(evaluate(samples, estimates))
             rows.append(summary_row(f"parser ({spec}) on {source}", runs))
+        for max_angle in args.oracle_zenith:
+            oracle = OracleZenithParser(parser, max_angle, samples[0].height, samples[0].width)
+            runs = []
+            for seed in seeds:
+                oracle.config = replace(parser.config, seed=seed)
+                estimates = []
+                for i, s in enumerate(samples):
+                    oracle.true_K, oracle.true_up = s.K, s.up
+                    with torch.no_grad():
+                        out = oracle(images[i].float(), detected[i][0].float(), detected[i][1])
+                    estimates.append(estimate_from_calibration(out[0], s))
+                runs.append(evaluate(samples, estimates))
+            name = f"parser ({spec}) on LSD segments, zenith candidates within {max_angle:g} deg of the truth"
+            rows.append(summary_row(name, runs))
 
     for label, free_focal, use_centre in (
         ("true K", False, False),

@@ -182,10 +182,10 @@ def parse_weights_spec(spec: str | None) -> tuple[object, dict]:
     return weights, overrides
 
 
-def make_ngp(spec: str | None) -> Callable[[Sample], Estimate]:
+def weights_and_config(spec: str | None) -> tuple[object, object]:
+    """``--weights`` spec -> (weights for calibrate, :class:`ngp_kornia.models.ParserConfig` with the overrides)."""
     from dataclasses import fields
 
-    from ngp_kornia import calibrate
     from ngp_kornia.models import ParserConfig
 
     weights, overrides = parse_weights_spec(spec)
@@ -193,7 +193,13 @@ def make_ngp(spec: str | None) -> Callable[[Sample], Estimate]:
     unknown = set(overrides) - set(types)
     if unknown:
         raise SystemExit(f"unknown ParserConfig fields {sorted(unknown)} in --weights {spec!r}")
-    config = ParserConfig(**{k: v if isinstance(v, bool) else types[k](v) for k, v in overrides.items()})
+    return weights, ParserConfig(**{k: v if isinstance(v, bool) else types[k](v) for k, v in overrides.items()})
+
+
+def make_ngp(spec: str | None) -> Callable[[Sample], Estimate]:
+    from ngp_kornia import calibrate
+
+    weights, config = weights_and_config(spec)
 
     def run(sample: Sample) -> Estimate:
         result = calibrate(str(sample.image_path), weights=weights, seed=config.seed, config=config)

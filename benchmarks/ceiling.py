@@ -28,7 +28,7 @@ import argparse
 import math
 import statistics
 import sys
-from dataclasses import fields, replace
+from dataclasses import replace
 from pathlib import Path
 
 import torch
@@ -40,7 +40,7 @@ from calibration import (  # noqa: E402
     estimate_from_calibration,
     evaluate,
     load_yud,
-    parse_weights_spec,
+    weights_and_config,
 )
 
 from ngp_kornia.api import load_parser, segments_of_rgb  # noqa: E402
@@ -140,11 +140,8 @@ def with_mask(segments: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     return segments, torch.ones(segments.shape[:2], dtype=torch.bool)
 
 
-def parser_for(spec: str):
-    weights, overrides = parse_weights_spec(spec)
-    types = {f.name: type(getattr(ParserConfig(), f.name)) for f in fields(ParserConfig)}
-    config = ParserConfig(**{k: v if isinstance(v, bool) else types[k](v) for k, v in overrides.items()})
-    return load_parser(weights, config)
+def parser_for(spec: str) -> NeuralGeometricParser:
+    return load_parser(*weights_and_config(spec))
 
 
 def main(argv: list[str] | None = None) -> int:

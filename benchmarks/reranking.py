@@ -27,8 +27,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from calibration import load_rendered, load_yud  # noqa: E402
 
 from ngp_kornia.api import load_parser  # noqa: E402
+from ngp_kornia.detect import detect_segments_gray, pad_segments  # noqa: E402
 from ngp_kornia.geometry import frame_manhattan_scores, segment_lengths, segments_to_lines, to_pseudo_camera  # noqa: E402
-from ngp_kornia.lines import detect_segments_gray, pad_segments  # noqa: E402
 from ngp_kornia.metrics import horizon_auc  # noqa: E402
 from ngp_kornia.sampling import select_frames, top_frames  # noqa: E402
 from ngp_kornia.training.losses import frame_horizon_error  # noqa: E402

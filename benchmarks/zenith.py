@@ -26,8 +26,9 @@ import cv2
 import numpy as np
 import torch
 
-from ngp_kornia.data.render import render_scene
+from ngp_kornia.data.synth.render import render_scene
 from ngp_kornia.data.yud import YorkUrbanDB
+from ngp_kornia.detect import detect_segments_gray
 from ngp_kornia.geometry import (
     dominant_eigenvector,
     homogeneous_to_pseudo_camera,
@@ -38,11 +39,10 @@ from ngp_kornia.geometry import (
     weighted_structure_tensor,
 )
 from ngp_kornia.io import read_image_file
-from ngp_kornia.lines import detect_segments_gray
 from ngp_kornia.models import NeuralGeometricParser, ParserConfig
 from ngp_kornia.models.weights import load_network
 from ngp_kornia.sampling import sample_zenith_candidates
-from ngp_kornia.training.data import RenderedDataModule, RenderedScenes
+from ngp_kornia.training.datamodules import RenderedDataModule, RenderedScenes
 from ngp_kornia.training.zsnet_module import zenith_error_deg
 
 

@@ -13,8 +13,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from ngp_kornia.detect import detect_segments_gray, pad_segments
 from ngp_kornia.io import as_batch, read_rgb
-from ngp_kornia.lines import detect_segments_gray, pad_segments
 from ngp_kornia.models import Calibration, NeuralGeometricParser, ParserConfig
 from ngp_kornia.models.weights import load_network, network_name, shipped_weights
 

@@ -71,7 +71,7 @@ def _overlay_path(target: str, image: str, many: bool) -> Path:
 
 
 def _write_overlay(path: Path, rgb: np.ndarray, calibration) -> None:
-    from ngp_kornia.lines import detect_segments_gray
+    from ngp_kornia.detect import detect_segments_gray
     from ngp_kornia.viz import draw_calibration
 
     segments = detect_segments_gray(cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY))
@@ -173,7 +173,7 @@ def _rectify(args: argparse.Namespace) -> int:
 
 def _demo(args: argparse.Namespace) -> int:
     from ngp_kornia.api import calibrate
-    from ngp_kornia.data.render import render_scene
+    from ngp_kornia.data.synth.render import render_scene
 
     scene = render_scene(args.seed)
     calibration = calibrate(scene.image)
@@ -189,7 +189,7 @@ def _demo(args: argparse.Namespace) -> int:
 
 
 def _render(args: argparse.Namespace) -> int:
-    from ngp_kornia.data.render import render_dataset
+    from ngp_kornia.data.synth.render import render_dataset
 
     try:
         width, height = (int(v) for v in args.size.lower().split("x"))

@@ -106,7 +106,7 @@ def test_rectify_writes_a_png(photo, tmp_path, capsys, mode):
 
 
 def test_rectify_keep_of_a_rendered_scene_keeps_the_pixels(tmp_path, capsys):
-    from ngp_kornia.data.render import render_scene
+    from ngp_kornia.data.synth.render import render_scene
 
     source = tmp_path / "scene.png"
     cv2.imwrite(str(source), cv2.cvtColor(render_scene(1, (320, 240)).image, cv2.COLOR_RGB2BGR))

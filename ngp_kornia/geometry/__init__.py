@@ -2,10 +2,10 @@
 
 from ngp_kornia.geometry.camera import *  # noqa: F403
 from ngp_kornia.geometry.camera import __all__ as _camera_all
-from ngp_kornia.geometry.lines import *  # noqa: F403
-from ngp_kornia.geometry.lines import __all__ as _lines_all
-from ngp_kornia.geometry.raster import *  # noqa: F403
-from ngp_kornia.geometry.raster import __all__ as _raster_all
+from ngp_kornia.geometry.line_algebra import *  # noqa: F403
+from ngp_kornia.geometry.line_algebra import __all__ as _lines_all
+from ngp_kornia.geometry.line_maps import *  # noqa: F403
+from ngp_kornia.geometry.line_maps import __all__ as _raster_all
 from ngp_kornia.geometry.rectify import *  # noqa: F403
 from ngp_kornia.geometry.rectify import __all__ as _rectify_all
 from ngp_kornia.geometry.vp import *  # noqa: F403

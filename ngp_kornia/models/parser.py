@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor, nn
 
+from ngp_kornia.detect import detect_segments
 from ngp_kornia.geometry import (
     angles_from_rotation,
     canonical_manhattan_rotation,
@@ -36,7 +37,6 @@ from ngp_kornia.geometry import (
     weighted_structure_tensor,
     zenith_from_up,
 )
-from ngp_kornia.lines import detect_segments
 from ngp_kornia.models.result import Calibration
 from ngp_kornia.sampling import (
     FrameCandidates,

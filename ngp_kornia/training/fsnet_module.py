@@ -17,7 +17,7 @@ from ngp_kornia.models.parser import NeuralGeometricParser, ParserConfig
 from ngp_kornia.models.weights import load_network, shipped_weights
 from ngp_kornia.sampling import FrameCandidates, select_frames, top_frames
 from ngp_kornia.training.base import NetworkModule
-from ngp_kornia.training.data import SceneBatch
+from ngp_kornia.training.datamodules import SceneBatch
 from ngp_kornia.training.losses import frame_classification_loss, frame_horizon_error, frame_labels
 
 __all__ = ["FSNetModule"]

@@ -18,7 +18,7 @@ from ngp_kornia.geometry import (
 from ngp_kornia.models.zsnet import ZSNet
 from ngp_kornia.sampling import sample_zenith_candidates
 from ngp_kornia.training.base import NetworkModule
-from ngp_kornia.training.data import SceneBatch
+from ngp_kornia.training.datamodules import SceneBatch
 from ngp_kornia.training.losses import zenith_classification_loss, zenith_labels, zenith_localisation_loss
 
 __all__ = ["ZSNetModule", "zenith_error_deg"]

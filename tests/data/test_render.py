@@ -1,5 +1,5 @@
-"""Tests of the procedural renderer (ngp_kornia.data.render and its scene modules): determinism, exact ground truth
-(3D edges and detected line segments meet the true vanishing points), horizon placement, configuration, sizes and
+"""Tests of the procedural renderer (ngp_kornia.data.synth.render and its scene modules): determinism, exact ground
+truth (3D edges and detected line segments meet the true vanishing points), horizon placement, configuration, sizes and
 near-plane clipping."""
 
 import json
@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 import torch
 
-from ngp_kornia.data.pixels import sky_and_ground, view_rays
-from ngp_kornia.data.raster import Canvas, PinholeView, clip_polygon
-from ngp_kornia.data.render import RenderConfig, camera_ground_truth, render_dataset, render_scene
-from ngp_kornia.data.scene import Item, Lighting, Scene, box_faces, draw_scene, order_items
+from ngp_kornia.data.synth.painter import Canvas, PinholeView, clip_polygon
+from ngp_kornia.data.synth.pixels import sky_and_ground, view_rays
+from ngp_kornia.data.synth.render import RenderConfig, camera_ground_truth, render_dataset, render_scene
+from ngp_kornia.data.synth.scene import Item, Lighting, Scene, box_faces, draw_scene, order_items
 from ngp_kornia.geometry.camera import (
     fov_from_focal,
     horizon_from_zenith,

@@ -7,7 +7,7 @@ import torch
 from kornia.core.exceptions import BaseError, ShapeError
 from torch.autograd import gradcheck
 
-from ngp_kornia.data.render import render_scene
+from ngp_kornia.data.synth.render import render_scene
 from ngp_kornia.geometry.camera import (
     horizon_border_points,
     horizon_from_zenith,

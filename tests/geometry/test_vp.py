@@ -9,7 +9,7 @@ from kornia.core.exceptions import ShapeError
 from torch.autograd import gradcheck
 
 from ngp_kornia.geometry.camera import image_center, intrinsics_matrix, normalize, rotation_from_angles
-from ngp_kornia.geometry.lines import cossim, pseudo_focal, segment_lengths, segments_to_lines, to_pseudo_camera
+from ngp_kornia.geometry.line_algebra import cossim, pseudo_focal, segment_lengths, segments_to_lines, to_pseudo_camera
 from ngp_kornia.geometry.vp import (
     closeness,
     dominant_eigenvector,

@@ -3,8 +3,8 @@
 import pytest
 import torch
 
-from ngp_kornia.data.render import render_scene
-from ngp_kornia.lines import detect_segments
+from ngp_kornia.data.synth.render import render_scene
+from ngp_kornia.detect import detect_segments
 from ngp_kornia.models import NeuralGeometricParser, ParserConfig
 from ngp_kornia.models.fsnet import FSNet
 

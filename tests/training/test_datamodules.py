@@ -7,9 +7,9 @@ import lightning as L
 import numpy as np
 import torch
 
-from ngp_kornia.data.render import render_scene
+from ngp_kornia.data.synth.render import render_scene
 from ngp_kornia.models.zsnet import ZSNet
-from ngp_kornia.training.data import ManifestDataModule, PanoramaDataModule
+from ngp_kornia.training.datamodules import ManifestDataModule, PanoramaDataModule
 from ngp_kornia.training.zsnet_module import ZSNetModule
 
 

@@ -28,7 +28,7 @@ def test_two_process_training_writes_a_checkpoint(tmp_path):
         "data.batch_size": "2",
         "data.num_workers": "0",
     }
-    command = [sys.executable, "-m", "ngp_kornia.training.cli", "fit", "--config", str(CONFIG)]
+    command = [sys.executable, "-m", "ngp_kornia.training.command", "fit", "--config", str(CONFIG)]
     command += [f"--{key}={value}" for key, value in overrides.items()]
     # the working folder is tmp_path: Lightning re-runs this command for rank 1, and nothing lands in the repository
     run = subprocess.run(command, capture_output=True, text=True, timeout=300, cwd=tmp_path)

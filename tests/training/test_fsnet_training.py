@@ -9,7 +9,7 @@ import torch
 from ngp_kornia.geometry import horizon_from_zenith, intrinsics_matrix
 from ngp_kornia.models.fsnet import FSNet
 from ngp_kornia.sampling import FrameCandidates, select_frames
-from ngp_kornia.training.data import RenderedDataModule, SceneBatch
+from ngp_kornia.training.datamodules import RenderedDataModule, SceneBatch
 from ngp_kornia.training.fsnet_module import FSNetModule
 from ngp_kornia.training.losses import frame_classification_loss, frame_horizon_error, frame_labels
 

@@ -1,11 +1,11 @@
-"""Tests of ngp_kornia.lines: LSD line-segment detection returned as padded torch tensors (pixel-centre convention)."""
+"""Tests of ngp_kornia.detect: LSD line-segment detection returned as padded torch tensors (pixel-centre convention)."""
 
 import numpy as np
 import pytest
 import torch
 from kornia.core.exceptions import ShapeError
 
-from ngp_kornia.lines import LineDetector, detect_segments, detect_segments_gray, pad_segments
+from ngp_kornia.detect import LineDetector, detect_segments, detect_segments_gray, pad_segments
 
 
 def _rectangle(h, w, y0, y1, x0, x1, dtype=torch.float32):

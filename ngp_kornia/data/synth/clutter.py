@@ -9,9 +9,9 @@ import math
 
 import numpy as np
 
-from ngp_kornia.data.facade import rotated_rect
-from ngp_kornia.data.raster import PinholeView
-from ngp_kornia.data.scene import UP, Decal, Face, Item, box_walls, rect_corners, yaw_axes
+from ngp_kornia.data.synth.facade import rotated_rect
+from ngp_kornia.data.synth.painter import PinholeView
+from ngp_kornia.data.synth.scene import UP, Decal, Face, Item, box_walls, rect_corners, yaw_axes
 
 __all__ = [
     "blob",

@@ -13,8 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ngp_kornia.data.raster import PinholeView
-from ngp_kornia.data.scene import UP, Decal, Face, Item, Wall, box_walls, rect_corners
+from ngp_kornia.data.synth.painter import PinholeView
+from ngp_kornia.data.synth.scene import UP, Decal, Face, Item, Wall, box_walls, rect_corners
 
 __all__ = [
     "FacadeStyle",

@@ -1,5 +1,5 @@
 """Scene layouts for the renderer: a street crossing in a city grid, and an Atlanta-world plaza. (Rooms are in
-:mod:`ngp_kornia.data.interior`.) The camera is at the world origin, ``cam_height`` above the ground.
+:mod:`ngp_kornia.data.synth.interior`.) The camera is at the world origin, ``cam_height`` above the ground.
 
 Street scenes are Manhattan: the main street runs along world z, the cross street along world x, every building
 is aligned with the world axes. Atlanta scenes hold blocks of several yaws sharing the vertical; the ground-truth
@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from ngp_kornia.data.clutter import (
+from ngp_kornia.data.synth.clutter import (
     make_bench,
     make_bollard,
     make_bush,
@@ -23,9 +23,9 @@ from ngp_kornia.data.clutter import (
     make_tree,
     wire,
 )
-from ngp_kornia.data.facade import make_building
-from ngp_kornia.data.raster import PinholeView
-from ngp_kornia.data.scene import UP, Decal, Face, Scene
+from ngp_kornia.data.synth.facade import make_building
+from ngp_kornia.data.synth.painter import PinholeView
+from ngp_kornia.data.synth.scene import UP, Decal, Face, Scene
 
 __all__ = ["make_atlanta", "make_street"]
 

@@ -26,10 +26,10 @@ from torch.utils.data import DataLoader, Dataset
 from ngp_kornia.data.folder import ImageFolder
 from ngp_kornia.data.manifest import CSVManifest
 from ngp_kornia.data.panorama import crop_ground_truth, perspective_crops, sample_crop_params
-from ngp_kornia.data.render import RenderConfig, render_scene
+from ngp_kornia.data.synth.render import RenderConfig, render_scene
+from ngp_kornia.detect import detect_segments_gray, pad_segments
 from ngp_kornia.geometry import rotation_from_angles
 from ngp_kornia.io import load_image, read_image_file
-from ngp_kornia.lines import detect_segments_gray, pad_segments
 
 __all__ = [
     "CachedScenes",
@@ -168,7 +168,7 @@ class CachedScenes(Dataset):
 
 
 class RenderedScenes(CachedScenes):
-    """Rendered scenes, one per seed (:func:`ngp_kornia.data.render.render_scene`).
+    """Rendered scenes, one per seed (:func:`ngp_kornia.data.synth.render.render_scene`).
 
     Args:
         seeds: the scenes' seeds.

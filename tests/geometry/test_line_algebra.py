@@ -1,7 +1,4 @@
-"""Tests of ngp_kornia.geometry.lines: segments, homogeneous lines, intersections (Eq. 2-4) and the pseudo camera.
-
-(Named test_geometry_lines.py so it does not clash with tests/test_lines.py, which tests the LSD wrapper.)
-"""
+"""Tests of ngp_kornia.geometry.line_algebra: segments, homogeneous lines, intersections (Eq. 2-4), pseudo camera."""
 
 import math
 
@@ -11,7 +8,7 @@ from kornia.core.exceptions import ShapeError
 from torch.autograd import gradcheck
 
 from ngp_kornia.geometry.camera import image_center, intrinsics_matrix
-from ngp_kornia.geometry.lines import (
+from ngp_kornia.geometry.line_algebra import (
     cossim,
     intersect_lines,
     is_near_vertical,

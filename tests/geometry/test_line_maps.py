@@ -1,4 +1,4 @@
-"""Tests of ngp_kornia.geometry.raster: rasterised line maps (Eq. 13), closeness maps (Eq. 15) and the map form of
+"""Tests of ngp_kornia.geometry.line_maps: rasterised line maps (Eq. 13), closeness maps (Eq. 15) and the map form of
 the Manhattan score (Eq. 21)."""
 
 import pytest
@@ -7,8 +7,8 @@ import torch.nn.functional as F
 from kornia.core.exceptions import BaseError, ShapeError
 from torch.autograd import gradcheck
 
-from ngp_kornia.geometry.lines import segment_lengths, segments_to_lines
-from ngp_kornia.geometry.raster import (
+from ngp_kornia.geometry.line_algebra import segment_lengths, segments_to_lines
+from ngp_kornia.geometry.line_maps import (
     closeness_maps,
     line_map,
     line_map_and_pooled_maps,

@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ngp_kornia.data.raster import Canvas, DrawList, PinholeView
+from ngp_kornia.data.synth.painter import Canvas, DrawList, PinholeView
 
 __all__ = [
     "UP",

@@ -13,7 +13,7 @@ import threading
 import cv2
 import numpy as np
 
-from ngp_kornia.data.raster import PinholeView
+from ngp_kornia.data.synth.painter import PinholeView
 
 __all__ = ["ground_haze", "photometric", "sky_and_ground", "view_rays"]
 
@@ -146,7 +146,7 @@ def photometric(rng: np.random.Generator, image: np.ndarray, cfg) -> np.ndarray:
     Args:
         rng: random generator.
         image: (H, W, 3) uint8 RGB.
-        cfg: a :class:`ngp_kornia.data.render.RenderConfig`.
+        cfg: a :class:`ngp_kornia.data.synth.render.RenderConfig`.
 
     Returns:
         The degraded image (``image`` itself unless a JPEG round trip made a new one).

@@ -29,11 +29,11 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ngp_kornia.data.interior import make_room
-from ngp_kornia.data.layouts import make_atlanta, make_street
-from ngp_kornia.data.pixels import ground_haze, photometric, sky_and_ground, view_rays
-from ngp_kornia.data.raster import Canvas, PinholeView
-from ngp_kornia.data.scene import Lighting, Scene, draw_ground, draw_objects
+from ngp_kornia.data.synth.interior import make_room
+from ngp_kornia.data.synth.layouts import make_atlanta, make_street
+from ngp_kornia.data.synth.painter import Canvas, PinholeView
+from ngp_kornia.data.synth.pixels import ground_haze, photometric, sky_and_ground, view_rays
+from ngp_kornia.data.synth.scene import Lighting, Scene, draw_ground, draw_objects
 from ngp_kornia.geometry.camera import (
     focal_from_fov,
     fov_from_focal,

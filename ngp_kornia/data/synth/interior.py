@@ -12,9 +12,9 @@ import math
 
 import numpy as np
 
-from ngp_kornia.data.clutter import blob, hexahedron_faces
-from ngp_kornia.data.raster import PinholeView
-from ngp_kornia.data.scene import UP, Decal, Face, Item, Scene, Wall, box_walls, rect_corners, yaw_axes
+from ngp_kornia.data.synth.clutter import blob, hexahedron_faces
+from ngp_kornia.data.synth.painter import PinholeView
+from ngp_kornia.data.synth.scene import UP, Decal, Face, Item, Scene, Wall, box_walls, rect_corners, yaw_axes
 
 __all__ = ["make_room"]
 

@@ -1,0 +1,1 @@
+"""The procedural renderer of Manhattan and Atlanta worlds: scenes, facades, interiors, layouts, clutter, painter."""

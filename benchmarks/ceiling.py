@@ -43,8 +43,9 @@ from calibration import (  # noqa: E402
     weights_and_config,
 )
 
-from ngp_kornia.api import load_parser, segments_of_rgb  # noqa: E402
+from ngp_kornia.api import load_parser  # noqa: E402
 from ngp_kornia.data.yud import YorkUrbanDB, load_labelled_segments  # noqa: E402
+from ngp_kornia.detect import detect_segments  # noqa: E402
 from ngp_kornia.geometry import (  # noqa: E402
     fov_from_focal,
     horizon_from_zenith,
@@ -170,7 +171,7 @@ def main(argv: list[str] | None = None) -> int:
     for s in samples:
         rgb = read_image_file(s.image_path)
         images.append(torch.from_numpy(rgb).permute(2, 0, 1)[None].double() / 255.0)
-        detected.append(segments_of_rgb(rgb, ParserConfig()))
+        detected.append(detect_segments(rgb, ParserConfig()))
         seg, labels = load_labelled_segments(s.image_path.parent / f"{s.name}LinesAndVP.mat")
         labelled.append((seg, labels))
 

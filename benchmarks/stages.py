@@ -91,7 +91,7 @@ def stage_table(image: str, weights: str, repeat: int, with_lu: bool) -> str:
     api._parser = lambda *a, **k: parser  # calibrate() uses the instrumented parser (and its config's seed)
     detect = lines.detect_segments_gray
     lsd = StageTimer()
-    api.detect_segments_gray = lambda *a, **k: _timed(lsd, "line detection (LSD)", detect, *a, **k)
+    lines.detect_segments_gray = lambda *a, **k: _timed(lsd, "line detection (LSD)", detect, *a, **k)
     rows: dict[str, list[float]] = defaultdict(list)
     lu = _lu_runner(image) if with_lu else None
     try:
@@ -101,7 +101,7 @@ def stage_table(image: str, weights: str, repeat: int, with_lu: bool) -> str:
                 fn(image, weights, timer, lsd, lu, rows, keep=i > 0)
     finally:
         api._parser = original_parser
-        api.detect_segments_gray = detect
+        lines.detect_segments_gray = detect
     lines_out = [f"| stage ({weights}) | ms per image |", "|---|---:|"]
     for name, values in rows.items():
         lines_out.append(f"| {name} | {1000 * statistics.median(values):.1f} |")

@@ -8,12 +8,11 @@ from dataclasses import replace
 from functools import lru_cache
 from pathlib import Path
 
-import cv2
 import numpy as np
 import torch
 from torch import Tensor
 
-from ngp_kornia.detect import detect_segments_gray, pad_segments
+from ngp_kornia.detect import detect_segments
 from ngp_kornia.io import as_batch, read_rgb
 from ngp_kornia.models import Calibration, NeuralGeometricParser, ParserConfig
 from ngp_kornia.models.weights import load_network, network_name, shipped_weights
@@ -67,13 +66,6 @@ def _parser(weights, config: ParserConfig | None, copy: bool) -> NeuralGeometric
     return NeuralGeometricParser(config, zsnet=nets.get("ZSNet"), fsnet=nets.get("FSNet"))
 
 
-def segments_of_rgb(rgb: np.ndarray, config: ParserConfig) -> tuple[Tensor, Tensor]:
-    """LSD segments (1, N, 2, 2) and mask (1, N) of an (H, W, 3) uint8 RGB image, as :func:`calibrate` finds them
-    for a file: on the 8-bit grey image, at the config's working size, length limit and count."""
-    gray = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
-    return pad_segments([detect_segments_gray(gray, config.working_size, config.min_length, config.max_segments)])
-
-
 def calibrate(
     image: str | Path | np.ndarray | Tensor,
     weights: str = "default",
@@ -114,7 +106,7 @@ def calibrate(
     else:  # detect lines on the 8-bit image we already have instead of converting back from float
         rgb, batched = read_rgb(image), False
         batch = torch.from_numpy(rgb).permute(2, 0, 1)[None].float().div(255.0)
-        segments, mask = segments_of_rgb(rgb, cfg)
+        segments, mask = detect_segments(rgb, cfg)
     parser = _parser(weights, cfg, copy=False).to(batch.device)  # the cached networks, read only
     with torch.no_grad():
         result = parser(batch, segments, mask)

@@ -8,9 +8,13 @@ import json
 import os
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
+
+if TYPE_CHECKING:
+    from ngp_kornia.models import ParserConfig
 
 __all__ = ["main"]
 
@@ -70,11 +74,11 @@ def _overlay_path(target: str, image: str, many: bool) -> Path:
     return Path(target) / f"{Path(image).stem}_overlay.png"
 
 
-def _write_overlay(path: Path, rgb: np.ndarray, calibration) -> None:
-    from ngp_kornia.detect import detect_segments_gray
+def _write_overlay(path: Path, rgb: np.ndarray, calibration, config: ParserConfig | None = None) -> None:
+    from ngp_kornia.detect import detect_segments
     from ngp_kornia.viz import draw_calibration
 
-    segments = detect_segments_gray(cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY))
+    segments = detect_segments(rgb, config)[0][0].numpy()  # the lines the calibration saw (same settings)
     path.parent.mkdir(parents=True, exist_ok=True)
     if not cv2.imwrite(str(path), cv2.cvtColor(draw_calibration(rgb, calibration, segments), cv2.COLOR_RGB2BGR)):
         raise OSError(f"could not write the overlay to {path}")

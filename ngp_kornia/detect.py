@@ -1,6 +1,11 @@
 """Line-segment detection with OpenCV's LSD, returned as padded torch tensors.
 
-LSD runs on a greyscale copy resized so its long side is at most ``working_size`` (aspect ratio kept); the
+:func:`detect_segments` is the one entry point: every caller (the parser, :func:`ngp_kornia.calibrate`, folder
+prediction, the CLI overlay, the training cache, the benchmarks) gets its segments from it, with the settings of a
+:class:`~ngp_kornia.models.ParserConfig` (``working_size``, ``min_length``, ``max_segments``), so all of them see
+the same lines for the same image.
+
+LSD runs on the 8-bit greyscale image resized so its long side is at most ``working_size`` (aspect ratio kept); the
 segments are mapped back to the input's pixels (pixel-centre convention), filtered by length and padded to
 ``(B, N, 2, 2)`` with a ``(B, N)`` mask.
 """
@@ -8,12 +13,19 @@ segments are mapped back to the input's pixels (pixel-centre convention), filter
 from __future__ import annotations
 
 import threading
+from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 import torch
 from kornia.core.check import KORNIA_CHECK_SHAPE
 from torch import Tensor
+
+from ngp_kornia.io import read_rgb
+
+if TYPE_CHECKING:  # the settings live beside the parser, which itself calls this module
+    from ngp_kornia.models.parser import ParserConfig
 
 __all__ = ["LineDetector", "detect_segments", "detect_segments_gray", "pad_segments"]
 
@@ -27,20 +39,19 @@ def _lsd() -> cv2.LineSegmentDetector:
     return _local.lsd
 
 
-def detect_segments_gray(
-    gray: np.ndarray, working_size: int = 640, min_length: float = 10.0, max_segments: int = 1024
-) -> np.ndarray:
-    """Detect segments on one greyscale uint8 image.
+def detect_segments_gray(gray: np.ndarray, config: ParserConfig | None = None) -> np.ndarray:
+    """Detect segments on one greyscale uint8 image: the LSD step of :func:`detect_segments`.
 
     Args:
         gray: (H, W) uint8 image.
-        working_size: LSD runs on a copy whose long side is at most this many pixels.
-        min_length: segments shorter than this (in working-resolution pixels) are dropped.
-        max_segments: keep at most this many, the longest first.
+        config: the settings used: LSD runs on a copy whose long side is at most ``working_size`` pixels, segments
+            shorter than ``min_length`` (working-resolution pixels) are dropped and at most ``max_segments`` kept,
+            the longest first. None for the defaults of :class:`~ngp_kornia.models.ParserConfig`.
 
     Returns:
         (N, 2, 2) float32 segments ``[[x0, y0], [x1, y1]]`` in the input's pixels, longest first.
     """
+    working_size, min_length, max_segments = _settings(config)
     if gray.ndim != 2 or gray.dtype != np.uint8:
         raise ValueError(f"expected an (H, W) uint8 greyscale image, got shape {gray.shape} dtype {gray.dtype}")
     h, w = gray.shape
@@ -80,25 +91,41 @@ def pad_segments(segments: list[np.ndarray | Tensor], like: Tensor | None = None
     return out, mask
 
 
+def _settings(config: ParserConfig | None) -> tuple[int, float, int]:
+    if config is None:
+        from ngp_kornia.models.parser import ParserConfig
+
+        config = ParserConfig()
+    return config.working_size, config.min_length, config.max_segments
+
+
 def _to_gray_uint8(image: Tensor) -> np.ndarray:
     rgb = image.detach().float().clamp(0.0, 1.0).mul(255.0).round().to(torch.uint8).permute(1, 2, 0).cpu().numpy()
     return cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2GRAY)
 
 
 def detect_segments(
-    images: Tensor, working_size: int = 640, min_length: float = 10.0, max_segments: int = 1024
+    image: str | Path | np.ndarray | Tensor, config: ParserConfig | None = None
 ) -> tuple[Tensor, Tensor]:
-    """Detect line segments on a batch of RGB images.
+    """Detect line segments on an image or a batch: the one line-detection entry point of the package.
 
     Args:
-        images: (B, 3, H, W) float RGB in [0, 1].
-        working_size: LSD runs at this long side (smaller images are used as they are).
-        min_length: minimum segment length in working-resolution pixels.
-        max_segments: at most this many segments per image, the longest kept.
+        image: a float tensor (B, 3, H, W) or (3, H, W) of RGB in [0, 1] (values outside are clipped), on any
+            device; or a file path or an image array as :func:`ngp_kornia.calibrate` accepts them (HxWx3 uint8 RGB;
+            greyscale, RGBA, uint16 and float in [0, 1] are converted), which is one image. Arrays and files are
+            detected on their 8-bit pixels, tensors on their pixels rounded to 8 bits: a tensor made of an 8-bit
+            image (``uint8 / 255``) gives the same segments as the array.
+        config: a :class:`~ngp_kornia.models.ParserConfig` whose ``working_size``, ``min_length`` and
+            ``max_segments`` are used (see :func:`detect_segments_gray`); None for the defaults.
 
     Returns:
-        segments (B, N, 2, 2) in input pixels and mask (B, N), on the images' device and dtype. An image with no
-        lines has an all-False mask row.
+        segments (B, N, 2, 2) in input pixels and mask (B, N), with B = 1 for an unbatched input; on a tensor's
+        device and dtype, float32 on the CPU otherwise. An image with no lines has an all-False mask row.
+
+    Raises:
+        ShapeError: a tensor that is not (B, 3, H, W) or (3, H, W).
+        TypeError: an integer tensor, or an input type that is not supported.
+        ImageError: an unreadable file or an unsupported array.
 
     Example:
         >>> img = torch.zeros(1, 3, 64, 64); img[..., 20:44, 20:44] = 1.0
@@ -106,17 +133,26 @@ def detect_segments(
         >>> int(mask.sum())
         4
     """
+    if not isinstance(image, Tensor):
+        gray = cv2.cvtColor(read_rgb(image), cv2.COLOR_RGB2GRAY)
+        return pad_segments([detect_segments_gray(gray, config)])
+    if not image.is_floating_point():
+        raise TypeError(f"expected a float image tensor in [0, 1], got {image.dtype}; for uint8 use image.float()/255")
+    images = image[None] if image.dim() == 3 else image
     KORNIA_CHECK_SHAPE(images, ["B", "3", "H", "W"])
-    found = [detect_segments_gray(_to_gray_uint8(im), working_size, min_length, max_segments) for im in images]
-    return pad_segments(found, like=images)
+    return pad_segments([detect_segments_gray(_to_gray_uint8(im), config) for im in images], like=images)
 
 
 class LineDetector(torch.nn.Module):
-    """Module form of :func:`detect_segments` (no parameters; LSD is not differentiable)."""
+    """Module form of :func:`detect_segments` (no parameters; LSD is not differentiable).
 
-    def __init__(self, working_size: int = 640, min_length: float = 10.0, max_segments: int = 1024) -> None:
+    Args:
+        config: the detection settings (see :func:`detect_segments`); None for the defaults.
+    """
+
+    def __init__(self, config: ParserConfig | None = None) -> None:
         super().__init__()
-        self.working_size, self.min_length, self.max_segments = working_size, min_length, max_segments
+        self.config = config
 
     def forward(self, images: Tensor) -> tuple[Tensor, Tensor]:
-        return detect_segments(images, self.working_size, self.min_length, self.max_segments)
+        return detect_segments(images, self.config)

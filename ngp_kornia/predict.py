@@ -26,7 +26,7 @@ from lightning.pytorch.callbacks import BasePredictionWriter
 from torch import Tensor
 from torch.utils.data import DataLoader, Dataset
 
-from ngp_kornia.api import load_parser, segments_of_rgb
+from ngp_kornia.api import load_parser
 from ngp_kornia.data.folder import IMAGE_EXTENSIONS, ImageFolder
 from ngp_kornia.models import Calibration, NeuralGeometricParser, ParserConfig
 
@@ -78,11 +78,9 @@ class FolderPredictor(L.LightningModule):
 
     def calibrate(self, image: Tensor) -> Calibration:
         """Calibrate one (3, H, W) image as :func:`ngp_kornia.calibrate` does for a file."""
-        # back to the exact 8-bit pixels the file decoded to (the float image is uint8 / 255), since calibrate()
-        # runs LSD on those and the lines decide the answer
-        rgb = image.mul(255.0).round().to(torch.uint8).permute(1, 2, 0).contiguous().numpy()
-        segments, mask = segments_of_rgb(rgb, self.parser.config)
-        return self.parser(image[None].to(self.device), segments, mask)[0]
+        # the parser detects lines on the image rounded to 8 bits, which are the exact pixels the file decoded to
+        # (the float image is uint8 / 255): the same lines, hence the same answer, as calibrate() on the file
+        return self.parser(image[None].to(self.device))[0]
 
     def predict_step(self, batch: list[FolderItem], batch_idx: int) -> list[tuple[int, dict]]:
         rows = []

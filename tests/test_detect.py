@@ -1,11 +1,14 @@
 """Tests of ngp_kornia.detect: LSD line-segment detection returned as padded torch tensors (pixel-centre convention)."""
 
+import cv2
 import numpy as np
 import pytest
 import torch
 from kornia.core.exceptions import ShapeError
 
 from ngp_kornia.detect import LineDetector, detect_segments, detect_segments_gray, pad_segments
+from ngp_kornia.io import ImageError
+from ngp_kornia.models import ParserConfig
 
 
 def _rectangle(h, w, y0, y1, x0, x1, dtype=torch.float32):
@@ -81,18 +84,18 @@ def test_detect_segments_flat_image_has_no_lines():
 def test_detect_segments_downscaled_maps_back():
     # LSD runs on a 640x480 copy of a 1280x960 image; segments come back in input pixels
     img = _rectangle(960, 1280, 200, 599, 300, 999)
-    seg, mask = detect_segments(img, working_size=640)
+    seg, mask = detect_segments(img, ParserConfig(working_size=640))
     # a missing half-pixel correction would put the edges about 0.75 px off
     _check_rectangle(seg[0], mask[0], 299.5, 999.5, 199.5, 599.5, tol=0.6)
     # min_length is in working-resolution pixels: the 200-px (working) edges pass 150, the 350-px ones only pass 300
-    _, mask = detect_segments(img, working_size=640, min_length=300.0)
+    _, mask = detect_segments(img, ParserConfig(working_size=640, min_length=300.0))
     assert int(mask.sum()) == 2
 
 
 def test_detect_segments_smaller_than_working_size_unchanged():
     img = _rectangle(64, 64, 20, 43, 20, 43)
-    a, ma = detect_segments(img, working_size=640)
-    b, mb = detect_segments(img, working_size=64)
+    a, ma = detect_segments(img, ParserConfig(working_size=640))
+    b, mb = detect_segments(img, ParserConfig(working_size=64))
     assert torch.equal(a, b) and torch.equal(ma, mb)
 
 
@@ -103,9 +106,9 @@ def test_detect_segments_gray_longest_first_and_limits():
     assert seg.dtype == np.float32 and seg.shape == (4, 2, 2)
     length = np.linalg.norm(seg[:, 1] - seg[:, 0], axis=-1)
     assert (np.diff(length) <= 0).all()  # longest first
-    assert detect_segments_gray(gray, max_segments=2).shape == (2, 2, 2)
-    np.testing.assert_array_equal(detect_segments_gray(gray, max_segments=2), seg[:2])
-    assert detect_segments_gray(gray, min_length=80.0).shape == (2, 2, 2)
+    assert detect_segments_gray(gray, ParserConfig(max_segments=2)).shape == (2, 2, 2)
+    np.testing.assert_array_equal(detect_segments_gray(gray, ParserConfig(max_segments=2)), seg[:2])
+    assert detect_segments_gray(gray, ParserConfig(min_length=80.0)).shape == (2, 2, 2)
     assert detect_segments_gray(np.zeros((50, 50), np.uint8)).shape == (0, 2, 2)
 
 
@@ -115,7 +118,7 @@ def test_detect_segments_gray_thin_lines_survive_downscaling():
     gray = np.zeros((1440, 1920), np.uint8)
     gray[300:1200, 600] = 255
     gray[450, 300:1500] = 255
-    seg = detect_segments_gray(gray, working_size=640)
+    seg = detect_segments_gray(gray, ParserConfig(working_size=640))
     assert len(seg) >= 2, "thin lines lost when downscaling (cv2.resize interpolation flag passed as dst)"
     xs = seg[..., 0].mean(1)
     ys = seg[..., 1].mean(1)
@@ -140,11 +143,38 @@ def test_detect_segments_exception():
     with pytest.raises(ShapeError):
         detect_segments(torch.zeros(1, 1, 32, 32))
     with pytest.raises(ShapeError):
-        detect_segments(torch.zeros(3, 32, 32))
+        detect_segments(torch.zeros(32, 32))
+    with pytest.raises(TypeError, match="float"):
+        detect_segments(torch.zeros(1, 3, 32, 32, dtype=torch.uint8))
+    with pytest.raises(TypeError):
+        detect_segments([np.zeros((32, 32, 3), np.uint8)])
+    with pytest.raises(ImageError):
+        detect_segments(np.zeros((32, 32, 2), np.uint8))
+
+
+def test_detect_segments_accepts_every_image_form(tmp_path):
+    # a tensor, an unbatched tensor, an 8-bit array, a greyscale array and a file give the same segments
+    img = _rectangle(64, 80, 20, 43, 10, 60)
+    ref, ref_mask = detect_segments(img)
+    rgb = (img[0].permute(1, 2, 0) * 255).round().to(torch.uint8).numpy()
+    path = tmp_path / "rect.png"
+    cv2.imwrite(str(path), rgb)
+    for form in (img[0], rgb, rgb[..., 0], str(path), path):
+        seg, mask = detect_segments(form)
+        assert seg.shape == ref.shape and seg.dtype == torch.float32
+        assert torch.equal(seg, ref) and torch.equal(mask, ref_mask)
+
+
+def test_detect_segments_settings_come_from_the_config():
+    gray = np.zeros((100, 120), np.uint8)
+    gray[20:80, 10:110] = 255
+    cfg = ParserConfig(max_segments=3)
+    assert detect_segments(gray, cfg)[1].sum() == 3 == len(detect_segments_gray(gray, cfg))
+    assert detect_segments(np.zeros((100, 120), np.uint8))[0].shape == (1, 0, 2, 2)
 
 
 def test_line_detector_module():
-    det = LineDetector(working_size=640, min_length=10.0, max_segments=2)
+    det = LineDetector(ParserConfig(working_size=640, min_length=10.0, max_segments=2))
     assert len(list(det.parameters())) == 0
     seg, mask = det(_rectangle(64, 64, 20, 43, 20, 43))
     assert seg.shape == (1, 2, 2, 2) and mask.all()

@@ -32,7 +32,8 @@ def test_a_loss_after_rectification_trains_the_parser():
     model = UprightClassifier(NeuralGeometricParser(ParserConfig(num_scored=8), fsnet=fsnet))
     scenes = [render_scene(seed, (160, 120)) for seed in (1, 4)]
     images = torch.stack([torch.from_numpy(s.image).permute(2, 0, 1).float() / 255 for s in scenes])
-    segments, mask = detect_segments(images, 160, 8.0, 256)  # LSD once, outside the training loop
+    # LSD once, outside the training loop
+    segments, mask = detect_segments(images, ParserConfig(working_size=160, min_length=8.0, max_segments=256))
 
     logits = model(images, segments, mask)
     loss = nn.functional.cross_entropy(logits, torch.tensor([0, 3]))

@@ -143,7 +143,7 @@ class NeuralGeometricParser(nn.Module):
         cfg = self.config
         height, width = images.shape[-2:]
         if segments is None:
-            segments, mask = detect_segments(images, cfg.working_size, cfg.min_length, cfg.max_segments)
+            segments, mask = detect_segments(images, cfg)
         elif mask is None:
             raise ValueError("segments were given without their (B, N) mask; pass mask=torch.ones(B, N, dtype=bool)")
         segments = segments.to(images)

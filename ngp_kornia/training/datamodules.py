@@ -27,9 +27,10 @@ from ngp_kornia.data.folder import ImageFolder
 from ngp_kornia.data.manifest import CSVManifest
 from ngp_kornia.data.panorama import crop_ground_truth, perspective_crops, sample_crop_params
 from ngp_kornia.data.synth.render import RenderConfig, render_scene
-from ngp_kornia.detect import detect_segments_gray, pad_segments
+from ngp_kornia.detect import detect_segments, pad_segments
 from ngp_kornia.geometry import rotation_from_angles
 from ngp_kornia.io import load_image, read_image_file
+from ngp_kornia.models.parser import ParserConfig
 
 __all__ = [
     "CachedScenes",
@@ -145,9 +146,8 @@ class CachedScenes(Dataset):
 
     def sample_from_image(self, rgb: np.ndarray, K, R, zenith, horizon) -> Sample:
         """Detect segments on an HxWx3 uint8 RGB image and pack it with its ground truth."""
-        segments = detect_segments_gray(
-            cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY), self.working_size, 10.0, self.max_segments
-        )
+        config = ParserConfig(working_size=self.working_size, max_segments=self.max_segments)
+        segments = detect_segments(rgb, config)[0][0].numpy()
         image = None
         if self.input_size is not None:
             image = cv2.resize(rgb, self.input_size, interpolation=cv2.INTER_AREA)

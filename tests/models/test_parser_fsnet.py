@@ -18,7 +18,7 @@ def tiny_fsnet(**kwargs) -> FSNet:
 def scene():
     r = render_scene(5, (192, 144))
     image = torch.from_numpy(r.image).permute(2, 0, 1)[None].float() / 255
-    segments, mask = detect_segments(image, 192, 8.0, 256)
+    segments, mask = detect_segments(image, ParserConfig(working_size=192, min_length=8.0, max_segments=256))
     return image, segments, mask
 
 

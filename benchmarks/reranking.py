@@ -19,7 +19,6 @@ import argparse
 import sys
 from pathlib import Path
 
-import cv2
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -27,31 +26,27 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from calibration import load_rendered, load_yud  # noqa: E402
 
 from ngp_kornia.api import load_parser  # noqa: E402
-from ngp_kornia.detect import detect_segments_gray, pad_segments  # noqa: E402
-from ngp_kornia.geometry import frame_manhattan_scores, segment_lengths, segments_to_lines, to_pseudo_camera  # noqa: E402
+from ngp_kornia.geometry import frame_manhattan_scores, segment_lengths  # noqa: E402
+from ngp_kornia.io import load_image  # noqa: E402
 from ngp_kornia.metrics import horizon_auc  # noqa: E402
 from ngp_kornia.sampling import select_frames, top_frames  # noqa: E402
 from ngp_kornia.training.losses import frame_horizon_error  # noqa: E402
 
 
 def image_rows(sample, parser, tops: list[int], kernels: list[float]) -> dict[str, float]:
-    cfg = parser.config
-    gray = cv2.cvtColor(cv2.imread(str(sample.image_path)), cv2.COLOR_BGR2GRAY)
-    segments, mask = pad_segments([detect_segments_gray(gray, cfg.working_size, cfg.min_length, cfg.max_segments)])
-    segments = segments.float()
-    h, w = gray.shape
+    image = load_image(sample.image_path)
+    h, w = image.shape[-2:]
     with torch.no_grad():
-        frames, m = parser.score_frames(segments, mask, h, w, torch.Generator().manual_seed(cfg.seed))
-        kept = select_frames(frames, top_frames(frames, m, max(tops)))
+        _, t = parser(image, return_trace=True)
+        kept = select_frames(t.frames, top_frames(t.frames, t.manhattan, max(tops)))
         errors = frame_horizon_error(kept, sample.horizon[None].float(), h, w)[0]
         row = {"top-1 by m (89 deg)": float(errors[0])}
         for k in tops:
             row[f"best of top {k} (oracle)"] = float(errors[:k].min())
-        lines = segments_to_lines(to_pseudo_camera(segments, h, w))
-        lengths = segment_lengths(segments) * mask
+        lengths = segment_lengths(t.segments) * t.mask
         first = select_frames(kept, torch.arange(min(tops), device=errors.device)[None])
         for angle in kernels:
-            score = frame_manhattan_scores(lines, first.vps, lengths, mask, angle)[0]
+            score = frame_manhattan_scores(t.lines, first.vps, lengths, t.mask, angle)[0]
             score = torch.where(first.valid[0], score, torch.full_like(score, -1.0))
             row[f"top-1 of top {min(tops)} by m at {angle:g} deg"] = float(errors[score.argmax()])
     return row

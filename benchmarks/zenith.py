@@ -28,20 +28,10 @@ import torch
 
 from ngp_kornia.data.synth.render import render_scene
 from ngp_kornia.data.yud import YorkUrbanDB
-from ngp_kornia.detect import detect_segments_gray
-from ngp_kornia.geometry import (
-    dominant_eigenvector,
-    homogeneous_to_pseudo_camera,
-    pseudo_focal,
-    segment_lengths,
-    segments_to_lines,
-    to_pseudo_camera,
-    weighted_structure_tensor,
-)
-from ngp_kornia.io import read_image_file
+from ngp_kornia.detect import detect_segments
+from ngp_kornia.geometry import homogeneous_to_pseudo_camera, pseudo_focal
 from ngp_kornia.models import NeuralGeometricParser, ParserConfig
 from ngp_kornia.models.weights import load_network
-from ngp_kornia.sampling import sample_zenith_candidates
 from ngp_kornia.training.datamodules import RenderedDataModule, RenderedScenes
 from ngp_kornia.training.zsnet_module import zenith_error_deg
 
@@ -55,30 +45,27 @@ def samples_rendered(cache: str, count: int):
         yield s.segments, torch.as_tensor(s.K), torch.as_tensor(s.zenith), int(s.image_size[0]), int(s.image_size[1])
 
 
+#: York Urban's segments: the parser's settings but 1,024 segments (not 512), as the figures in BENCHMARKS.md
+YUD_DETECTION = ParserConfig(max_segments=1024)
+
+
 def samples_yud(root: str):
     for s in YorkUrbanDB(root):
-        gray = cv2.cvtColor(read_image_file(s.image_path), cv2.COLOR_RGB2GRAY)
-        yield detect_segments_gray(gray, 640, max_segments=1024), s.K, s.zenith, s.height, s.width
+        yield detect_segments(s.image_path, YUD_DETECTION)[0][0], s.K, s.zenith, s.height, s.width
 
 
 def zenith_errors(parsers: dict[str, NeuralGeometricParser], segments: np.ndarray, K, zenith, height, width):
-    """Error (degrees) of each parser's zenith estimate on one image."""
+    """Error (degrees) of each parser's zenith estimate z_est (from its trace) on one image."""
     seg = torch.as_tensor(segments, dtype=torch.float32)[None]
     mask = torch.ones(seg.shape[:2], dtype=torch.bool)
-    lines = segments_to_lines(to_pseudo_camera(seg, height, width))
-    lengths = segment_lengths(seg)
-    cfg = ParserConfig()
-    gen = torch.Generator().manual_seed(cfg.seed)
-    lz, lz_ok, z, z_ok = sample_zenith_candidates(
-        lines, lengths, mask, cfg.num_zenith_lines, cfg.num_zenith, cfg.vertical_threshold, gen
-    )
+    blank = torch.zeros(1, 3, height, width)  # the parsers have no FSNet: only the segments matter
     gt = homogeneous_to_pseudo_camera(torch.as_tensor(zenith, dtype=torch.float32)[None], height, width)
     focal = torch.tensor([float(K[0, 0]) / pseudo_focal(height, width)])
     out = {}
     with torch.no_grad():
         for name, parser in parsers.items():
-            est = dominant_eigenvector(weighted_structure_tensor(z, parser.zenith_weights(lz, lz_ok, z, z_ok)))
-            out[name] = float(zenith_error_deg(est, gt, focal)[0])
+            _, trace = parser(blank, seg, mask, return_trace=True)
+            out[name] = float(zenith_error_deg(trace.zenith_estimate, gt, focal)[0])
     return out
 
 

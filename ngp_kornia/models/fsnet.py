@@ -53,6 +53,7 @@ __all__ = [
     "NUM_SUPPORT",
     "VARIANTS",
     "canonical_frame_vps",
+    "frame_scores",
     "frame_support",
     "fsnet_inputs",
 ]
@@ -150,6 +151,27 @@ def frame_support(lines: Tensor, lengths: Tensor, mask: Tensor, vps: Tensor) -> 
     limits = torch.tensor(SUPPORT_ANGLES, dtype=cosine.dtype, device=cosine.device).deg2rad().sin()
     inside = (cosine[..., None, :, :] <= limits[:, None, None]).to(w)  # (B, F, A, 4, N)
     return (inside @ w[:, None, None, :, None])[..., 0].flatten(2)
+
+
+def frame_scores(s_vh: Tensor, manhattan: Tensor, valid: Tensor, use_manhattan: bool = True) -> Tensor:
+    """Final scores of frame candidates (Eq. 22): ``s_i = s_vh * m_i``, the FSNet score times the Manhattan score
+    (or ``s_vh`` alone without ``use_manhattan``), zero for invalid frames.
+
+    Args:
+        s_vh: (B, F) FSNet scores in [0, 1] (the sigmoid of its output).
+        manhattan: (B, F) Manhattan scores ``m_i`` (Eq. 21).
+        valid: (B, F) bool.
+        use_manhattan: multiply by ``m_i``.
+
+    Returns:
+        (B, F) scores.
+
+    Example:
+        >>> frame_scores(torch.tensor([[0.5, 0.8]]), torch.tensor([[0.4, 0.9]]), torch.tensor([[True, False]]))
+        tensor([[0.2000, 0.0000]])
+    """
+    scores = s_vh * manhattan if use_manhattan else s_vh
+    return torch.where(valid, scores, torch.zeros_like(scores))
 
 
 def fsnet_inputs(

@@ -34,10 +34,12 @@ from ngp_kornia.geometry import (
     to_pseudo_camera,
     topk_weighted_average,
     vanishing_points_from_rotation,
-    weighted_structure_tensor,
     zenith_from_up,
 )
+from ngp_kornia.models.fsnet import frame_scores
 from ngp_kornia.models.result import Calibration
+from ngp_kornia.models.trace import ParserTrace
+from ngp_kornia.models.zsnet import zenith_estimate, zenith_weights_from_scores
 from ngp_kornia.sampling import (
     FrameCandidates,
     cat_frames,
@@ -51,7 +53,7 @@ from ngp_kornia.sampling import (
     top_frames,
 )
 
-__all__ = ["NeuralGeometricParser", "ParserConfig"]
+__all__ = ["NeuralGeometricParser", "ParserConfig", "ParserTrace"]
 
 
 @dataclass
@@ -129,16 +131,20 @@ class NeuralGeometricParser(nn.Module):
         self.zsnet = zsnet
         self.fsnet = fsnet
 
-    def forward(self, images: Tensor, segments: Tensor | None = None, mask: Tensor | None = None) -> Calibration:
+    def forward(
+        self, images: Tensor, segments: Tensor | None = None, mask: Tensor | None = None, return_trace: bool = False
+    ) -> Calibration | tuple[Calibration, ParserTrace]:
         """Calibrate a batch.
 
         Args:
             images: (B, 3, H, W) float RGB in [0, 1].
             segments: optional (B, N, 2, 2) precomputed segments in the images' pixels (skips LSD).
             mask: (B, N) bool, required with ``segments``.
+            return_trace: also return the intermediate stages.
 
         Returns:
-            a batched :class:`Calibration`.
+            a batched :class:`Calibration`; with ``return_trace``, the pair ``(calibration, trace)``, the trace a
+            :class:`ParserTrace` of the stages (the same computation: the calibration does not change).
         """
         cfg = self.config
         height, width = images.shape[-2:]
@@ -150,15 +156,24 @@ class NeuralGeometricParser(nn.Module):
         if segments.shape[1] == 0:  # no lines anywhere in the batch: one masked dummy keeps every shape non-empty
             segments, mask = segments.new_zeros(len(images), 1, 2, 2), mask.new_zeros(len(images), 1)
         generator = torch.Generator().manual_seed(cfg.seed)
-        frames, scores = self.score_frames(segments, mask, height, width, generator)
+        stages = {"segments": segments, "mask": mask} if return_trace else None
+        frames, scores = self.score_frames(segments, mask, height, width, generator, stages)
         if self.fsnet is not None:
-            frames, scores = self.rescore_frames(images, segments, mask, frames, scores)
-        return self.calibrate_from_frames(frames, scores, height, width)
+            frames, scores = self.rescore_frames(images, segments, mask, frames, scores, stages)
+        result = self.calibrate_from_frames(frames, scores, height, width, stages)
+        return (result, ParserTrace(**stages)) if return_trace else result
 
     def score_frames(
-        self, segments: Tensor, mask: Tensor, height: int, width: int, generator: torch.Generator
+        self,
+        segments: Tensor,
+        mask: Tensor,
+        height: int,
+        width: int,
+        generator: torch.Generator,
+        stages: dict | None = None,
     ) -> tuple[FrameCandidates, Tensor]:
-        """Sample frame candidates (pseudo camera) and score each one: (B, F) scores, zero for invalid frames."""
+        """Sample frame candidates (pseudo camera) and score each one: (B, F) scores, zero for invalid frames.
+        ``stages``, a dict, receives the intermediate tensors (the fields of :class:`ParserTrace`)."""
         cfg = self.config
         seg = to_pseudo_camera(segments, height, width)
         lines = segments_to_lines(seg)
@@ -167,7 +182,7 @@ class NeuralGeometricParser(nn.Module):
             lines, lengths, mask, cfg.num_zenith_lines, cfg.num_zenith, cfg.vertical_threshold, generator
         )
         weights = self.zenith_weights(lines_z, lines_z_ok, zenith, zenith_ok)
-        z_est = dominant_eigenvector(weighted_structure_tensor(zenith, weights))
+        z_est = zenith_estimate(zenith, weights)
         horizontal = horizontal_line_mask(seg, mask, z_est, cfg.vertical_tol, cfg.junction_radius)
         right = split_by_pseudo_horizon(lines, z_est)
         h_vps, h_ok = sample_horizontal_vps(lines, lengths, horizontal, right, cfg.num_horizontal, generator)
@@ -176,10 +191,21 @@ class NeuralGeometricParser(nn.Module):
             pairs = sample_horizontal_pair_frames(h_vps, h_ok, cfg.num_horizontal_frames, cfg.focal_range, generator)
             frames = cat_frames(frames, pairs)
         scores = frame_manhattan_scores(lines, frames.vps, lengths, mask, cfg.kernel_angle)
-        return frames, torch.where(frames.valid, scores, torch.zeros_like(scores))
+        scores = torch.where(frames.valid, scores, torch.zeros_like(scores))
+        if stages is not None:
+            stages.update(lines=lines, zenith_lines=lines_z, zenith_lines_ok=lines_z_ok, zenith_candidates=zenith)
+            stages.update(zenith_ok=zenith_ok, zenith_weights=weights, zenith_estimate=z_est, horizontal=horizontal)
+            stages.update(right=right, horizontal_vps=h_vps, horizontal_ok=h_ok, frames=frames, manhattan=scores)
+        return frames, scores
 
     def rescore_frames(
-        self, images: Tensor, segments: Tensor, mask: Tensor, frames: FrameCandidates, manhattan: Tensor
+        self,
+        images: Tensor,
+        segments: Tensor,
+        mask: Tensor,
+        frames: FrameCandidates,
+        manhattan: Tensor,
+        stages: dict | None = None,
     ) -> tuple[FrameCandidates, Tensor]:
         """Keep the best ``num_scored`` frames by Manhattan score and score them with FSNet: ``s_vh * m_i`` (Eq. 22),
         or ``s_vh`` alone without ``use_manhattan``. Returns the kept frames and their (B, K) scores."""
@@ -190,27 +216,30 @@ class NeuralGeometricParser(nn.Module):
         dtype = next(self.fsnet.parameters()).dtype
         inputs = self.fsnet.prepare_inputs(images.to(dtype), segments.to(dtype), mask, frames)
         s_vh = torch.sigmoid(self.fsnet(*inputs)).to(manhattan)
-        scores = s_vh * manhattan if cfg.use_manhattan else s_vh
-        return frames, torch.where(frames.valid, scores, torch.zeros_like(scores))
+        if stages is not None:
+            stages.update(scored_index=index, fsnet_scores=s_vh)
+        return frames, frame_scores(s_vh, manhattan, frames.valid, cfg.use_manhattan)
 
     def zenith_weights(self, lines_z: Tensor, lines_z_ok: Tensor, zenith: Tensor, zenith_ok: Tensor) -> Tensor:
         """Weights of the zenith candidates: the ZSNet score p_z on Z_c (p_z > delta_c, Eq. 12) and zero elsewhere;
         without ZSNet, or where no candidate passes delta_c, every valid candidate counts equally. (B, Z)."""
-        ok = zenith_ok.to(zenith)
         if self.zsnet is None:
-            return ok
-        scores = torch.sigmoid(self.zsnet(lines_z, lines_z_ok, zenith)) * ok
-        weights = scores * (scores > self.config.zenith_threshold)
-        return torch.where((weights > 0).any(-1, keepdim=True), weights, ok)
+            return zenith_ok.to(zenith)
+        scores = torch.sigmoid(self.zsnet(lines_z, lines_z_ok, zenith))
+        return zenith_weights_from_scores(scores, zenith_ok, self.config.zenith_threshold)
 
-    def calibrate_from_frames(self, frames: FrameCandidates, scores: Tensor, height: int, width: int) -> Calibration:
+    def calibrate_from_frames(
+        self, frames: FrameCandidates, scores: Tensor, height: int, width: int, stages: dict | None = None
+    ) -> Calibration:
         """Top-k average (Eq. 23) of focal and zenith, yaw from the best frame, everything mapped to pixels."""
         cfg = self.config
         valid = frames.valid.any(-1)
-        focal, _ = topk_weighted_average(scores, frames.focal, cfg.top_k, frames.valid)
+        focal, top_k_weights = topk_weighted_average(scores, frames.focal, cfg.top_k, frames.valid)
         st, _ = topk_weighted_average(scores, structure_tensor(frames.zenith), cfg.top_k, frames.valid)
         zenith = dominant_eigenvector(st)
         best = scores.argmax(-1)
+        if stages is not None:
+            stages.update(final_frames=frames, final_scores=scores, top_k_weights=top_k_weights, best=best)
         horizontal = frames.horizontal[torch.arange(len(best)), best]
         fallback = 1.0 / math.tan(math.radians(cfg.fallback_fov) / 2.0)
         focal = torch.where(valid, focal, torch.full_like(focal, fallback))

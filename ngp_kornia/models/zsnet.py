@@ -7,9 +7,51 @@ import torch
 from kornia.core.check import KORNIA_CHECK_SHAPE
 from torch import Tensor, nn
 
-from ngp_kornia.geometry import line_vp_cosine, normalize, sharp_kernel
+from ngp_kornia.geometry import (
+    dominant_eigenvector,
+    line_vp_cosine,
+    normalize,
+    sharp_kernel,
+    weighted_structure_tensor,
+)
 
-__all__ = ["ZSNet", "canonical_homogeneous"]
+__all__ = ["ZSNet", "canonical_homogeneous", "zenith_estimate", "zenith_weights_from_scores"]
+
+
+def zenith_weights_from_scores(scores: Tensor, valid: Tensor, threshold: float = 0.5) -> Tensor:
+    r"""Weights of the zenith candidates from ZSNet's probabilities (Eq. 12): :math:`p_z` on
+    :math:`Z_c = \{z : p_z > \delta_c\}` and zero elsewhere; where no valid candidate passes :math:`\delta_c`,
+    every valid candidate counts equally (the untrained path's weights).
+
+    Args:
+        scores: (B, Z) probabilities :math:`p_z` (the sigmoid of ZSNet's output).
+        valid: (B, Z) bool, False for padded or degenerate candidates (never weighted).
+        threshold: :math:`\delta_c`.
+
+    Returns:
+        (B, Z) non-negative weights.
+
+    Example:
+        >>> zenith_weights_from_scores(torch.tensor([[0.9, 0.2, 0.7]]), torch.tensor([[True, True, False]]))
+        tensor([[0.9000, 0.0000, 0.0000]])
+        >>> zenith_weights_from_scores(torch.tensor([[0.3, 0.2]]), torch.tensor([[True, True]]))
+        tensor([[1., 1.]])
+    """
+    ok = valid.to(scores)
+    scores = scores * ok
+    weights = scores * (scores > threshold)
+    return torch.where((weights > 0).any(-1, keepdim=True), weights, ok)
+
+
+def zenith_estimate(candidates: Tensor, weights: Tensor) -> Tensor:
+    """The zenith estimate :math:`z_{est}`: the dominant eigenvector of the weighted mean of the candidates'
+    structure tensors (Eq. 10-12). (B, Z, 3), (B, Z) -> (B, 3), unit length, sign-free.
+
+    Example:
+        >>> zenith_estimate(torch.tensor([[[0.0, 2.0, 0.0], [0.1, 1.0, 0.0]]]), torch.tensor([[1.0, 0.0]])).abs()
+        tensor([[0., 1., 0.]])
+    """
+    return dominant_eigenvector(weighted_structure_tensor(candidates, weights))
 
 
 def canonical_homogeneous(v: Tensor, axis: int) -> Tensor:

@@ -12,7 +12,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from ngp_kornia.models.fsnet import FSNet, FSNetInputs
+from ngp_kornia.metrics import horizon_auc
+from ngp_kornia.models.fsnet import FSNet, FSNetInputs, frame_scores
 from ngp_kornia.models.parser import NeuralGeometricParser, ParserConfig
 from ngp_kornia.models.weights import load_network, shipped_weights
 from ngp_kornia.sampling import FrameCandidates, select_frames, top_frames
@@ -133,12 +134,13 @@ class FSNetModule(NetworkModule):
             self.log(f"{stage}/positive_rate", (labels * ok).sum() / ok.sum().clamp_min(1), **opts)
             error = frame_horizon_error(frames, batch.horizon, height, width)
             rows = torch.arange(len(batch), device=error.device)
-            final = torch.where(valid, torch.sigmoid(logits) * manhattan, torch.full_like(logits, -1.0))
+            final = frame_scores(torch.sigmoid(logits), manhattan, valid)  # Eq. 22, ranked among the labelled frames
+            final = torch.where(valid, final, torch.full_like(final, -1.0))
             by_m = torch.where(valid, manhattan, torch.full_like(manhattan, -1.0))
             top1, top1_m = error[rows, final.argmax(-1)], error[rows, by_m.argmax(-1)]
             self.log(f"{stage}/horizon_error", top1.mean(), **opts)
             self.log(f"{stage}/horizon_error_manhattan", top1_m.mean(), **opts)
-            # the horizon AUC on [0, 0.25] is the mean of max(0, 1 - error / 0.25): averages over batches exactly
-            self.log(f"{stage}/horizon_auc", (1 - top1 / 0.25).clamp_min(0).mean(), **opts)
-            self.log(f"{stage}/horizon_auc_manhattan", (1 - top1_m / 0.25).clamp_min(0).mean(), **opts)
+            # the horizon AUC on [0, 0.25] is a mean over the images, so the batch means average to the epoch's
+            self.log(f"{stage}/horizon_auc", horizon_auc(top1), **opts)
+            self.log(f"{stage}/horizon_auc_manhattan", horizon_auc(top1_m), **opts)
         return loss

@@ -7,15 +7,13 @@ import torch
 from torch import Tensor
 
 from ngp_kornia.geometry import (
-    dominant_eigenvector,
     homogeneous_to_pseudo_camera,
     pseudo_focal,
     segment_lengths,
     segments_to_lines,
     to_pseudo_camera,
-    weighted_structure_tensor,
 )
-from ngp_kornia.models.zsnet import ZSNet
+from ngp_kornia.models.zsnet import ZSNet, zenith_estimate, zenith_weights_from_scores
 from ngp_kornia.sampling import sample_zenith_candidates
 from ngp_kornia.training.base import NetworkModule
 from ngp_kornia.training.datamodules import SceneBatch
@@ -97,10 +95,8 @@ class ZSNetModule(NetworkModule):
         self.log(f"{stage}/loss_cls", cls, **opts)
         self.log(f"{stage}/loss_loc", loc, **opts)
         if stage != "train":
-            keep = scores * z_ok * (scores > self.hparams.zenith_threshold)
-            keep = torch.where((keep > 0).any(-1, keepdim=True), keep, z_ok.to(keep))
-            est = dominant_eigenvector(weighted_structure_tensor(z, keep))
-            uniform = dominant_eigenvector(weighted_structure_tensor(z, z_ok.to(z)))
+            est = zenith_estimate(z, zenith_weights_from_scores(scores, z_ok, self.hparams.zenith_threshold))
+            uniform = zenith_estimate(z, z_ok.to(z))
             self.log(f"{stage}/zenith_error", zenith_error_deg(est, z_gt, focal).mean(), **opts)
             self.log(f"{stage}/zenith_error_uniform", zenith_error_deg(uniform, z_gt, focal).mean(), **opts)
         return loss

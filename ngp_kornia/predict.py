@@ -192,6 +192,18 @@ def _check_folder(folder: Path, recursive: bool) -> ImageFolder:
     return images
 
 
+def _trainer(devices: int, writer: JsonlWriter, progress_bar: bool) -> L.Trainer:
+    return L.Trainer(
+        accelerator="cpu",  # LSD and the candidate sampling run on the CPU anyway
+        devices=devices,
+        strategy="ddp" if devices > 1 else "auto",
+        callbacks=[writer],
+        logger=False,
+        enable_progress_bar=progress_bar,
+        enable_model_summary=False,
+    )
+
+
 def predict_folder(
     folder: str | Path,
     out: str | Path,
@@ -241,15 +253,7 @@ def predict_folder(
     module = FolderPredictor(load_parser(weights, replace(config or ParserConfig(), seed=seed)))
     loader = DataLoader(FolderImages(images), batch_size=batch_size, num_workers=num_workers, collate_fn=collate_items)
     writer = JsonlWriter(out)
-    trainer = L.Trainer(
-        accelerator="cpu",  # LSD and the candidate sampling run on the CPU anyway
-        devices=devices,
-        strategy="ddp" if devices > 1 else "auto",
-        callbacks=[writer],
-        logger=False,
-        enable_progress_bar=progress_bar,
-        enable_model_summary=False,
-    )
+    trainer = _trainer(devices, writer, progress_bar)
     with warnings.catch_warnings():
         # the parser, not the loader, is the bottleneck; and the pytree notice is between Lightning and torch
         warnings.filterwarnings("ignore", message=".*does not have many workers.*")

@@ -235,6 +235,17 @@ def rectify(
     height, width = images.shape[-2:]
     Hm = H.to(images)
     Hm = Hm / Hm[:, 2:, 2:].where(Hm[:, 2:, 2:].abs() > _tiny(Hm), torch.ones_like(Hm[:, 2:, 2:]))
+    frame, out_h, out_w = _output_frame(Hm, height, width, crop, size)
+    applied = frame @ Hm
+    warped = warp_perspective(images, applied, (out_h, out_w), align_corners=True)
+    return warped, applied
+
+
+def _output_frame(
+    Hm: Tensor, height: int, width: int, crop: str, size: tuple[int, int] | None
+) -> tuple[Tensor, int, int]:
+    """The output frame of :func:`rectify`: the (B, 3, 3) scale and translation from rectified pixels to output
+    pixels, and the output's height and width."""
     if crop == "keep":
         centre, box = _keep_box(Hm, height, width)
         extent = box.detach().max(dim=0).values
@@ -258,6 +269,4 @@ def rectify(
     tx = (out_w - 1) / 2.0 - scale * centre[:, 0]
     ty = (out_h - 1) / 2.0 - scale * centre[:, 1]
     frame = torch.stack([scale, z, tx, z, scale, ty, z, z, o], -1).reshape(-1, 3, 3)
-    applied = frame @ Hm
-    warped = warp_perspective(images, applied, (out_h, out_w), align_corners=True)
-    return warped, applied
+    return frame, out_h, out_w

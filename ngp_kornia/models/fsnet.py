@@ -53,6 +53,7 @@ __all__ = [
     "NUM_SUPPORT",
     "VARIANTS",
     "canonical_frame_vps",
+    "frame_closeness",
     "frame_scores",
     "frame_support",
     "fsnet_inputs",
@@ -188,18 +189,9 @@ def fsnet_inputs(
     r"""Build FSNet's inputs for a batch of images and their frame candidates.
 
     The image is resized to the network input (``size``, aspect ratio not kept, as the paper's 224 x 224), the
-    segments are scaled to it and drawn as the line map (Eq. 13) and, per candidate, as closeness maps (Eq. 15).
-    The closeness of a segment to a VP is measured on the segment's line in the pseudo camera of the *original*
-    image (``geometry.to_pseudo_camera``, where the candidates' VPs live), so it does not depend on ``size``.
-
-    Closeness: with ``kernel_angle=None`` it is Eq. 14, :math:`1 - |\cos|` between the line and VP vectors. That
-    is linear in the cosine: a line pointing exactly at the VP gets 1, one a few degrees off still about 0.95, and
-    unrelated lines spread over all of [0, 1] (median about 0.5 for random frames), so the maps mostly encode line
-    directions rather than which lines vanish at the VP, and the shared variant's average pooling (before any
-    non-linearity) loses the small difference. The default is therefore the sharp kernel of
-    :func:`~ngp_kornia.geometry.sharp_closeness` at 88 degrees (lines within about two degrees of the VP count):
-    the kernel the parser uses for Eq. 21, a little wider for LSD's angular noise on short segments. A network is
-    trained for one choice (:attr:`FSNet.kernel_angle`).
+    segments are scaled to it and drawn as the line map (Eq. 13) and, per candidate, as closeness maps (Eq. 15)
+    of :func:`frame_closeness`, measured on the segments' lines in the pseudo camera of the *original* image
+    (where the candidates' VPs live), so it does not depend on ``size``.
 
     Args:
         images: (B, 3, H, W) RGB in [0, 1] at the size the segments were measured in.
@@ -207,16 +199,15 @@ def fsnet_inputs(
         mask: (B, N) bool, False for padding (never drawn).
         frames: (B, F) frame candidates in the pseudo camera of ``images`` (:mod:`ngp_kornia.sampling`).
         size: network input size, ``S`` or ``(S_h, S_w)``.
-        kernel_angle: closeness kernel width in degrees, or None for Eq. 14.
+        kernel_angle: closeness kernel width in degrees, or None for Eq. 14 (see :func:`frame_closeness`).
         chunk_size: candidates rasterised at once (bounds the memory of drawing, not of the output).
         support: append each candidate's :func:`frame_support` (20 values) to its parameters.
         pool: give the closeness maps as means over cells of ``pool`` x ``pool`` pixels (the size must be a multiple
             of it), computed without drawing the full maps (:func:`~ngp_kornia.geometry.line_map_and_pooled_maps`).
 
     Returns:
-        :class:`FSNetInputs`. Invalid candidates get finite inputs (score them and mask the scores). Closeness
-        below 1e-6 is drawn as 0 (no subnormal floats, which are slow on CPUs). The closeness maps take
-        ``B * F * 3 * S^2`` floats: 38 MB per image for 64 candidates at 224.
+        :class:`FSNetInputs`. Invalid candidates get finite inputs (score them and mask the scores). The closeness
+        maps take ``B * F * 3 * S^2`` floats: 38 MB per image for 64 candidates at 224.
 
     Example:
         >>> fr = FrameCandidates(None, None, torch.ones(1, 2), torch.eye(3).expand(1, 2, 3, 3), None, None)
@@ -229,35 +220,77 @@ def fsnet_inputs(
     KORNIA_CHECK_SHAPE(segments, ["B", "N", "2", "2"])
     KORNIA_CHECK_SHAPE(mask, ["B", "N"])
     KORNIA_CHECK(chunk_size > 0, "chunk_size must be positive")
-    B, _, H, W = images.shape
-    out_h, out_w = (size, size) if isinstance(size, int) else size
+    H, W = images.shape[-2:]
+    out_size = (size, size) if isinstance(size, int) else tuple(size)
     resized = images
-    if (H, W) != (out_h, out_w):
-        resized = F.interpolate(images, (out_h, out_w), mode="bilinear", align_corners=False, antialias=True)
+    if (H, W) != out_size:
+        resized = F.interpolate(images, out_size, mode="bilinear", align_corners=False, antialias=True)
     segments = segments.to(images)
-    # pixel centres map to pixel centres: x' = (x + 0.5) * S / W - 0.5
-    scale = torch.tensor([out_w / W, out_h / H], device=images.device, dtype=images.dtype)
-    scaled = (segments + 0.5) * scale - 0.5
     vps = canonical_frame_vps(frames).to(images)  # (B, F, 3, 3)
-    num = vps.shape[1]
     lines = segments_to_lines(to_pseudo_camera(segments, H, W))
+    values = frame_closeness(lines, vps, kernel_angle)
+    lmap, closeness = _draw_maps(segments, mask, values, (H, W), out_size, chunk_size, pool)
+    params = [vps.flatten(-2), frames.focal.to(images)[..., None]]
+    if support:
+        params.append(frame_support(lines, segment_lengths(segments), mask, vps))
+    return FSNetInputs(resized, lmap, closeness, torch.cat(params, -1))
+
+
+def frame_closeness(lines: Tensor, vps: Tensor, kernel_angle: float | None = 88.0) -> Tensor:
+    r"""Closeness of each line to each VP of each frame candidate, the values the closeness maps draw (Eq. 15).
+
+    With ``kernel_angle=None`` it is Eq. 14, :math:`1 - |\cos|` between the line and VP vectors. That is linear in
+    the cosine: a line pointing exactly at the VP gets 1, one a few degrees off still about 0.95, and unrelated
+    lines spread over all of [0, 1] (median about 0.5 for random frames), so the maps mostly encode line
+    directions rather than which lines vanish at the VP, and the shared variant's average pooling (before any
+    non-linearity) loses the small difference. The default is therefore the sharp kernel of
+    :func:`~ngp_kornia.geometry.sharp_closeness` at 88 degrees (lines within about two degrees of the VP count):
+    the kernel the parser uses for Eq. 21, a little wider for LSD's angular noise on short segments. A network is
+    trained for one choice (:attr:`FSNet.kernel_angle`). Closeness below 1e-6 is set to 0: the kernel's tail is
+    full of subnormal floats, which make CPU arithmetic on the maps many times slower.
+
+    Args:
+        lines: (B, N, 3) homogeneous lines in the pseudo camera.
+        vps: (B, F, 3, 3) each frame's three VPs (rows) in the pseudo camera.
+        kernel_angle: kernel width in degrees, or None for Eq. 14.
+
+    Returns:
+        (B, F, 3, N) closeness in [0, 1].
+
+    Example:
+        >>> lines = torch.tensor([[[1.0, 0.0, 0.0]]])  # the vertical line x = 0, through the VP (0, 1, 0)
+        >>> frame_closeness(lines, torch.eye(3)[[1, 0, 2]].expand(1, 1, 3, 3)).squeeze()
+        tensor([1., 0., 0.])
+    """
     cosine = line_vp_cosine(lines, vps)  # (B, F, 3, N)
     values = 1.0 - cosine if kernel_angle is None else sharp_kernel(cosine, kernel_angle)
-    # the kernel's tail is full of subnormal floats, which make CPU arithmetic on the maps many times slower
-    values = torch.where(values < _MIN_CLOSENESS, torch.zeros_like(values), values)
+    return torch.where(values < _MIN_CLOSENESS, torch.zeros_like(values), values)
+
+
+def _draw_maps(
+    segments: Tensor,
+    mask: Tensor,
+    values: Tensor,
+    image_size: tuple[int, int],
+    out_size: tuple[int, int],
+    chunk_size: int,
+    pool: int | None,
+) -> tuple[Tensor, Tensor]:
+    """The line map (B, 1, S_h, S_w) and the closeness maps (B, F, 3, S_h, S_w) (or their ``pool`` x ``pool``
+    cell means) of segments in the pixels of ``image_size``, drawn at ``out_size`` with values (B, F, 3, N)."""
+    (H, W), (out_h, out_w) = image_size, out_size
+    B, num = values.shape[:2]
+    # pixel centres map to pixel centres: x' = (x + 0.5) * S / W - 0.5
+    scale = torch.tensor([out_w / W, out_h / H], device=segments.device, dtype=segments.dtype)
+    scaled = (segments + 0.5) * scale - 0.5
     values = values.flatten(1, 2).transpose(1, 2)  # (B, N, F * 3)
     if pool is None:
         # the line map L is one more channel of ones: the segments' pixels are found once for all maps
         ones = torch.ones_like(values[..., :1])
         maps = rasterize_segments(scaled, mask, torch.cat([ones, values], -1), out_h, out_w, 3 * chunk_size + 1)
-        lmap, closeness = maps[:, :1], maps[:, 1:].reshape(B, num, 3, out_h, out_w)
-    else:
-        lmap, closeness = line_map_and_pooled_maps(scaled, mask, values, out_h, out_w, pool)
-        closeness = closeness.reshape(B, num, 3, out_h // pool, out_w // pool)
-    params = [vps.flatten(-2), frames.focal.to(images)[..., None]]
-    if support:
-        params.append(frame_support(lines, segment_lengths(segments), mask, vps))
-    return FSNetInputs(resized, lmap, closeness, torch.cat(params, -1))
+        return maps[:, :1], maps[:, 1:].reshape(B, num, 3, out_h, out_w)
+    lmap, closeness = line_map_and_pooled_maps(scaled, mask, values, out_h, out_w, pool)
+    return lmap, closeness.reshape(B, num, 3, out_h // pool, out_w // pool)
 
 
 def _mlp(sizes: Sequence[int]) -> nn.Sequential:

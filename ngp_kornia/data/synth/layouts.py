@@ -342,7 +342,12 @@ def _street_clutter(rng: np.random.Generator, st: _Street, scene: Scene, clutter
             x = st.xs + s * (st.rw + st.sw - 0.6)
             if free(x, z, 1.3):
                 scene.items.append(make_bench(rng, (x, z), 180.0 if s > 0 else 0.0, top))
-    # people crossing, cars driving
+    _street_traffic(rng, st, scene, clutter, free)
+
+
+def _street_traffic(rng: np.random.Generator, st: _Street, scene: Scene, clutter: float, free) -> None:
+    """People crossing, cars driving and wires across the street (after the parked clutter: same random draws)."""
+    gy = st.gy
     for _ in range(rng.poisson(2.0 * clutter)):
         x, z = st.xs + rng.uniform(-st.rw, st.rw), rng.uniform(-60, 60)
         if free(x, z, 0.5):

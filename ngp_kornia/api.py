@@ -67,16 +67,17 @@ def _parser(weights, config: ParserConfig | None, copy: bool) -> NeuralGeometric
 
 
 def calibrate(
-    image: str | Path | np.ndarray | Tensor,
+    image: str | Path | np.ndarray | Tensor | Sequence[str | Path | np.ndarray | Tensor],
     weights: str = "default",
     seed: int = 0,
     config: ParserConfig | None = None,
-) -> Calibration:
-    """Calibrate a camera from one photo (or a batch) of a man-made scene.
+) -> Calibration | list[Calibration]:
+    """Calibrate a camera from one photo (or a batch, or a list of photos) of a man-made scene.
 
     Args:
         image: a file path, an HxWx3 uint8 RGB array (HxW greyscale, RGBA and uint16 are converted), or a float
-            tensor (3, H, W) or (B, 3, H, W) in [0, 1] on any device.
+            tensor (3, H, W) or (B, 3, H, W) in [0, 1] on any device; or a list (or tuple) of any of these, of any
+            sizes, mixed freely.
         weights: ``"default"`` (the best path shipped), ``"none"`` (the untrained geometric path), ``"zsnet"`` (zenith
             candidates scored by the shipped ZSNet), ``"fsnet"`` (frames rescored by the shipped FSNet), ``"full"``
             (both), or the path of a weights file (or a list of paths: one ZSNet and one FSNet file).
@@ -88,6 +89,7 @@ def calibrate(
         ``roll``, ``yaw``, ``up``, ``zenith``, ``horizon``, ``vps``, ``score``, ``valid``; batched (leading dim B) for
         batched tensor input. Pixels: x right, y down, origin at the centre of the top-left pixel. Camera: x right,
         y down, z forward. Pitch > 0 looks up; roll > 0 when the scene's up leans right in the image. Degrees.
+        For a list: a list of results, one per item, each exactly what that item gives alone (same seed).
 
     Raises:
         ImageError: unreadable, truncated, too small (< 32 px) or NaN input; the message says what to fix.
@@ -98,7 +100,11 @@ def calibrate(
         >>> cal = calibrate(torch.rand(3, 64, 64))
         >>> sorted(cal.to_dict())[:4]
         ['K', 'R', 'focal', 'fov_h']
+        >>> [c.image_size.tolist() for c in calibrate([torch.rand(3, 64, 64), torch.rand(3, 48, 80)])]
+        [[64, 64], [48, 80]]
     """
+    if isinstance(image, (list, tuple)):
+        return _calibrate_list(image, weights, seed, config)
     cfg = replace(config or ParserConfig(), seed=seed)
     segments = mask = None
     if isinstance(image, Tensor):
@@ -111,3 +117,16 @@ def calibrate(
     with torch.no_grad():
         result = parser(batch, segments, mask)
     return result if batched else result[0]
+
+
+def _calibrate_list(images, weights, seed: int, config: ParserConfig | None) -> list[Calibration]:
+    """One result per item, each computed alone (so it equals what the item gives alone, whatever its size)."""
+    if not images:
+        raise ValueError("calibrate() got an empty list; give at least one image (path, array or tensor)")
+    _networks(weights)  # a bad weight set is reported once, before any image is read
+    results = []
+    for index, item in enumerate(images):
+        if isinstance(item, (list, tuple)):
+            raise TypeError(f"calibrate(): item {index} is a {type(item).__name__}; lists of lists are not supported")
+        results.append(calibrate(item, weights=weights, seed=seed, config=config))
+    return results

@@ -24,8 +24,33 @@ WEIGHTS_HELP = (
 )
 
 
+class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Shows an option's default where it has one worth showing (not None, False or already in the help)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        if action.default is None or action.default is False:
+            return action.help or ""
+        return super()._get_help_string(action)
+
+
+class _VersionAction(argparse.Action):
+    """``--version``: prints the package version (imported only when asked, since it loads torch)."""
+
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, help=None):
+        super().__init__(option_strings, dest, nargs=0, default=default, help=help)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        from ngp_kornia import __version__
+
+        print(f"{parser.prog} {__version__}")
+        parser.exit()
+
+
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="ngp", description="Single-image camera calibration for man-made scenes.")
+    p = argparse.ArgumentParser(
+        prog="ngp", description="Single-image camera calibration for man-made scenes.", formatter_class=_HelpFormatter
+    )
+    p.add_argument("--version", action=_VersionAction, help="print the version and exit")
     sub = p.add_subparsers(dest="command", required=True)
     cal = sub.add_parser("calibrate", help="calibrate photos; prints one JSON object per image")
     cal.add_argument("images", nargs="+", help="image files")
@@ -48,24 +73,40 @@ def _parser() -> argparse.ArgumentParser:
         "--mode",
         choices=("level", "upright", "frontal"),
         default="upright",
-        help="level: remove the roll; upright: remove roll and pitch; frontal: face a facade (default: upright)",
+        help="level: remove the roll; upright: remove roll and pitch; frontal: face a facade",
     )
     rect.add_argument("--axis", choices=("x", "z"), default="z", help="frontal mode: the world axis to look along")
     rect.add_argument("-o", "--output", required=True, help="the rectified PNG to write")
     rect.add_argument(
-        "--crop", choices=("keep", "valid"), default="keep", help="keep every pixel, or only valid pixels"
+        "--crop",
+        choices=("keep", "valid"),
+        help="keep every pixel, or only the valid centre (default: keep; valid for --mode frontal, whose views are "
+        "too oblique to keep whole)",
     )
     rect.add_argument("--weights", default="default", help=WEIGHTS_HELP)
     rect.add_argument("--seed", type=int, default=0, help="seed of the candidate sampling")
     demo = sub.add_parser("demo", help="calibrate a built-in rendered example and print the estimate and the truth")
     demo.add_argument("--overlay", help="write the overlay PNG here")
     demo.add_argument("--seed", type=int, default=2, help="which built-in scene to render")
-    render = sub.add_parser("render", help="render synthetic scenes with exact ground truth")
-    render.add_argument("outdir")
-    render.add_argument("--count", type=int, default=16)
-    render.add_argument("--seed", type=int, default=0)
-    render.add_argument("--size", default="640x480", help="WxH")
+    render = sub.add_parser(
+        "render",
+        help="render synthetic scenes with exact ground truth",
+        description="Render procedural street, room and plaza scenes seen by random cameras, as PNG images plus "
+        "ground_truth.json (one record per image: K, R, focal, fov_v, fov_h, pitch, roll, zenith, horizon, vps).",
+    )
+    render.add_argument("outdir", help="folder to write the images and ground_truth.json into (created)")
+    render.add_argument("--count", type=int, default=16, help="number of scenes")
+    render.add_argument("--seed", type=int, default=0, help="dataset seed: each image gets its own seed from it")
+    render.add_argument("--size", default="640x480", help="image size WxH in pixels")
+    for command in sub.choices.values():  # defaults in every --help
+        command.formatter_class = _HelpFormatter
     return p
+
+
+#: images read and calibrated together by ``ngp calibrate`` (one ``calibrate()`` call on a list)
+_CHUNK = 8
+#: seconds before a progress bar appears: short runs show none
+_PROGRESS_DELAY = 2.0
 
 
 def _overlay_path(target: str, image: str, many: bool) -> Path:
@@ -89,18 +130,23 @@ def _calibrate(args: argparse.Namespace) -> int:
     from ngp_kornia.io import read_image_file
 
     failed = 0
-    for image in args.images:
-        try:
-            rgb = read_image_file(image)
-            result = calibrate(rgb, weights=args.weights, seed=args.seed)
+    for start in range(0, len(args.images), _CHUNK):  # a few images at a time, so results come as they are done
+        loaded = []
+        for image in args.images[start : start + _CHUNK]:
+            try:
+                loaded.append((image, read_image_file(image)))
+            except (ValueError, TypeError, OSError) as err:
+                failed += 1
+                print(f"ngp: error: {err}", file=sys.stderr, flush=True)
+        results = calibrate([rgb for _, rgb in loaded], weights=args.weights, seed=args.seed) if loaded else []
+        for (image, rgb), result in zip(loaded, results, strict=True):
             print(json.dumps({"image": image, **result.to_dict()}), flush=True)
-            if args.overlay:
-                _write_overlay(_overlay_path(args.overlay, image, len(args.images) > 1), rgb, result)
-        except BrokenPipeError:  # the reader of stdout went away (e.g. `| head`): not this image's fault
-            raise
-        except (ValueError, TypeError, OSError) as err:
-            failed += 1
-            print(f"ngp: error: {err}", file=sys.stderr, flush=True)
+            try:
+                if args.overlay:
+                    _write_overlay(_overlay_path(args.overlay, image, len(args.images) > 1), rgb, result)
+            except (ValueError, TypeError, OSError) as err:
+                failed += 1
+                print(f"ngp: error: {err}", file=sys.stderr, flush=True)
     return 1 if failed else 0
 
 
@@ -162,7 +208,8 @@ def _rectify(args: argparse.Namespace) -> int:
         else:
             homography = frontal_homography(K, R, axis=0 if args.axis == "x" else 2)
         image = torch.from_numpy(rgb).permute(2, 0, 1)[None].double().div(255.0)
-        warped, _ = rectify(image, homography, crop=args.crop)
+        crop = args.crop or ("valid" if args.mode == "frontal" else "keep")
+        warped, _ = rectify(image, homography, crop=crop)  # a too oblique view with keep: the error names --crop
         out = warped[0].permute(1, 2, 0).mul(255.0).round().clamp(0, 255).to(torch.uint8).numpy()
         path = Path(args.output)
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -203,14 +250,34 @@ def _render(args: argparse.Namespace) -> int:
     if args.count < 1:
         print("ngp: error: --count must be at least 1", file=sys.stderr)
         return 2
-    render_dataset(args.outdir, args.count, args.seed, (width, height))
+    from tqdm import tqdm
+
+    # a progress bar on a terminal only, and only for runs long enough to need one
+    with tqdm(
+        total=args.count, unit="scene", delay=_PROGRESS_DELAY, disable=not sys.stderr.isatty(), desc="rendering"
+    ) as bar:
+        render_dataset(args.outdir, args.count, args.seed, (width, height), progress=bar.update)
     print(f"wrote {args.count} images and ground_truth.json to {args.outdir}")
     return 0
 
 
+def _check_weights(parser: argparse.ArgumentParser, command: str, weights: str) -> None:
+    """A bad ``--weights`` is a usage error: reported once, before any image is read, with exit status 2."""
+    from ngp_kornia.api import _networks
+
+    try:
+        _networks(weights)
+    except (ValueError, TypeError, OSError) as err:
+        subcommands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+        subcommands.choices[command].error(f"--weights: {err}")
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``ngp`` command."""
-    args = _parser().parse_args(argv)
+    parser = _parser()
+    args = parser.parse_args(argv)
+    if getattr(args, "weights", None) is not None:
+        _check_weights(parser, args.command, args.weights)
     commands = {"calibrate": _calibrate, "predict": _predict, "rectify": _rectify, "demo": _demo, "render": _render}
     try:
         return commands[args.command](args)

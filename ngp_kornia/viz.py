@@ -10,7 +10,7 @@ import torch
 from ngp_kornia.geometry import horizon_border_points, segment_vp_angle
 from ngp_kornia.models.result import Calibration
 
-__all__ = ["BOX_EDGES", "draw_axes", "draw_calibration", "draw_frame_box", "frame_box_points"]
+__all__ = ["BOX_EDGES", "LEGEND", "draw_axes", "draw_calibration", "draw_frame_box", "frame_box_points"]
 
 # RGB colours of the three Manhattan axes (x, vertical, z) and of the horizon
 AXIS_COLOURS = ((230, 60, 60), (60, 200, 60), (70, 110, 255))
@@ -32,8 +32,9 @@ def draw_calibration(
     """Draw a calibration on an HxWx3 uint8 RGB image (returns a copy).
 
     Segments that point at one of the three VPs within ``tolerance_deg`` are drawn in that axis' colour (x red,
-    vertical green, z blue); the horizon is a yellow line, the up (zenith) direction an arrow at the image centre, and
-    the estimate is written in the top-left corner.
+    vertical green, z blue); the horizon is a yellow line, the up (zenith) direction an arrow at the image centre, the
+    estimate is written in the top-left corner and a key of the colours (:data:`LEGEND`) in the bottom-left, both on a
+    dark box.
 
     Args:
         image: (H, W, 3) uint8 RGB.
@@ -58,10 +59,55 @@ def draw_calibration(
         f"pitch={float(calibration.pitch):.1f}  roll={float(calibration.roll):.1f}"
     )
     scale = max(0.4, max(h, w) / 1400)
-    cv2.putText(
-        out, text, (8, int(24 * scale / 0.5)), cv2.FONT_HERSHEY_SIMPLEX, scale, (255, 255, 255), thick, cv2.LINE_AA
-    )
+    _draw_label(out, text, scale, thick)
+    _draw_legend(out, scale, thick, with_segments=segments is not None and len(segments) > 0)
     return out
+
+
+#: the legend of :func:`draw_calibration`: (name, RGB colour)
+LEGEND = (
+    ("x axis", AXIS_COLOURS[0]),
+    ("vertical", AXIS_COLOURS[1]),
+    ("z axis", AXIS_COLOURS[2]),
+    ("horizon", HORIZON_COLOUR),
+    ("other lines", (150, 150, 150)),
+)
+_FONT = cv2.FONT_HERSHEY_SIMPLEX
+_PANEL = (20, 20, 20)  # the dark box behind text, blended at _PANEL_ALPHA
+_PANEL_ALPHA = 0.7
+
+
+def _panel(out: np.ndarray, x0: int, y0: int, x1: int, y1: int) -> None:
+    """Darken a box of the image (in place) so white and coloured text reads on any photo."""
+    h, w = out.shape[:2]
+    x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, w), min(y1, h)
+    if x1 > x0 and y1 > y0:
+        box = out[y0:y1, x0:x1].astype(np.float32)
+        out[y0:y1, x0:x1] = (box * (1 - _PANEL_ALPHA) + np.float32(_PANEL) * _PANEL_ALPHA).astype(np.uint8)
+
+
+def _draw_label(out: np.ndarray, text: str, scale: float, thick: int) -> None:
+    """White text on a dark box in the top-left corner."""
+    (tw, th), base = cv2.getTextSize(text, _FONT, scale, thick)
+    pad = max(3, int(6 * scale))
+    _panel(out, 0, 0, tw + 2 * pad + 4, th + base + 2 * pad + 4)
+    cv2.putText(out, text, (pad + 2, pad + 2 + th), _FONT, scale, (255, 255, 255), thick, cv2.LINE_AA)
+
+
+def _draw_legend(out: np.ndarray, scale: float, thick: int, with_segments: bool) -> None:
+    """A small key of the colours in the bottom-left corner: a line sample and a name per entry."""
+    entries = LEGEND if with_segments else (LEGEND[3],)
+    scale *= 0.85
+    (_, th), base = cv2.getTextSize("Mg", _FONT, scale, thick)
+    pad, row, swatch = max(3, int(6 * scale)), th + base + max(2, int(4 * scale)), int(3 * th)
+    width = max(cv2.getTextSize(name, _FONT, scale, thick)[0][0] for name, _ in entries) + swatch + 4 * pad
+    h = out.shape[0]
+    top = h - len(entries) * row - 2 * pad
+    _panel(out, 0, top, width, h)
+    for i, (name, colour) in enumerate(entries):
+        y = top + pad + i * row + th
+        cv2.line(out, (pad, y - th // 2), (pad + swatch, y - th // 2), colour, 2 * thick, cv2.LINE_AA)
+        cv2.putText(out, name, (3 * pad + swatch, y), _FONT, scale, colour, thick, cv2.LINE_AA)
 
 
 def _pt(x: float, y: float) -> tuple[int, int]:

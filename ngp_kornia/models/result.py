@@ -6,6 +6,8 @@ from dataclasses import dataclass, fields
 
 from torch import Tensor
 
+from ngp_kornia.models import cameras
+
 __all__ = ["Calibration"]
 
 
@@ -79,7 +81,11 @@ class Calibration:
         return Calibration(**out)
 
     def to_dict(self) -> dict | list[dict]:
-        """Plain JSON-able values: a dict for one image, a list of dicts for a batch."""
+        """Plain JSON-able values: a dict for one image, a list of dicts for a batch.
+
+        Besides the fields: ``height``, ``width``, the principal point ``cx``, ``cy`` (our pixels) and
+        ``distortion``, OpenCV's ``(k1, k2, p1, p2, k3)``, all zero (the model is a distortion-free pinhole).
+        """
         if self.batched:
             return [self[i].to_dict() for i in range(len(self))]
         out = {}
@@ -87,6 +93,7 @@ class Calibration:
             value = getattr(self, f.name).detach().cpu()
             out[f.name] = value.tolist() if value.dim() else value.item()
         out["height"], out["width"] = (int(v) for v in out.pop("image_size"))
+        out.update(cameras.pinhole_keys(self.K))  # cx, cy and the (zero) distortion of the pinhole model
         return out
 
     def __repr__(self) -> str:
@@ -98,3 +105,61 @@ class Calibration:
             f"valid={bool(self.valid)})"
         )
 
+
+    # --- the camera types of other tools (ngp_kornia.models.cameras) ---
+
+    def to_kornia(self):
+        """This calibration as a batched :class:`kornia.geometry.camera.PinholeCamera`.
+
+        Intrinsics are ``K`` and extrinsics ``[R | 0]`` as (B, 4, 4) (B = 1 for an unbatched calibration), height
+        and width are (B,). kornia shares our pixel convention (origin at the top-left pixel's centre), so
+        ``to_kornia().project(X)`` for world points ``X`` (B, 3) gives the pixels ``K R X`` in the input image.
+
+        Example:
+            >>> import torch
+            >>> from ngp_kornia import calibrate
+            >>> camera = calibrate(torch.rand(3, 48, 64)).to_kornia()
+            >>> camera.intrinsics.shape, camera.extrinsics.shape, camera.width.tolist()
+            (torch.Size([1, 4, 4]), torch.Size([1, 4, 4]), [64.0])
+        """
+        return cameras.kornia_camera(self.K, self.R, self.image_size)
+
+    def to_opencv(self):
+        """OpenCV's ``(K, dist)``: float64 numpy arrays, (3, 3) and (5,) zeros (batched: (B, 3, 3) and (B, 5)).
+
+        OpenCV shares our pixel convention (origin at the top-left pixel's centre), so ``K`` is used unchanged, e.g.
+        ``cv2.projectPoints(X, cv2.Rodrigues(R)[0], np.zeros(3), K, dist)``.
+
+        Example:
+            >>> import torch
+            >>> from ngp_kornia import calibrate
+            >>> K, dist = calibrate(torch.rand(3, 48, 64)).to_opencv()
+            >>> K.shape, K.dtype, dist.tolist()
+            ((3, 3), dtype('float64'), [0.0, 0.0, 0.0, 0.0, 0.0])
+        """
+        return cameras.opencv_camera(self.K)
+
+    def to_colmap(self, model: str = "SIMPLE_PINHOLE", camera_id: int = 1) -> dict | list[dict]:
+        """COLMAP's camera: ``{"camera_id", "model", "width", "height", "params", "line"}``.
+
+        COLMAP's pixel origin is the top-left *corner* of the image, ours the *centre* of the top-left pixel, so
+        the principal point is written half a pixel larger: ``cx + 0.5``, ``cy + 0.5`` (a centred principal point
+        is ``(W / 2, H / 2)`` there). ``line`` is the ``cameras.txt`` line ``CAMERA_ID MODEL WIDTH HEIGHT PARAMS[]``.
+
+        Args:
+            model: ``"SIMPLE_PINHOLE"`` (params ``f, cx, cy``) or ``"PINHOLE"`` (``fx, fy, cx, cy``).
+            camera_id: the id of the camera (a batch numbers its cameras from it).
+
+        Returns:
+            a dict, or for a batch a list of dicts.
+
+        Example:
+            >>> import torch
+            >>> from ngp_kornia import calibrate
+            >>> camera = calibrate(torch.rand(3, 48, 64)).to_colmap()
+            >>> camera["line"].split()[:4], camera["params"][1:]
+            (['1', 'SIMPLE_PINHOLE', '64', '48'], [32.0, 24.0])
+        """
+        if self.batched:
+            return [self[i].to_colmap(model, camera_id + i) for i in range(len(self))]
+        return cameras.colmap_camera(self.K, self.image_size, model, camera_id)

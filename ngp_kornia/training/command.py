@@ -1,15 +1,19 @@
-"""``ngp-train``: Lightning's CLI over the networks' LightningModules and the rendered-data DataModule.
+"""``ngp-train``: Lightning's CLI over the networks' LightningModules and the rendered-data DataModule, plus
+``export`` (a checkpoint to a weights file) and ``plot`` (the logged curves to a PNG).
 
 Examples::
 
-    ngp-train fit --config configs/zsnet.yaml                      # train ZSNet on rendered scenes
-    ngp-train fit --config configs/zsnet.yaml --ckpt_path last.ckpt  # resume
-    ngp-train export runs/zsnet/checkpoints/best.ckpt ngp_kornia/weights/zsnet.pt
+    ngp-train fit --config zsnet                                   # a packaged config by name: ZSNet on rendered scenes
+    ngp-train fit --config zsnet --trainer.fast_dev_run=true       # one batch of each: checks the set-up in seconds
+    ngp-train fit --config my.yaml --ckpt_path last.ckpt           # a config file of your own; resume
+    ngp-train export runs/zsnet/lightning_logs/version_0/checkpoints/best.ckpt zsnet.pt
+    ngp-train plot runs/zsnet -o curves.png                        # needs the [plot] extra
 """
 
 from __future__ import annotations
 
 import sys
+from importlib import resources
 from pathlib import Path
 
 import torch
@@ -17,7 +21,52 @@ from lightning.pytorch.cli import LightningCLI
 
 from ngp_kornia.models.weights import save_network
 
-__all__ = ["export_checkpoint", "main"]
+__all__ = ["config_path", "export_checkpoint", "main", "packaged_configs"]
+
+_DESCRIPTION = (
+    "Train ZSNet and FSNet with Lightning (fit, validate, test, predict), then export the network (export) and "
+    "plot its curves (plot)."
+)
+_EPILOG = (
+    "Packaged configs, by name: {names} (e.g. --config zsnet; a path to a YAML file of your own works too). "
+    "Two more commands: 'ngp-train export CHECKPOINT OUT.pt' writes a trained network's weights file for "
+    "calibrate(image, weights=OUT.pt); 'ngp-train plot LOGDIR -o curves.png' plots the logged loss and validation "
+    "curves (needs the [plot] extra)."
+)
+
+
+def packaged_configs() -> list[str]:
+    """Names of the training configs shipped in ``ngp_kornia/configs`` (``--config NAME``)."""
+    folder = resources.files("ngp_kornia") / "configs"
+    return sorted(p.name.removesuffix(".yaml") for p in folder.iterdir() if p.name.endswith(".yaml"))
+
+
+def config_path(name: str | Path) -> Path:
+    """The file of a ``--config`` value: an existing file as it is, else the packaged config of that name.
+
+    Raises:
+        FileNotFoundError: neither; the message lists the packaged names.
+    """
+    if Path(name).is_file():
+        return Path(name)
+    packaged = Path(str(resources.files("ngp_kornia") / "configs" / f"{Path(name).name.removesuffix('.yaml')}.yaml"))
+    if packaged.is_file() and Path(name).name in (packaged.name, packaged.stem) and Path(name).parent == Path("."):
+        return packaged
+    raise FileNotFoundError(
+        f"--config {name}: no such file, and no packaged config of that name "
+        f"(packaged: {', '.join(packaged_configs())})"
+    )
+
+
+def _resolve_configs(args: list[str]) -> list[str]:
+    """``--config NAME`` / ``-c NAME`` / ``--config=NAME`` with NAME a packaged config -> its path."""
+    out = list(args)
+    for i, arg in enumerate(out):
+        if arg in ("--config", "-c") and i + 1 < len(out):
+            out[i + 1] = str(config_path(out[i + 1]))
+        elif arg.startswith("--config="):
+            out[i] = f"--config={config_path(arg.split('=', 1)[1])}"
+    return out
 
 
 def export_checkpoint(checkpoint: str | Path, out: str | Path) -> Path:
@@ -49,15 +98,53 @@ def _plain(value):
     return value if isinstance(value, (int, float, str, bool, type(None))) else str(value)
 
 
+def _plot(args: list[str]) -> int:
+    import argparse
+
+    from ngp_kornia.training.plots import plot_curves, read_metrics
+
+    parser = argparse.ArgumentParser(
+        prog="ngp-train plot",
+        description="Plot the loss and validation curves a CSVLogger or TensorBoardLogger wrote, against the step.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    parser.add_argument("logdir", help="the logger's folder (its newest metrics.csv or event file), or that file")
+    parser.add_argument("-o", "--output", default="curves.png", help="the image to write (PNG)")
+    opts = parser.parse_args(args)
+    try:
+        plot_curves(read_metrics(opts.logdir), opts.output, title=str(opts.logdir))
+    except (OSError, ValueError, ImportError) as err:
+        print(f"ngp-train plot: error: {err}", file=sys.stderr)
+        return 1
+    print(opts.output)
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
-    args = sys.argv[1:] if argv is None else argv
+    args = list(sys.argv[1:] if argv is None else argv)
+    if args[:1] == ["--version"]:
+        from ngp_kornia import __version__
+
+        print(f"ngp-train {__version__}")
+        return 0
     if args[:1] == ["export"]:
         if len(args) != 3:
             print("usage: ngp-train export CHECKPOINT OUT.pt", file=sys.stderr)
             return 2
         print(export_checkpoint(args[1], args[2]))
         return 0
-    LightningCLI(args=argv, save_config_kwargs={"overwrite": True})  # None: Lightning reads sys.argv itself
+    if args[:1] == ["plot"]:
+        return _plot(args[1:])
+    try:
+        args = _resolve_configs(args)
+    except FileNotFoundError as err:
+        print(f"ngp-train: error: {err}", file=sys.stderr)
+        return 2
+    epilog = _EPILOG.format(names=", ".join(packaged_configs()))
+    if argv is None:  # Lightning reads sys.argv itself (and warns when given both)
+        sys.argv[1:], args = args, None
+    parser_kwargs = {"description": _DESCRIPTION, "epilog": epilog}
+    LightningCLI(args=args, save_config_kwargs={"overwrite": True}, parser_kwargs=parser_kwargs)
     return 0
 
 

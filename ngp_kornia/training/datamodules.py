@@ -11,6 +11,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import sys
 from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, fields
@@ -154,17 +155,30 @@ class CachedScenes(Dataset):
         as_np = [np.asarray(torch.as_tensor(v, dtype=torch.float64)) for v in (K, R, zenith, horizon)]
         return Sample(segments, *as_np, image_size=np.array(rgb.shape[:2]), image=image)
 
-    def prepare(self, workers: int = 0) -> None:
-        """Fill the cache for every key (in ``workers`` processes); a no-op for cached keys."""
+    def prepare(self, workers: int = 0, progress: bool | None = None) -> None:
+        """Fill the cache for every key (in ``workers`` processes); a no-op for cached keys.
+
+        Args:
+            workers: processes to share the work (0 or 1: this one).
+            progress: show a progress bar on stderr; None: only when stderr is a terminal.
+        """
         if self.cache is None:
             return
         todo = [i for i, k in enumerate(self.keys) if not (self.cache / f"{k}.npz").exists()]
-        if workers <= 1:
-            for i in todo:
-                self[i]
+        if not todo:
             return
-        with ProcessPoolExecutor(workers) as pool:
-            list(pool.map(self.__getitem__, todo, chunksize=16))
+        from tqdm import tqdm
+
+        show = sys.stderr.isatty() if progress is None else progress
+        with tqdm(total=len(todo), desc=f"caching {self.cache.name}", unit="sample", disable=not show) as bar:
+            if workers <= 1:
+                for i in todo:
+                    self[i]
+                    bar.update()
+                return
+            with ProcessPoolExecutor(workers) as pool:
+                for _ in pool.map(self.__getitem__, todo, chunksize=4):
+                    bar.update()
 
 
 class RenderedScenes(CachedScenes):
@@ -265,8 +279,10 @@ def collate_scenes(samples: list[Sample]) -> SceneBatch:
 class SceneDataModule(L.LightningDataModule):
     """Base of the DataModules: train / val / test :class:`CachedScenes` batched into :class:`SceneBatch`.
 
-    ``prepare_data`` fills the caches (in ``num_workers`` processes); loaders shuffle only the training set, so
-    validation and test batches are the same on every run.
+    ``prepare_data`` fills the caches (in ``num_workers`` processes, with a progress bar on a terminal). Under a
+    Trainer with ``fast_dev_run=n`` every set is cut to its first ``n * batch_size`` samples, so a smoke test makes
+    only what it reads. Loaders shuffle only the training set, so validation and test batches are the same on every
+    run.
     """
 
     def __init__(self, batch_size: int = 16, num_workers: int = 0) -> None:
@@ -278,12 +294,25 @@ class SceneDataModule(L.LightningDataModule):
         """The ``train``, ``val`` and ``test`` datasets."""
         raise NotImplementedError
 
+    def _sized_datasets(self) -> dict[str, CachedScenes]:
+        """:meth:`make_datasets`, each cut to what a ``fast_dev_run`` reads when the Trainer runs one."""
+        datasets = self.make_datasets()
+        trainer = self.trainer
+        if trainer is not None and trainer.fast_dev_run:
+            keep = int(trainer.fast_dev_run) * self.batch_size  # True counts as 1 batch
+            for dataset in datasets.values():
+                dataset.keys = dataset.keys[:keep]
+        return datasets
+
     def prepare_data(self) -> None:
-        for dataset in self.make_datasets().values():
-            dataset.prepare(self.num_workers)
+        datasets = self._sized_datasets()
+        fn = None if self.trainer is None else getattr(self.trainer.state.fn, "value", None)
+        needed = {"fit": ("train", "val"), "validate": ("val",), "test": ("test",)}.get(fn, tuple(datasets))
+        for name in needed:  # the sets this Trainer call reads (all of them outside a Trainer)
+            datasets[name].prepare(self.num_workers)
 
     def setup(self, stage: str | None = None) -> None:
-        self.datasets = self.make_datasets()
+        self.datasets = self._sized_datasets()
 
     def _loader(self, name: str, shuffle: bool) -> DataLoader:
         return DataLoader(

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -322,7 +323,8 @@ def _lighting(rng: np.random.Generator, kind: str, cfg: RenderConfig) -> tuple[L
 
 
 def render_dataset(outdir: str | Path, count: int, seed: int = 0, size: tuple[int, int] = (640, 480),
-                   config: RenderConfig | None = None, ext: str = "png") -> list[dict]:
+                   config: RenderConfig | None = None, ext: str = "png",
+                   progress: Callable[[int], object] | None = None) -> list[dict]:
     """Render ``count`` scenes into ``outdir`` as ``000000.png``... plus ``ground_truth.json``.
 
     Image ``i`` is rendered from its own seed, derived from ``(seed, i)``, so datasets of different seeds do not
@@ -336,6 +338,7 @@ def render_dataset(outdir: str | Path, count: int, seed: int = 0, size: tuple[in
         size: image ``(W, H)``.
         config: render settings.
         ext: ``png`` (lossless) or ``jpg``.
+        progress: called with 1 after each image is written (e.g. a progress bar's ``update``).
 
     Returns:
         The records written to ``ground_truth.json``: :meth:`RenderedScene.to_dict` plus ``image`` (file name).
@@ -354,5 +357,7 @@ def render_dataset(outdir: str | Path, count: int, seed: int = 0, size: tuple[in
         if not cv2.imwrite(str(out / name), r.image[..., ::-1]):
             raise OSError(f"could not write {out / name}")
         records.append({"image": name, **r.to_dict()})
+        if progress is not None:
+            progress(1)
     (out / "ground_truth.json").write_text(json.dumps(records, indent=1))
     return records

@@ -1,0 +1,108 @@
+"""The ngp command's conventions: --version, defaults in every --help, usage errors once with exit 2, the list API
+behind several images, frontal rectification, render's progress bar on terminals only."""
+
+import argparse
+import json
+
+import cv2
+import pytest
+
+import ngp_kornia
+from ngp_kornia import calibrate, cli
+from ngp_kornia.data.synth.render import render_scene
+
+
+@pytest.fixture(scope="module")
+def scenes(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("scenes")
+    paths = []
+    for seed, size in ((1, (320, 240)), (4, (256, 256)), (6, (240, 320))):
+        path = folder / f"scene{seed}.png"
+        cv2.imwrite(str(path), cv2.cvtColor(render_scene(seed, size).image, cv2.COLOR_RGB2BGR))
+        paths.append(path)
+    return paths
+
+
+def _subparsers(parser):
+    return next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices
+
+
+def test_version(capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main(["--version"])
+    assert exit_info.value.code == 0
+    assert capsys.readouterr().out.strip() == f"ngp {ngp_kornia.__version__}"
+
+
+def test_every_help_shows_the_defaults_and_describes_every_argument():
+    parser = cli._parser()
+    for name, sub in _subparsers(parser).items():
+        text = " ".join(sub.format_help().split())
+        for action in sub._actions:
+            if isinstance(action, argparse._HelpAction):
+                continue
+            assert action.help, f"ngp {name}: {action.dest} has no help"
+            if action.default not in (None, False) and action.option_strings:
+                assert f"(default: {action.default})" in text, f"ngp {name} --help: no default for {action.dest}"
+
+
+def test_render_help_describes_its_arguments(capsys):
+    with pytest.raises(SystemExit):
+        cli.main(["render", "--help"])
+    out = " ".join(capsys.readouterr().out.split())
+    assert "number of scenes (default: 16)" in out and "ground_truth.json" in out and "(default: 640x480)" in out
+
+
+@pytest.mark.parametrize("weights", ["bogus", "missing.pt"])
+@pytest.mark.parametrize("command", ["calibrate", "rectify", "predict"])
+def test_bad_weights_is_one_usage_error_with_exit_2(tmp_path, capsys, scenes, weights, command):
+    tail = {
+        "calibrate": [str(scenes[0]), str(tmp_path / "missing.jpg"), str(scenes[1])],
+        "rectify": [str(scenes[0]), "-o", str(tmp_path / "out.png")],
+        "predict": [str(scenes[0].parent), "--out", str(tmp_path / "rows.jsonl")],
+    }[command]
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main([command, *tail, "--weights", str(tmp_path / weights) if weights.endswith(".pt") else weights])
+    out, err = capsys.readouterr()
+    assert exit_info.value.code == 2 and out == ""
+    errors = [line for line in err.splitlines() if "error" in line]
+    assert len(errors) == 1 and errors[0].startswith(f"ngp {command}: error: --weights: ")
+    assert "missing.jpg" not in err  # reported before any image is read
+    assert not (tmp_path / "out.png").exists() and not (tmp_path / "rows.jsonl").exists()
+
+
+def test_several_images_give_what_the_list_api_gives(scenes, tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(cli, "_CHUNK", 2)  # several chunks, one of them with an unreadable file
+    images = [str(scenes[0]), str(tmp_path / "missing.jpg"), str(scenes[1]), str(scenes[2])]
+    assert cli.main(["calibrate", *images, "--weights", "none"]) == 1
+    out, err = capsys.readouterr()
+    rows = [json.loads(line) for line in out.splitlines()]
+    assert [r["image"] for r in rows] == [str(p) for p in scenes]
+    expected = calibrate([str(p) for p in scenes], weights="none")
+    for row, cal in zip(rows, expected, strict=True):
+        assert row == {"image": row["image"], **json.loads(json.dumps(cal.to_dict()))}
+    assert err.count("\n") == 1 and "missing.jpg: file not found" in err
+
+
+def test_frontal_rectification_works_with_the_default_crop(tmp_path, capsys):
+    source = tmp_path / "scene.png"
+    cv2.imwrite(str(source), cv2.cvtColor(render_scene(1, (640, 480)).image, cv2.COLOR_RGB2BGR))
+    assert cli.main(["rectify", str(source), "--mode", "frontal", "-o", str(tmp_path / "front.png")]) == 0
+    assert cv2.imread(str(tmp_path / "front.png")) is not None
+    capsys.readouterr()
+    # keeping every pixel of this oblique view is refused, and the message points at --crop valid
+    assert cli.main(["rectify", str(source), "--mode", "frontal", "--crop", "keep", "-o", str(tmp_path / "k.png")]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--crop valid" in err and not (tmp_path / "k.png").exists()
+
+
+def test_render_shows_progress_on_a_terminal_only(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(cli, "_PROGRESS_DELAY", 0.0)
+    assert cli.main(["render", str(tmp_path / "a"), "--count", "2", "--size", "96x64"]) == 0
+    assert capsys.readouterr().err == ""  # not a terminal: no bar
+    import sys
+
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: True)
+    assert cli.main(["render", str(tmp_path / "b"), "--count", "2", "--size", "96x64"]) == 0
+    err = capsys.readouterr().err
+    assert "rendering" in err and "2/2" in err

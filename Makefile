@@ -26,8 +26,10 @@ $(VENV)/.bench: $(VENV)/.installed
 	$(PY) -m pip install -q -e '.[test,bench]'
 	touch $@
 
+# the development suite on whichever sets are given: make bench YUD=... MANIFEST=labels.csv RENDERS=folder
 bench: $(VENV)/.bench
-	$(PY) benchmarks/calibration.py yud $(YUD) --weights none --weights default
+	$(PY) benchmarks/devsuite.py $(if $(YUD),--yud $(YUD)) $(if $(MANIFEST),--manifest $(MANIFEST)) \
+		$(if $(RENDERS),--renders $(RENDERS)) --json bench.json
 
 clean:
 	rm -rf $(VENV)

@@ -27,26 +27,24 @@ from __future__ import annotations
 import argparse
 import math
 import statistics
-import sys
 from dataclasses import replace
 from pathlib import Path
 
 import torch
 from kornia.geometry.conversions import axis_angle_to_rotation_matrix
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from calibration import (  # noqa: E402
+from ngp_kornia.api import load_parser
+from ngp_kornia.data.yud import YorkUrbanDB, load_labelled_segments
+from ngp_kornia.detect import detect_segments
+from ngp_kornia.evaluation import (
     Estimate,
+    LabelledImage,
     estimate_from_calibration,
     evaluate,
     load_yud,
     weights_and_config,
 )
-
-from ngp_kornia.api import load_parser  # noqa: E402
-from ngp_kornia.data.yud import YorkUrbanDB, load_labelled_segments  # noqa: E402
-from ngp_kornia.detect import detect_segments  # noqa: E402
-from ngp_kornia.geometry import (  # noqa: E402
+from ngp_kornia.geometry import (
     fov_from_focal,
     horizon_from_zenith,
     image_center,
@@ -57,8 +55,8 @@ from ngp_kornia.geometry import (  # noqa: E402
     segment_lengths,
     zenith_from_up,
 )
-from ngp_kornia.io import read_image_file  # noqa: E402
-from ngp_kornia.models import NeuralGeometricParser, ParserConfig  # noqa: E402
+from ngp_kornia.io import read_image_file
+from ngp_kornia.models import NeuralGeometricParser, ParserConfig
 
 
 def estimate_from_camera(K: torch.Tensor, R: torch.Tensor, height: int) -> Estimate:
@@ -145,65 +143,60 @@ def parser_for(spec: str) -> NeuralGeometricParser:
     return load_parser(*weights_and_config(spec))
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("root", type=Path)
-    ap.add_argument("--weights", action="append", default=None, help="weight spec as in calibration.py; repeatable")
-    ap.add_argument("--seeds", default="0,1,2,3,4", help="comma-separated sampling seeds (results are averaged)")
-    ap.add_argument(
-        "--oracle-zenith", type=float, action="append", default=[], help="add rows with ground-truth zenith weights"
-    )
-    args = ap.parse_args(argv)
-    torch.set_num_threads(1)
-    samples = load_yud(args.root)
-    rotations = [s.R for s in YorkUrbanDB(args.root)]  # same images, same order; column 1 = world down
-    seeds = [int(s) for s in args.seeds.split(",")]
-    rows = []
+def seed_runs(parser: NeuralGeometricParser, samples: list[LabelledImage], seeds: list[int], inputs, before=None):
+    """:func:`evaluate` of the parser on every image, once per seed; ``inputs(i)`` gives image i's
+    (image, segments, mask) and ``before(parser, i)``, when given, runs before each call."""
+    runs = []
+    base = parser.config
+    for seed in seeds:
+        parser.config = replace(base, seed=seed)
+        estimates = []
+        for i in range(len(samples)):
+            if before is not None:
+                before(parser, i)
+            image, seg, mask = inputs(i)
+            with torch.no_grad():
+                out = parser(image.float(), seg.float(), mask)
+            estimates.append(estimate_from_calibration(out[0]))
+        runs.append(evaluate(samples, estimates))
+    parser.config = base
+    return runs
 
-    # the exact rotation, reported through a centred principal point
-    exact = [
-        estimate_from_camera(centred(s.K, s.height, s.width), R, s.height)
-        for s, R in zip(samples, rotations, strict=True)
-    ]
-    rows.append(summary_row("true rotation and focal, principal point at the image centre", [evaluate(samples, exact)]))
 
+def read_inputs(samples: list[LabelledImage]) -> tuple[list, list, list]:
+    """Each image as a (1, 3, H, W) tensor, its LSD segments as calibrate() finds them, its hand-labelled ones."""
     images, detected, labelled = [], [], []
     for s in samples:
         rgb = read_image_file(s.image_path)
         images.append(torch.from_numpy(rgb).permute(2, 0, 1)[None].double() / 255.0)
         detected.append(detect_segments(rgb, ParserConfig()))
-        seg, labels = load_labelled_segments(s.image_path.parent / f"{s.name}LinesAndVP.mat")
-        labelled.append((seg, labels))
+        labelled.append(load_labelled_segments(s.image_path.parent / f"{s.name}LinesAndVP.mat"))
+    return images, detected, labelled
 
-    for spec in args.weights or ["none"]:
-        parser = parser_for(spec)
-        for source, segs in (("LSD segments", detected), ("hand-labelled segments", None)):
-            runs = []
-            for seed in seeds:
-                parser.config = replace(parser.config, seed=seed)
-                estimates = []
-                for i, s in enumerate(samples):
-                    seg, mask = segs[i] if segs is not None else with_mask(labelled[i][0][None])
-                    with torch.no_grad():
-                        out = parser(images[i].float(), seg.float(), mask)
-                    estimates.append(estimate_from_calibration(out[0], s))
-                runs.append(evaluate(samples, estimates))
-            rows.append(summary_row(f"parser ({spec}) on {source}", runs))
-        for max_angle in args.oracle_zenith:
-            oracle = OracleZenithParser(parser, max_angle, samples[0].height, samples[0].width)
-            runs = []
-            for seed in seeds:
-                oracle.config = replace(parser.config, seed=seed)
-                estimates = []
-                for i, s in enumerate(samples):
-                    oracle.true_K, oracle.true_up = s.K, s.up
-                    with torch.no_grad():
-                        out = oracle(images[i].float(), detected[i][0].float(), detected[i][1])
-                    estimates.append(estimate_from_calibration(out[0], s))
-                runs.append(evaluate(samples, estimates))
-            name = f"parser ({spec}) on LSD segments, zenith candidates within {max_angle:g} deg of the truth"
-            rows.append(summary_row(name, runs))
 
+def parser_rows(spec: str, samples, inputs: tuple[list, list, list], seeds: list[int], oracle_angles) -> list[str]:
+    """Rows of the parser under one weights spec: on LSD and on hand-labelled segments, and with oracle zeniths."""
+    images, detected, labelled = inputs
+    parser = parser_for(spec)
+    rows = []
+    runs = seed_runs(parser, samples, seeds, lambda i: (images[i], *detected[i]))
+    rows.append(summary_row(f"parser ({spec}) on LSD segments", runs))
+    runs = seed_runs(parser, samples, seeds, lambda i: (images[i], *with_mask(labelled[i][0][None])))
+    rows.append(summary_row(f"parser ({spec}) on hand-labelled segments", runs))
+    for max_angle in oracle_angles:
+        oracle = OracleZenithParser(parser, max_angle, samples[0].height, samples[0].width)
+
+        def set_truth(model, i):
+            model.true_K, model.true_up = samples[i].K, samples[i].up
+
+        runs = seed_runs(oracle, samples, seeds, lambda i: (images[i], *detected[i]), set_truth)
+        name = f"parser ({spec}) on LSD segments, zenith candidates within {max_angle:g} deg of the truth"
+        rows.append(summary_row(name, runs))
+    return rows
+
+
+def least_squares_rows(samples, rotations, labelled) -> list[str]:
+    rows = []
     for label, free_focal, use_centre in (
         ("true K", False, False),
         ("principal point at the image centre, focal fitted", True, True),
@@ -213,9 +206,39 @@ def main(argv: list[str] | None = None) -> int:
             K0 = centred(s.K, s.height, s.width) if use_centre else s.K
             K, R = least_squares_frame(seg, labels, K0, R0, free_focal)
             estimates.append(estimate_from_camera(K, R, s.height))
-        name = f"least-squares frame of the hand-labelled segments, {label}"
-        rows.append(summary_row(name, [evaluate(samples, estimates)]))
+        rows.append(
+            summary_row(f"least-squares frame of the hand-labelled segments, {label}", [evaluate(samples, estimates)])
+        )
+    return rows
 
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("root", type=Path)
+    ap.add_argument("--weights", action="append", default=None, help="weight spec as in calibration.py; repeatable")
+    ap.add_argument("--seeds", default="0,1,2,3,4", help="comma-separated sampling seeds (results are averaged)")
+    ap.add_argument(
+        "--oracle-zenith", type=float, action="append", default=[], help="add rows with ground-truth zenith weights"
+    )
+    return ap.parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    torch.set_num_threads(1)
+    samples = load_yud(args.root)
+    rotations = [s.R for s in YorkUrbanDB(args.root)]  # same images, same order; column 1 = world down
+    seeds = [int(s) for s in args.seeds.split(",")]
+    # the exact rotation, reported through a centred principal point
+    exact = [
+        estimate_from_camera(centred(s.K, s.height, s.width), R, s.height)
+        for s, R in zip(samples, rotations, strict=True)
+    ]
+    rows = [summary_row("true rotation and focal, principal point at the image centre", [evaluate(samples, exact)])]
+    inputs = read_inputs(samples)
+    for spec in args.weights or ["none"]:
+        rows += parser_rows(spec, samples, inputs, seeds, args.oracle_zenith)
+    rows += least_squares_rows(samples, rotations, inputs[2])
     print(f"York Urban DB: {len(samples)} images ({args.root}); seeds {seeds}; torch {torch.__version__}")
     print()
     print("| estimate | horizon AUC (%) mean (range) | up error (deg) mean / median | FoV_v error (deg) mean / med. |")

@@ -73,7 +73,7 @@ def synthetic(batch: int, num: int, segments: int, height: int = 480, width: int
     return images, segs, mask, frames
 
 
-def main(argv: list[str] | None = None) -> None:
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--size", type=int, default=224, help="network input side")
     parser.add_argument("--candidates", type=int, nargs="+", default=[1, 16, 64, 256])
@@ -82,25 +82,11 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--runs", type=int, default=15, help="timed runs of the shared variant and the inputs")
     parser.add_argument("--faithful-runs", type=int, default=3, help="timed runs of the faithful variant")
     parser.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's own choice)")
-    args = parser.parse_args(argv)
-    if args.threads is not None:
-        torch.set_num_threads(args.threads)
+    return parser.parse_args(argv)
 
-    print(f"# FSNet speed, {args.size}x{args.size} input, batch {args.batch}")
-    print(
-        f"torch {torch.__version__}, {torch.get_num_threads()} threads, {os.cpu_count()} CPUs, "
-        f"{platform.processor() or platform.machine()}"
-    )
-    print(f"load average before: {os.getloadavg()[0]:.2f} (the machine is shared with other jobs: times are noisy)")
-    torch.manual_seed(0)
-    nets = {
-        "shared": FSNet("shared", input_size=args.size).eval(),
-        "faithful": FSNet("faithful", input_size=args.size).eval(),
-    }
-    for name, net in nets.items():
-        params = sum(p.numel() for p in net.parameters()) / 1e6
-        print(f"{name}: {params:.2f} M parameters, settings {net.settings()}")
 
+def time_candidates(args: argparse.Namespace, nets: dict[str, FSNet]) -> tuple[list[str], dict[int, dict]]:
+    """Table rows and timings (median, min) plus GMAC per image for each candidate count."""
     images, segs, mask, frames = synthetic(args.batch, max(args.candidates), args.segments)
     inputs = fsnet_inputs(images, segs, mask, frames, args.size)
     rows, results = [], {}
@@ -124,14 +110,10 @@ def main(argv: list[str] | None = None) -> None:
                 f"{row['shared_gmac']:.2f} | {row['faithful_gmac']:.1f} |"
             )
             print(f"  done {num} candidates (load {os.getloadavg()[0]:.2f})", flush=True)
+    return rows, results
 
-    print()
-    print("Seconds per image, median (min) of the runs; GMAC per image.")
-    print()
-    print("| candidates | shared s | faithful s | inputs s | shared GMAC | faithful GMAC |")
-    print("|---:|---:|---:|---:|---:|---:|")
-    print("\n".join(rows))
-    print()
+
+def print_ratios(results: dict[int, dict]) -> None:
     if 1 in results and 64 in results:
         print(
             f"shared 64 / shared 1: {results[64]['shared'][0] / results[1]['shared'][0]:.2f} (median), "
@@ -144,6 +126,37 @@ def main(argv: list[str] | None = None) -> None:
             f"{results[64]['shared'][1] / results[64]['faithful'][1]:.4f} (min), "
             f"{results[64]['shared_gmac'] / results[64]['faithful_gmac']:.4f} (GMAC)"
         )
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = parse_args(argv)
+    if args.threads is not None:
+        torch.set_num_threads(args.threads)
+
+    print(f"# FSNet speed, {args.size}x{args.size} input, batch {args.batch}")
+    print(
+        f"torch {torch.__version__}, {torch.get_num_threads()} threads, {os.cpu_count()} CPUs, "
+        f"{platform.processor() or platform.machine()}"
+    )
+    print(f"load average before: {os.getloadavg()[0]:.2f} (the machine is shared with other jobs: times are noisy)")
+    torch.manual_seed(0)
+    nets = {
+        "shared": FSNet("shared", input_size=args.size).eval(),
+        "faithful": FSNet("faithful", input_size=args.size).eval(),
+    }
+    for name, net in nets.items():
+        params = sum(p.numel() for p in net.parameters()) / 1e6
+        print(f"{name}: {params:.2f} M parameters, settings {net.settings()}")
+
+    rows, results = time_candidates(args, nets)
+    print()
+    print("Seconds per image, median (min) of the runs; GMAC per image.")
+    print()
+    print("| candidates | shared s | faithful s | inputs s | shared GMAC | faithful GMAC |")
+    print("|---:|---:|---:|---:|---:|---:|")
+    print("\n".join(rows))
+    print()
+    print_ratios(results)
     print(f"load average after: {os.getloadavg()[0]:.2f}")
 
 

@@ -16,21 +16,16 @@ within 0.02, i.e. how many gross failures a perfect re-ranker could repair.
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from calibration import load_rendered, load_yud  # noqa: E402
-
-from ngp_kornia.api import load_parser  # noqa: E402
-from ngp_kornia.geometry import frame_manhattan_scores, segment_lengths  # noqa: E402
-from ngp_kornia.io import load_image  # noqa: E402
-from ngp_kornia.metrics import horizon_auc  # noqa: E402
-from ngp_kornia.sampling import select_frames, top_frames  # noqa: E402
-from ngp_kornia.training.losses import frame_horizon_error  # noqa: E402
+from ngp_kornia.api import load_parser
+from ngp_kornia.evaluation import load_renders, load_yud
+from ngp_kornia.geometry import frame_manhattan_scores, segment_lengths
+from ngp_kornia.io import load_image
+from ngp_kornia.metrics import frame_horizon_error, horizon_auc
+from ngp_kornia.sampling import select_frames, top_frames
 
 
 def image_rows(sample, parser, tops: list[int], kernels: list[float]) -> dict[str, float]:
@@ -59,7 +54,7 @@ def main() -> None:
     p.add_argument("--top", type=int, nargs="+", default=[16, 64])
     p.add_argument("--kernels", type=float, nargs="*", default=[85.0, 88.0, 89.5])
     args = p.parse_args()
-    samples = load_yud(args.root) if args.dataset == "yud" else load_rendered(args.root)
+    samples = load_yud(args.root) if args.dataset == "yud" else load_renders(args.root)
     parser = load_parser("none")
     rows = [image_rows(s, parser, sorted(args.top), args.kernels) for s in samples]
     print(f"{args.dataset}: {len(rows)} images (frames of the untrained path, seed 0)\n")

@@ -35,14 +35,11 @@ from pathlib import Path
 
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from calibration import Sample, make_lu  # noqa: E402
-
-from ngp_kornia import calibrate  # noqa: E402
-from ngp_kornia.api import load_parser  # noqa: E402
-from ngp_kornia.geometry import intrinsics_matrix  # noqa: E402
-from ngp_kornia.io import load_image  # noqa: E402
+from ngp_kornia import calibrate
+from ngp_kornia.api import load_parser
+from ngp_kornia.evaluation import LabelledImage, lu_vp_detect_method
+from ngp_kornia.geometry import intrinsics_matrix
+from ngp_kornia.io import load_image
 
 
 class StageTimer:
@@ -148,10 +145,9 @@ def _lu_runner(image: str):
     h, w = img.shape[-2:]
     f = torch.tensor([(h + w) / 2.0], dtype=torch.float64)
     K = intrinsics_matrix(f, torch.tensor([(w - 1) / 2.0, (h - 1) / 2.0], dtype=torch.float64))[0]
-    zero = torch.zeros(3, dtype=torch.float64)
-    sample = Sample("x", Path(image), K, zero, zero, 0.0, 0.0, 0.0, h, w)
-    run = make_lu()
-    return lambda: run(sample)
+    labelled = LabelledImage("x", Path(image), h, w, K=K)
+    run = lu_vp_detect_method()
+    return lambda: run(labelled)
 
 
 def throughput_table(image: str, weights: str, batches: list[int], repeat: int) -> str:

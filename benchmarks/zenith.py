@@ -11,7 +11,7 @@ lu-vp-detect (given the true focal length) is scored the same way on York Urban.
 
 Usage::
 
-    python benchmarks/zenith.py rendered --cache cache --count 500 --zsnet ngp_kornia/weights/zsnet.pt
+    python benchmarks/zenith.py rendered --count 500 --zsnet ngp_kornia/weights/zsnet.pt
     python benchmarks/zenith.py yud /path/to/YorkUrbanDB --zsnet ngp_kornia/weights/zsnet.pt
 """
 
@@ -20,7 +20,6 @@ from __future__ import annotations
 import argparse
 import statistics
 from pathlib import Path
-from types import SimpleNamespace
 
 import cv2
 import numpy as np
@@ -28,21 +27,26 @@ import torch
 
 from ngp_kornia.data.synth.render import render_scene
 from ngp_kornia.data.yud import YorkUrbanDB
-from ngp_kornia.detect import detect_segments
+from ngp_kornia.detect import detect_segments, detect_segments_gray
+from ngp_kornia.evaluation import LabelledImage, load_yud, lu_vp_detect_method
 from ngp_kornia.geometry import homogeneous_to_pseudo_camera, pseudo_focal
+from ngp_kornia.metrics import zenith_error_deg
 from ngp_kornia.models import NeuralGeometricParser, ParserConfig
 from ngp_kornia.models.weights import load_network
-from ngp_kornia.training.datamodules import RenderedDataModule, RenderedScenes
-from ngp_kornia.training.zsnet_module import zenith_error_deg
+
+#: the seeds of the rendered test split of ``ngp-train``'s RenderedDataModule (scene i is ``render_scene(seed + i)``)
+TEST_SEED = 2_000_000
+SIZE = (640, 480)
 
 
-def samples_rendered(cache: str, count: int):
-    """(segments, K, zenith, height, width) of the fixed rendered test set (the DataModule's test seeds)."""
-    start = RenderedDataModule.TEST_SEED
-    data = RenderedScenes(range(start, start + count), (640, 480), cache_dir=cache)
-    for i in range(len(data)):
-        s = data[i]
-        yield s.segments, torch.as_tensor(s.K), torch.as_tensor(s.zenith), int(s.image_size[0]), int(s.image_size[1])
+def samples_rendered(count: int):
+    """(segments, K, zenith, height, width) of the fixed rendered test set (the training DataModule's test scenes,
+    with its line detection: working size 640, segments of at least 10 px, the 512 longest)."""
+    for seed in range(TEST_SEED, TEST_SEED + count):
+        scene = render_scene(seed, SIZE)
+        gray = cv2.cvtColor(scene.image, cv2.COLOR_RGB2GRAY)
+        segments = detect_segments_gray(gray, ParserConfig())
+        yield segments, torch.as_tensor(scene.K), torch.as_tensor(scene.zenith), SIZE[1], SIZE[0]
 
 
 #: York Urban's segments: the parser's settings but 1,024 segments (not 512), as the figures in BENCHMARKS.md
@@ -69,15 +73,13 @@ def zenith_errors(parsers: dict[str, NeuralGeometricParser], segments: np.ndarra
     return out
 
 
-def lu_errors(samples) -> list[float]:
-    """Up-direction error of lu-vp-detect given the true focal; samples need image_path, K and up."""
-    from calibration import make_lu  # the peer, with its OpenCV 5 shim
-
-    run = make_lu()
+def lu_errors(images) -> list[float]:
+    """Up-direction error (degrees) of lu-vp-detect given the true focal; ``images`` are LabelledImages."""
+    run = lu_vp_detect_method()
     errors = []
-    for s in samples:
-        up = run(s).up
-        cos = float(torch.dot(up, s.up).abs().clamp(max=1.0))
+    for image in images:
+        up = run(image).up
+        cos = float(torch.dot(up, image.up).abs().clamp(max=1.0))
         errors.append(float(np.degrees(np.arccos(cos))))
     return errors
 
@@ -85,19 +87,20 @@ def lu_errors(samples) -> list[float]:
 def rendered_files(count: int, folder: Path):
     """The rendered test scenes written as PNG files, for the peer that reads files."""
     folder.mkdir(parents=True, exist_ok=True)
-    for seed in range(RenderedDataModule.TEST_SEED, RenderedDataModule.TEST_SEED + count):
-        scene = render_scene(seed, (640, 480))
+    for seed in range(TEST_SEED, TEST_SEED + count):
+        scene = render_scene(seed, SIZE)
         path = folder / f"{seed}.png"
         if not path.exists():
             cv2.imwrite(str(path), cv2.cvtColor(scene.image, cv2.COLOR_RGB2BGR))
-        yield SimpleNamespace(image_path=path, K=scene.K, up=-scene.R[:, 1])
+        K = torch.as_tensor(scene.K, dtype=torch.float64)
+        up = -torch.as_tensor(scene.R, dtype=torch.float64)[:, 1]
+        yield LabelledImage(str(seed), path, SIZE[1], SIZE[0], K=K, up=up)
 
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("dataset", choices=["rendered", "yud"])
     p.add_argument("root", nargs="?", help="York Urban DB folder (yud)")
-    p.add_argument("--cache", default="cache", help="DataModule cache folder (rendered)")
     p.add_argument("--count", type=int, default=500, help="rendered test images")
     p.add_argument("--zsnet", action="append", default=[], help="ZSNet weights file (repeatable)")
     p.add_argument("--lu-dir", help="rendered: also score lu-vp-detect, writing the test images to this folder")
@@ -105,13 +108,13 @@ def main() -> None:
     parsers = {"uniform (untrained)": NeuralGeometricParser()}
     for path in args.zsnet:
         parsers[f"ZSNet {Path(path).name}"] = NeuralGeometricParser(zsnet=load_network(path, "ZSNet"))
-    source = samples_rendered(args.cache, args.count) if args.dataset == "rendered" else samples_yud(args.root)
+    source = samples_rendered(args.count) if args.dataset == "rendered" else samples_yud(args.root)
     errors: dict[str, list[float]] = {name: [] for name in parsers}
     for sample in source:
         for name, e in zenith_errors(parsers, *sample).items():
             errors[name].append(e)
     if args.dataset == "yud":
-        errors["lu-vp-detect (true focal)"] = lu_errors(YorkUrbanDB(args.root))
+        errors["lu-vp-detect (true focal)"] = lu_errors(load_yud(args.root))
     elif args.lu_dir:
         errors["lu-vp-detect (true focal)"] = lu_errors(rendered_files(args.count, Path(args.lu_dir)))
     n = len(next(iter(errors.values())))

@@ -3,7 +3,7 @@
 from ngp_kornia.data.folder import ImageFolder
 from ngp_kornia.data.manifest import CSVManifest, ManifestError, ManifestSample
 from ngp_kornia.data.panorama import crop_ground_truth, perspective_crops, sample_crop_params
-from ngp_kornia.data.yud import YorkUrbanDB, YUDSample, load_labelled_segments, rotation_from_yud_vps
+from ngp_kornia.data.yud import YorkUrbanDB, YUDSample, load_labelled_segments, published_horizon, rotation_from_yud_vps
 
 __all__ = [
     "CSVManifest",
@@ -15,6 +15,7 @@ __all__ = [
     "crop_ground_truth",
     "load_labelled_segments",
     "perspective_crops",
+    "published_horizon",
     "rotation_from_yud_vps",
     "sample_crop_params",
 ]

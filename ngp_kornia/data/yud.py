@@ -50,7 +50,7 @@ from ngp_kornia.geometry.camera import (
     zenith_from_up,
 )
 
-__all__ = ["YUDSample", "YorkUrbanDB", "load_labelled_segments", "rotation_from_yud_vps"]
+__all__ = ["YUDSample", "YorkUrbanDB", "load_labelled_segments", "published_horizon", "rotation_from_yud_vps"]
 
 CAMERA_FILE = "cameraParameters.mat"
 NAMES_FILE = "Manhattan_Image_DB_Names.mat"
@@ -183,6 +183,38 @@ def load_labelled_segments(path: str | Path) -> tuple[Tensor, Tensor]:
         raise ValueError(f"{path}: vp_association must lie in 1..3")
     segments = torch.from_numpy(lines.reshape(-1, 2, 2) - 1.0)
     return segments, torch.from_numpy(assoc - 1)
+
+
+def published_horizon(sample: YUDSample) -> Tensor:
+    """The horizon York Urban benchmarks in the literature score against (e.g. Lezama et al., CVPR 2014).
+
+    It is the line through the two *raw* horizontal vanishing points of ``<name>GroundTruthVP_CamParams.mat``
+    (columns 0 and 2 of ``vp``, each fitted to its own hand-labelled segments), projected with the true ``K``:
+    ``l = (K v_0) x (K v_2)``. :attr:`YUDSample.horizon` is instead ``K^-T up`` with the ground-truth vertical;
+    the two lines differ by about 7 px (median) per image.
+
+    Args:
+        sample: one image of a :class:`YorkUrbanDB` (its folder must hold the raw ground-truth file).
+
+    Returns:
+        (3,) float64 horizon line ``(a, b, c)`` in pixels, ``a^2 + b^2 = 1``, ``b >= 0``.
+
+    Raises:
+        FileNotFoundError: the raw ground-truth file is missing.
+        ValueError: the two horizontal vanishing points coincide.
+    """
+    suffix, key = GROUND_TRUTHS["raw"]
+    path = sample.image_path.parent / f"{sample.name}{suffix}.mat"
+    vp = torch.as_tensor(np.asarray(_loadmat(path, [key])[key], dtype=np.float64))
+    if vp.shape != (3, 3):
+        raise ValueError(f"{path}: vp must be a 3x3 matrix, got shape {tuple(vp.shape)}")
+    points = sample.K.double() @ _Y_UP_TO_Y_DOWN @ vp  # columns: homogeneous VPs in pixels
+    line = torch.linalg.cross(points[:, 0], points[:, 2])
+    scale = line[:2].norm()
+    if not bool(scale > 1e-12 * line.norm()):
+        raise ValueError(f"{path}: the horizontal vanishing points coincide; no horizon through them")
+    line = line / scale
+    return -line if line[1] < 0 else line
 
 
 class YorkUrbanDB(Sequence[YUDSample]):

@@ -12,14 +12,14 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from ngp_kornia.metrics import horizon_auc
+from ngp_kornia.metrics import frame_horizon_error, horizon_auc
 from ngp_kornia.models.fsnet import FSNet, FSNetInputs, frame_scores
 from ngp_kornia.models.parser import NeuralGeometricParser, ParserConfig
 from ngp_kornia.models.weights import load_network, shipped_weights
 from ngp_kornia.sampling import FrameCandidates, select_frames, top_frames
 from ngp_kornia.training.base import NetworkModule
 from ngp_kornia.training.datamodules import SceneBatch
-from ngp_kornia.training.losses import frame_classification_loss, frame_horizon_error, frame_labels
+from ngp_kornia.training.losses import frame_classification_loss, frame_labels
 
 __all__ = ["FSNetModule"]
 

@@ -12,22 +12,16 @@ from torch import Tensor
 from ngp_kornia.geometry import (
     cossim,
     homogeneous_to_pseudo_camera,
-    horizon_border_points,
-    horizon_from_zenith,
-    image_center,
-    intrinsics_matrix,
-    pseudo_focal,
     structure_tensor,
     weighted_structure_tensor,
 )
+from ngp_kornia.metrics import frame_horizon_error
 from ngp_kornia.sampling import FrameCandidates
 
 __all__ = [
     "zenith_labels",
     "zenith_classification_loss",
     "zenith_localisation_loss",
-    "frame_horizons",
-    "frame_horizon_error",
     "frame_labels",
     "frame_classification_loss",
 ]
@@ -98,56 +92,6 @@ def zenith_localisation_loss(scores: Tensor, zeniths: Tensor, mask: Tensor, zeni
     KORNIA_CHECK_SHAPE(scores, ["B", "Z"])
     mean = weighted_structure_tensor(zeniths, scores * mask.to(scores))
     return (structure_tensor(zenith_gt) - mean).flatten(1).norm(dim=-1).mean()
-
-
-def frame_horizons(frames: FrameCandidates, height: int, width: int) -> Tensor:
-    """The horizon line of each frame candidate in pixels, from its zenith and focal length (pseudo camera).
-
-    The candidate's camera is ``K = [[f fp, 0, cx], [0, f fp, cy], [0, 0, 1]]`` with ``fp`` = :func:`pseudo_focal`
-    and ``(cx, cy)`` the image centre; its zenith in pixels is ``K_p z`` with ``K_p`` the pseudo camera. Invalid
-    frames (focal 0) use focal 1 so the result stays finite.
-
-    Returns:
-        (B, F, 3) lines ``(a, b, c)`` in pixels.
-
-    Example:
-        >>> fr = FrameCandidates(torch.tensor([[[0.0, 1.0, 0.0]]]), None, torch.ones(1, 1), None, None, None)
-        >>> frame_horizons(fr, 480, 640)  # level camera: the horizon is the row through the centre
-        tensor([[[   0.0000,    1.0000, -239.5000]]])
-    """
-    KORNIA_CHECK_SHAPE(frames.zenith, ["B", "F", "3"])
-    KORNIA_CHECK_SHAPE(frames.focal, ["B", "F"])
-    z = frames.zenith
-    fp = pseudo_focal(height, width)
-    c = image_center(height, width, like=z)
-    focal = torch.where(frames.focal > 0, frames.focal, torch.ones_like(frames.focal)).to(z)
-    zenith_px = torch.cat([z[..., :2] * fp + c * z[..., 2:], z[..., 2:]], -1)
-    K = intrinsics_matrix(focal.flatten() * fp, c)
-    return horizon_from_zenith(K, zenith_px.flatten(0, 1)).reshape(z.shape)
-
-
-def frame_horizon_error(frames: FrameCandidates, horizon_gt: Tensor, height: int, width: int) -> Tensor:
-    """Horizon error of each candidate (Barinova et al.): the larger L1 distance between the candidate's and the
-    true horizon's crossings of the left and right image borders, divided by the image height.
-
-    Args:
-        frames: (B, F) candidates in the pseudo camera.
-        horizon_gt: (B, 3) true horizon line in pixels.
-        height: image height in pixels.
-        width: image width in pixels.
-
-    Returns:
-        (B, F) errors in image heights.
-
-    Example:
-        >>> fr = FrameCandidates(torch.tensor([[[0.0, 1.0, 0.0]]]), None, torch.ones(1, 1), None, None, None)
-        >>> frame_horizon_error(fr, torch.tensor([[0.0, 1.0, -287.5]]), 480, 640)  # 48 px = 0.1 heights lower
-        tensor([[0.1000]])
-    """
-    KORNIA_CHECK_SHAPE(horizon_gt, ["B", "3"])
-    h = horizon_border_points(frame_horizons(frames, height, width), width)  # (B, F, 2, 2)
-    g = horizon_border_points(horizon_gt.to(h), width)[:, None]  # (B, 1, 2, 2)
-    return (h - g).abs().sum(-1).amax(-1) / height
 
 
 def frame_labels(

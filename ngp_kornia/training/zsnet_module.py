@@ -13,28 +13,14 @@ from ngp_kornia.geometry import (
     segments_to_lines,
     to_pseudo_camera,
 )
+from ngp_kornia.metrics import zenith_error_deg
 from ngp_kornia.models.zsnet import ZSNet, zenith_estimate, zenith_weights_from_scores
 from ngp_kornia.sampling import sample_zenith_candidates
 from ngp_kornia.training.base import NetworkModule
 from ngp_kornia.training.datamodules import SceneBatch
 from ngp_kornia.training.losses import zenith_classification_loss, zenith_labels, zenith_localisation_loss
 
-__all__ = ["ZSNetModule", "zenith_error_deg"]
-
-
-def zenith_error_deg(zenith: Tensor, zenith_gt: Tensor, focal: Tensor) -> Tensor:
-    """Angle in degrees between the up directions of two zeniths given in the pseudo camera, using the true focal
-    length (pseudo-camera units): (B, 3), (B, 3), (B,) -> (B,). Sign-free.
-
-    Example:
-        >>> zenith_error_deg(torch.tensor([[0.0, 1.0, 0.0]]), torch.tensor([[0.0, -1.0, 0.0]]), torch.ones(1))
-        tensor([0.])
-    """
-    scale = torch.stack([1.0 / focal, 1.0 / focal, torch.ones_like(focal)], -1)
-    a = torch.nn.functional.normalize(zenith * scale, dim=-1)
-    b = torch.nn.functional.normalize(zenith_gt * scale, dim=-1)
-    cos = (a * b).sum(-1).abs().clamp(max=1.0)
-    return torch.rad2deg(torch.atan2((1 - cos**2).clamp_min(0).sqrt(), cos))
+__all__ = ["ZSNetModule"]
 
 
 class ZSNetModule(NetworkModule):

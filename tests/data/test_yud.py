@@ -8,8 +8,9 @@ import pytest
 import scipy.io
 import torch
 
-from ngp_kornia.data import YorkUrbanDB, load_labelled_segments, rotation_from_yud_vps
+from ngp_kornia.data import YorkUrbanDB, load_labelled_segments, published_horizon, rotation_from_yud_vps
 from ngp_kornia.geometry.camera import rotation_from_angles
+from ngp_kornia.metrics import horizon_error
 
 SHARED_YUD = Path(os.environ.get("YUD_ROOT", "/work/shared/data/YorkUrbanDB"))
 
@@ -221,3 +222,25 @@ def test_shared_copy_ground_truth_is_consistent():
         vert = assoc == 1
         raw_err.append(_segment_vp_angles(seg[vert], s.zenith.expand(int(vert.sum()), 3)))
     assert torch.cat(raw_err).median().item() < 1.0
+
+
+def test_fake_published_horizon(fake_yud):
+    for s in YorkUrbanDB(fake_yud):
+        line = published_horizon(s)
+        assert line.dtype == torch.float64 and line.shape == (3,)
+        assert float(line[:2].norm()) == pytest.approx(1.0) and line[1] >= 0
+        raw = scipy.io.loadmat(str(s.image_path.parent / f"{s.name}GroundTruthVP_CamParams.mat"))["vp"]
+        for j in (0, 2):  # through both raw horizontal VPs
+            v = s.K @ torch.diag(torch.tensor([1.0, -1.0, 1.0], dtype=torch.float64)) @ torch.as_tensor(raw[:, j])
+            assert float(line @ v) == pytest.approx(0.0, abs=1e-9 * float(v.norm()))
+        # the fake's raw horizontal VPs are the orthogonal ones: the two horizons coincide
+        torch.testing.assert_close(line, s.horizon)
+
+
+@pytest.mark.skipif(not (SHARED_YUD / "cameraParameters.mat").is_file(), reason="York Urban DB copy not present")
+def test_shared_copy_published_horizon_differs_by_a_few_pixels():
+    db = YorkUrbanDB(SHARED_YUD)
+    published = torch.stack([published_horizon(s) for s in db])
+    calibrated = torch.stack([s.horizon for s in db])
+    px = horizon_error(published, calibrated, 480, 640) * 480
+    assert 4.0 < float(px.median()) < 10.0  # about 7 px, as the dataset's README says

@@ -7,11 +7,12 @@ import pytest
 import torch
 
 from ngp_kornia.geometry import horizon_from_zenith, intrinsics_matrix
+from ngp_kornia.metrics import frame_horizon_error
 from ngp_kornia.models.fsnet import FSNet
 from ngp_kornia.sampling import FrameCandidates, select_frames
 from ngp_kornia.training.datamodules import RenderedDataModule, SceneBatch
 from ngp_kornia.training.fsnet_module import FSNetModule
-from ngp_kornia.training.losses import frame_classification_loss, frame_horizon_error, frame_labels
+from ngp_kornia.training.losses import frame_classification_loss, frame_labels
 
 H, W = 480, 640
 

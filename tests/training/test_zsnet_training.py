@@ -5,12 +5,13 @@ import pytest
 import torch
 
 from ngp_kornia import calibrate
+from ngp_kornia.metrics import zenith_error_deg
 from ngp_kornia.models.weights import load_network
 from ngp_kornia.models.zsnet import ZSNet
 from ngp_kornia.training.command import export_checkpoint
 from ngp_kornia.training.datamodules import RenderedDataModule
 from ngp_kornia.training.losses import zenith_classification_loss, zenith_labels, zenith_localisation_loss
-from ngp_kornia.training.zsnet_module import ZSNetModule, zenith_error_deg
+from ngp_kornia.training.zsnet_module import ZSNetModule
 
 
 def test_labels_follow_the_angle_thresholds():

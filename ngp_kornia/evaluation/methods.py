@@ -1,0 +1,291 @@
+"""Methods to evaluate: this package's ``calibrate()`` under a weights spec, the peer lu-vp-detect (Lu et al., WACV
+2017, given the true focal length and principal point) and a level-horizon baseline, each a function
+``LabelledImage -> Estimate``; and :func:`run_interleaved`, which runs several of them image by image and times them.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, fields, replace
+from typing import TextIO
+
+import cv2
+import numpy as np
+import torch
+from torch import Tensor
+
+from ngp_kornia.evaluation.datasets import LabelledImage
+from ngp_kornia.geometry.camera import horizon_from_zenith, pitch_roll_from_up, zenith_from_up
+from ngp_kornia.models import Calibration, ParserConfig
+
+__all__ = [
+    "Estimate",
+    "Method",
+    "MethodRun",
+    "calibrate_method",
+    "estimate_from_calibration",
+    "failed_estimate",
+    "level_centre",
+    "lu_vp_detect_method",
+    "parse_weights_spec",
+    "run_interleaved",
+    "weights_and_config",
+]
+
+
+@dataclass
+class Estimate:
+    """One method's answer for one image, in this package's conventions (float64, degrees).
+
+    Attributes:
+        up: (3,) up vector in camera coordinates.
+        horizon: (3,) horizon line in pixels.
+        pitch: degrees.
+        roll: degrees.
+        fov_v: vertical field of view in degrees; ``None`` when the method does not estimate it.
+        extra: per-image values kept with the errors (e.g. ``focal``, ``valid``, ``score``).
+    """
+
+    up: Tensor
+    horizon: Tensor
+    pitch: float
+    roll: float
+    fov_v: float | None = None
+    extra: dict = field(default_factory=dict)
+
+
+#: a method under evaluation
+Method = Callable[[LabelledImage], Estimate]
+
+
+def failed_estimate() -> Estimate:
+    """The estimate of a method that raised: NaN everywhere, counted as a failure (and a miss in the AUC)."""
+    nan3 = torch.full((3,), math.nan, dtype=torch.float64)
+    return Estimate(nan3, nan3.clone(), math.nan, math.nan, math.nan)
+
+
+def estimate_from_calibration(result: Calibration) -> Estimate:
+    """The fields of one image's :class:`ngp_kornia.Calibration` that the evaluation uses, as float64 on the CPU;
+    ``focal``, ``valid`` and ``score`` go to :attr:`Estimate.extra`."""
+
+    def f64(t: Tensor) -> Tensor:
+        return t.detach().cpu().double()
+
+    return Estimate(
+        up=f64(result.up),
+        horizon=f64(result.horizon),
+        pitch=float(result.pitch),
+        roll=float(result.roll),
+        fov_v=float(result.fov_v),
+        extra={"focal": float(result.focal), "valid": bool(result.valid), "score": float(result.score)},
+    )
+
+
+def parse_weights_spec(spec: str | None) -> tuple[str | list[str], dict[str, str | bool]]:
+    """``NAME[:key=value,...]`` -> (weights for ``calibrate``, ParserConfig overrides as text or bool).
+
+    NAME is a weight set (none, zsnet, fsnet, full, default) or .pt paths joined by ``+``; the overrides set
+    :class:`ngp_kornia.ParserConfig` fields, e.g. ``full:top_k=1`` or ``fsnet:use_manhattan=false``.
+
+    Example:
+        >>> parse_weights_spec("full:top_k=4,use_manhattan=false")
+        ('full', {'top_k': '4', 'use_manhattan': False})
+        >>> parse_weights_spec("a.pt+b.pt")
+        (['a.pt', 'b.pt'], {})
+    """
+    if spec is None:
+        return "default", {}
+    name, _, rest = spec.partition(":")
+    weights: str | list[str] = name.split("+") if "+" in name else name
+    overrides: dict[str, str | bool] = {}
+    for item in filter(None, rest.split(",")):
+        key, _, value = item.partition("=")
+        overrides[key] = {"true": True, "false": False}.get(value.lower(), value)
+    return weights, overrides
+
+
+def weights_and_config(spec: str | None) -> tuple[str | list[str], ParserConfig]:
+    """A weights spec (see :func:`parse_weights_spec`) -> (weights for ``calibrate``, ParserConfig with the overrides).
+
+    Raises:
+        ValueError: an override names no ParserConfig field, or its value does not convert to the field's type.
+
+    Example:
+        >>> weights, config = weights_and_config("full:top_k=4")
+        >>> weights, config.top_k
+        ('full', 4)
+    """
+    weights, overrides = parse_weights_spec(spec)
+    types = {f.name: type(getattr(ParserConfig(), f.name)) for f in fields(ParserConfig)}
+    unknown = sorted(set(overrides) - set(types))
+    if unknown:
+        raise ValueError(f"unknown ParserConfig fields {unknown} in the weights spec {spec!r}; known: {sorted(types)}")
+    values = {}
+    for key, value in overrides.items():
+        try:
+            values[key] = value if isinstance(value, bool) else types[key](value)
+        except ValueError:
+            raise ValueError(f"{key}={value!r} in the weights spec {spec!r} is not a {types[key].__name__}") from None
+    return weights, ParserConfig(**values)
+
+
+def calibrate_method(spec: str | None = None, seed: int | None = None) -> Method:
+    """:func:`ngp_kornia.calibrate` on the image file under a weights spec, as a method.
+
+    Args:
+        spec: weights spec (:func:`parse_weights_spec`); ``None`` is the package default.
+        seed: sampling seed; ``None`` keeps the spec's (``ParserConfig.seed``, 0 unless overridden).
+    """
+    from ngp_kornia.api import calibrate
+
+    weights, config = weights_and_config(spec)
+    if seed is not None:
+        config = replace(config, seed=seed)
+
+    def run(image: LabelledImage) -> Estimate:
+        return estimate_from_calibration(
+            calibrate(str(image.image_path), weights=weights, seed=config.seed, config=config)
+        )
+
+    return run
+
+
+class _LSDReshaper:
+    """OpenCV >= 5 returns LSD lines as (N, 4); lu-vp-detect indexes them as (N, 1, 4)."""
+
+    def __init__(self, lsd) -> None:
+        self._lsd = lsd
+
+    def detect(self, image, *args, **kwargs):
+        out = self._lsd.detect(image, *args, **kwargs)
+        lines = out[0]
+        if lines is not None:
+            lines = np.asarray(lines).reshape(-1, 1, 4)
+        return (lines, *out[1:])
+
+    def __getattr__(self, name):
+        return getattr(self._lsd, name)
+
+
+class _Cv2Proxy:
+    """Stands in for ``cv2`` inside ``lu_vp_detect.vp_detection`` only; everything else is the real module."""
+
+    def __getattr__(self, name):
+        return getattr(cv2, name)
+
+    @staticmethod
+    def createLineSegmentDetector(*args, **kwargs):  # noqa: N802 (OpenCV's name)
+        return _LSDReshaper(cv2.createLineSegmentDetector(*args, **kwargs))
+
+
+def lu_vp_detect_method() -> Method:
+    """lu-vp-detect (the ``lu_vp_detect`` package, extra ``bench``) given the true focal length and principal point.
+
+    Its VPs are unit directions in the OpenCV camera frame (x right, y down, z forward: it lifts a pixel p to
+    ``(p - pp, f)``), checked against the York Urban ground truth. The vertical is the VP with the largest |y|.
+    The method needs :attr:`LabelledImage.K`; it gives no field of view (it is handed the true one).
+
+    Raises:
+        ImportError: lu-vp-detect is not installed (``pip install 'ngp-kornia[bench]'``).
+    """
+    import lu_vp_detect.vp_detection as vp_detection
+    from lu_vp_detect import VPDetection
+
+    if not isinstance(vp_detection.cv2, _Cv2Proxy):
+        vp_detection.cv2 = _Cv2Proxy()
+
+    def run(image: LabelledImage) -> Estimate:
+        bgr = cv2.imread(str(image.image_path), cv2.IMREAD_COLOR)
+        if bgr is None:
+            raise FileNotFoundError(image.image_path)
+        if image.K is None:
+            raise ValueError(f"{image.name}: lu-vp-detect needs the true focal length, and this image has no K")
+        K = image.K
+        detector = VPDetection(
+            length_thresh=30, principal_point=(float(K[0, 2]), float(K[1, 2])), focal_length=float(K[0, 0]), seed=0
+        )
+        vps = torch.as_tensor(np.asarray(detector.find_vps(bgr), dtype=np.float64))
+        if vps.shape != (3, 3) or not bool(torch.isfinite(vps).all()):
+            raise RuntimeError("lu-vp-detect returned no valid vanishing points")
+        v = vps[int(vps[:, 1].abs().argmax())]
+        up = -v if v[1] > 0 else v
+        up = up / up.norm()
+        horizon = horizon_from_zenith(K[None], zenith_from_up(K[None], up[None]))[0]
+        pitch, roll = pitch_roll_from_up(up[None])
+        return Estimate(up, horizon, float(pitch[0]), float(roll[0]), None)
+
+    return run
+
+
+def level_centre(image: LabelledImage) -> Estimate:
+    """The trivial baseline: a level camera, up = (0, -1, 0), horizon y = (H - 1) / 2 (through the image centre)."""
+    up = torch.tensor([0.0, -1.0, 0.0], dtype=torch.float64)
+    horizon = torch.tensor([0.0, 1.0, -(image.height - 1) / 2.0], dtype=torch.float64)
+    return Estimate(up, horizon, 0.0, 0.0, None)
+
+
+@dataclass
+class MethodRun:
+    """What one method gave on a list of images.
+
+    Attributes:
+        estimates: one per image (:func:`failed_estimate` where the method raised).
+        seconds: wall time of all the timed calls.
+        exceptions: ``"name: error"`` for each image where the method raised.
+    """
+
+    estimates: list[Estimate] = field(default_factory=list)
+    seconds: float = 0.0
+    exceptions: list[str] = field(default_factory=list)
+
+    @property
+    def seconds_per_image(self) -> float:
+        """Mean wall time of one call (NaN before any call)."""
+        return self.seconds / len(self.estimates) if self.estimates else math.nan
+
+
+def run_interleaved(
+    methods: dict[str, Method], images: Sequence[LabelledImage], progress: TextIO | None = sys.stderr
+) -> dict[str, MethodRun]:
+    """Run every method on every image, image by image, timing each call.
+
+    One untimed warm-up call per method comes first (on the first image). Then, for image ``i``, the methods run in
+    their order rotated by ``i``, so a burst of load from other jobs hits each method alike. A method that raises
+    gets :func:`failed_estimate` for that image and the error is kept in :attr:`MethodRun.exceptions`.
+
+    Args:
+        methods: name -> method.
+        images: the images.
+        progress: stream for a one-line progress counter, or ``None``.
+
+    Returns:
+        name -> :class:`MethodRun`, estimates in the order of ``images``.
+    """
+    names = list(methods)
+    if not names:
+        return {}
+    for name in names:
+        if images:
+            try:
+                methods[name](images[0])
+            except Exception as e:  # reported again, per image, below
+                print(f"[{name}] warm-up failed: {e!r}", file=progress or sys.stderr)
+    runs = {name: MethodRun() for name in names}
+    for i, image in enumerate(images):
+        for name in names[i % len(names) :] + names[: i % len(names)]:
+            start = time.perf_counter()
+            try:
+                estimate = methods[name](image)
+            except Exception as e:
+                estimate = failed_estimate()
+                runs[name].exceptions.append(f"{image.name}: {e!r}")
+            runs[name].seconds += time.perf_counter() - start
+            runs[name].estimates.append(estimate)
+        if progress is not None:
+            print(f"\r{i + 1}/{len(images)} {image.name}", end="", file=progress, flush=True)
+    if progress is not None and images:
+        print(file=progress)
+    return runs

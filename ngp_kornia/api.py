@@ -14,11 +14,11 @@ import torch
 from torch import Tensor
 
 from ngp_kornia.detect import detect_segments_gray, pad_segments
-from ngp_kornia.io import as_batch, read_rgb
+from ngp_kornia.io import as_batch, read_rgb_oriented
 from ngp_kornia.models import Calibration, NeuralGeometricParser, ParserConfig
 from ngp_kornia.models.weights import load_network, network_name, shipped_weights
 
-__all__ = ["DEFAULT_WEIGHTS", "WEIGHTS", "calibrate", "load_parser"]
+__all__ = ["DEFAULT_WEIGHTS", "WEIGHTS", "calibrate", "load_parser", "with_orientation"]
 
 #: weight sets ``calibrate`` accepts by name; paths to weights files (``.pt``) work too.
 WEIGHTS = ("default", "none", "zsnet", "fsnet", "full")
@@ -83,7 +83,8 @@ def calibrate(
     """Calibrate a camera from one photo (or a batch) of a man-made scene.
 
     Args:
-        image: a file path, an HxWx3 uint8 RGB array (HxW greyscale, RGBA and uint16 are converted), or a float
+        image: a file path (decoded as displayed: the EXIF orientation is applied, and reported in the result's
+            ``exif_orientation``; files over the pixel limit of :mod:`ngp_kornia.io` are refused), an HxWx3 uint8 RGB array (HxW greyscale, RGBA and uint16 are converted), or a float
             tensor (3, H, W) or (B, 3, H, W) in [0, 1] on any device.
         weights: ``"default"`` (the best path shipped), ``"none"`` (the untrained geometric path), ``"zsnet"`` (zenith
             candidates scored by the shipped ZSNet), ``"fsnet"`` (frames rescored by the shipped FSNet), ``"full"``
@@ -98,7 +99,8 @@ def calibrate(
         y down, z forward. Pitch > 0 looks up; roll > 0 when the scene's up leans right in the image. Degrees.
 
     Raises:
-        ImageError: unreadable, truncated, too small (< 32 px) or NaN input; the message says what to fix.
+        ImageReadError: unreadable, truncated, corrupt, too small (< 32 px), too large or NaN input; the message
+            says what to fix.
         WeightsError: a missing, corrupt or mismatched weights file.
         TypeError: an input type or dtype that is not supported.
 
@@ -108,14 +110,20 @@ def calibrate(
         ['K', 'R', 'focal', 'fov_h']
     """
     cfg = replace(config or ParserConfig(), seed=seed)
-    segments = mask = None
+    segments = mask = orientation = None
     if isinstance(image, Tensor):
         batch, batched = as_batch(image)
     else:  # detect lines on the 8-bit image we already have instead of converting back from float
-        rgb, batched = read_rgb(image), False
+        (rgb, orientation), batched = read_rgb_oriented(image), False
         batch = torch.from_numpy(rgb).permute(2, 0, 1)[None].float().div(255.0)
         segments, mask = segments_of_rgb(rgb, cfg)
     parser = _parser(weights, cfg, copy=False).to(batch.device)  # the cached networks, read only
     with torch.no_grad():
         result = parser(batch, segments, mask)
-    return result if batched else result[0]
+    result = result if batched else result[0]
+    return result if orientation is None else with_orientation(result, orientation)
+
+
+def with_orientation(result: Calibration, orientation: int) -> Calibration:
+    """An unbatched result with the EXIF orientation of the file it came from (see ``Calibration.exif_orientation``)."""
+    return replace(result, exif_orientation=torch.tensor(orientation, device=result.focal.device))

@@ -10,6 +10,7 @@ from pathlib import Path
 import torch
 from torch import nn
 
+from ngp_kornia.errors import WeightsError
 from ngp_kornia.models.fsnet import FSNet
 from ngp_kornia.models.zsnet import ZSNet
 
@@ -20,10 +21,6 @@ VERSION = 1
 WEIGHTS_DIR = Path(__file__).resolve().parent.parent / "weights"
 #: the networks a weights file may hold, by name
 NETWORKS: dict[str, type[nn.Module]] = {"FSNet": FSNet, "ZSNet": ZSNet}
-
-
-class WeightsError(ValueError):
-    """A weights file that is missing, unreadable, or does not match the network it should hold."""
 
 
 def save_network(net: nn.Module, path: str | Path, settings: dict, metadata: dict | None = None) -> Path:

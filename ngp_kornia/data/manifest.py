@@ -46,6 +46,7 @@ from typing import overload
 import torch
 from torch import Tensor
 
+from ngp_kornia.errors import ManifestError
 from ngp_kornia.geometry.camera import (
     focal_from_fov,
     fov_from_focal,
@@ -60,7 +61,6 @@ from ngp_kornia.geometry.camera import (
     zenith_from_horizon,
     zenith_from_up,
 )
-from ngp_kornia.errors import ManifestError
 from ngp_kornia.io import ImageError, exif_orientation, read_image_file
 
 __all__ = ["COLUMNS", "CSVManifest", "ManifestError", "ManifestSample", "read_image_size"]

@@ -14,6 +14,7 @@ import torch
 from torch import Tensor
 
 from ngp_kornia.detect import detect_segments_gray, pad_segments
+from ngp_kornia.errors import WeightsError
 from ngp_kornia.io import as_batch, read_rgb_oriented
 from ngp_kornia.models import Calibration, NeuralGeometricParser, ParserConfig
 from ngp_kornia.models.weights import load_network, network_name, shipped_weights
@@ -43,7 +44,17 @@ def _networks(weights: str | Path | Sequence[str | Path]) -> list[torch.nn.Modul
         raise ValueError(
             f"unknown weights {weights!r}; choose one of {', '.join(WEIGHTS)} or give paths to .pt weights files"
         )
-    return [_network(str(p)) for p in paths]
+    nets, seen = [], {}
+    for path in paths:
+        net = _network(str(path))
+        name = type(net).__name__
+        if name in seen:
+            raise WeightsError(
+                f"two {name} weights files given ({seen[name]}, {path}); give at most one ZSNet and one FSNet file"
+            )
+        seen[name] = path
+        nets.append(net)
+    return nets
 
 
 def load_parser(

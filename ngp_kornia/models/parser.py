@@ -40,6 +40,7 @@ from ngp_kornia.geometry import (
 from ngp_kornia.models.result import Calibration
 from ngp_kornia.sampling import (
     FrameCandidates,
+    Generators,
     cat_frames,
     horizontal_line_mask,
     sample_frames,
@@ -149,14 +150,15 @@ class NeuralGeometricParser(nn.Module):
         segments = segments.to(images)
         if segments.shape[1] == 0:  # no lines anywhere in the batch: one masked dummy keeps every shape non-empty
             segments, mask = segments.new_zeros(len(images), 1, 2, 2), mask.new_zeros(len(images), 1)
-        generator = torch.Generator().manual_seed(cfg.seed)
-        frames, scores = self.score_frames(segments, mask, height, width, generator)
+        # one generator per image, each seeded alike: an image's answer does not depend on its batch or position
+        generators = [torch.Generator().manual_seed(cfg.seed) for _ in range(len(images))]
+        frames, scores = self.score_frames(segments, mask, height, width, generators)
         if self.fsnet is not None:
             frames, scores = self.rescore_frames(images, segments, mask, frames, scores)
         return self.calibrate_from_frames(frames, scores, height, width)
 
     def score_frames(
-        self, segments: Tensor, mask: Tensor, height: int, width: int, generator: torch.Generator
+        self, segments: Tensor, mask: Tensor, height: int, width: int, generator: Generators
     ) -> tuple[FrameCandidates, Tensor]:
         """Sample frame candidates (pseudo camera) and score each one: (B, F) scores, zero for invalid frames."""
         cfg = self.config

@@ -16,6 +16,7 @@ __all__ = [
     "CheckpointError",
     "ConfigError",
     "ImageReadError",
+    "InputError",
     "ManifestError",
     "NGPError",
     "OutputError",
@@ -29,6 +30,10 @@ class NGPError(Exception):
 
 class ImageReadError(NGPError, ValueError):
     """An input image that cannot be calibrated (missing, unreadable, corrupt, too small or too large)."""
+
+
+class InputError(NGPError, ValueError):
+    """A tensor given to a module that it cannot use (shapes that do not match, NaN where values are needed)."""
 
 
 class WeightsError(NGPError, ValueError):

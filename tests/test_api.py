@@ -191,7 +191,8 @@ def test_version_is_exposed():
 def test_an_image_gets_the_same_answer_in_a_batch_as_alone(weights):
     from ngp_kornia.data.synth.render import render_scene
 
-    images = [torch.from_numpy(render_scene(s, size=(320, 240)).image).permute(2, 0, 1).float() / 255 for s in (1, 2, 3)]
+    scenes = [render_scene(s, size=(320, 240)).image for s in (1, 2, 3)]
+    images = [torch.from_numpy(image).permute(2, 0, 1).float() / 255 for image in scenes]
     order = [0, 1, 2, 0]  # the same image at positions 0 and 3, beside images with other line counts
     batch = calibrate(torch.stack([images[i] for i in order]), weights=weights)
     for position, i in enumerate(order):

@@ -13,11 +13,12 @@ import torch
 from torch import Tensor
 
 from ngp_kornia.detect import detect_segments
-from ngp_kornia.io import as_batch, read_rgb
+from ngp_kornia.errors import WeightsError
+from ngp_kornia.io import as_batch, read_rgb_oriented
 from ngp_kornia.models import Calibration, NeuralGeometricParser, ParserConfig
 from ngp_kornia.models.weights import load_network, network_name, shipped_weights
 
-__all__ = ["DEFAULT_WEIGHTS", "WEIGHTS", "calibrate", "load_parser"]
+__all__ = ["DEFAULT_WEIGHTS", "WEIGHTS", "calibrate", "load_parser", "with_orientation"]
 
 #: weight sets ``calibrate`` accepts by name; paths to weights files (``.pt``) work too.
 WEIGHTS = ("default", "none", "zsnet", "fsnet", "full")
@@ -42,7 +43,17 @@ def _networks(weights: str | Path | Sequence[str | Path]) -> list[torch.nn.Modul
         raise ValueError(
             f"unknown weights {weights!r}; choose one of {', '.join(WEIGHTS)} or give paths to .pt weights files"
         )
-    return [_network(str(p)) for p in paths]
+    nets, seen = [], {}
+    for path in paths:
+        net = _network(str(path))
+        name = type(net).__name__
+        if name in seen:
+            raise WeightsError(
+                f"two {name} weights files given ({seen[name]}, {path}); give at most one ZSNet and one FSNet file"
+            )
+        seen[name] = path
+        nets.append(net)
+    return nets
 
 
 def load_parser(
@@ -75,9 +86,10 @@ def calibrate(
     """Calibrate a camera from one photo (or a batch, or a list of photos) of a man-made scene.
 
     Args:
-        image: a file path, an HxWx3 uint8 RGB array (HxW greyscale, RGBA and uint16 are converted), or a float
-            tensor (3, H, W) or (B, 3, H, W) in [0, 1] on any device; or a list (or tuple) of any of these, of any
-            sizes, mixed freely.
+        image: a file path (decoded as displayed: the EXIF orientation is applied, and reported in the result's
+            ``exif_orientation``; files over the pixel limit of :mod:`ngp_kornia.io` are refused), an HxWx3 uint8
+            RGB array (HxW greyscale, RGBA and uint16 are converted), or a float tensor (3, H, W) or (B, 3, H, W) in
+            [0, 1] on any device; or a list (or tuple) of any of these, of any sizes, mixed freely.
         weights: ``"default"`` (the best path shipped), ``"none"`` (the untrained geometric path), ``"zsnet"`` (zenith
             candidates scored by the shipped ZSNet), ``"fsnet"`` (frames rescored by the shipped FSNet), ``"full"``
             (both), or the path of a weights file (or a list of paths: one ZSNet and one FSNet file).
@@ -92,7 +104,8 @@ def calibrate(
         For a list: a list of results, one per item, each exactly what that item gives alone (same seed).
 
     Raises:
-        ImageError: unreadable, truncated, too small (< 32 px) or NaN input; the message says what to fix.
+        ImageReadError: unreadable, truncated, corrupt, too small (< 32 px), too large or NaN input; the message
+            says what to fix.
         WeightsError: a missing, corrupt or mismatched weights file.
         TypeError: an input type or dtype that is not supported.
 
@@ -106,17 +119,23 @@ def calibrate(
     if isinstance(image, (list, tuple)):
         return _calibrate_list(image, weights, seed, config)
     cfg = replace(config or ParserConfig(), seed=seed)
-    segments = mask = None
+    segments = mask = orientation = None
     if isinstance(image, Tensor):
         batch, batched = as_batch(image)
     else:  # detect lines on the 8-bit image we already have instead of converting back from float
-        rgb, batched = read_rgb(image), False
+        (rgb, orientation), batched = read_rgb_oriented(image), False
         batch = torch.from_numpy(rgb).permute(2, 0, 1)[None].float().div(255.0)
         segments, mask = detect_segments(rgb, cfg)
     parser = _parser(weights, cfg, copy=False).to(batch.device)  # the cached networks, read only
     with torch.no_grad():
         result = parser(batch, segments, mask)
-    return result if batched else result[0]
+    result = result if batched else result[0]
+    return result if orientation is None else with_orientation(result, orientation)
+
+
+def with_orientation(result: Calibration, orientation: int) -> Calibration:
+    """An unbatched result with the EXIF orientation of the file it came from (see ``Calibration.exif_orientation``)."""
+    return replace(result, exif_orientation=torch.tensor(orientation, device=result.focal.device))
 
 
 def _calibrate_list(images, weights, seed: int, config: ParserConfig | None) -> list[Calibration]:

@@ -12,11 +12,18 @@ from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
+from kornia.core.exceptions import BaseError as KorniaCheckError
+
+from ngp_kornia.errors import NGPError, OutputError
 
 if TYPE_CHECKING:
     from ngp_kornia.models import ParserConfig
 
 __all__ = ["main"]
+
+#: what the commands report as one line ``ngp: error: <message>`` instead of a traceback
+USER_ERRORS = (NGPError, KorniaCheckError, ValueError, TypeError, OSError)
+FORCE_HELP = "overwrite an existing output file (never one of the input images)"
 
 WEIGHTS_HELP = (
     "'default' (the best shipped), 'none' (geometric path), 'zsnet', 'fsnet', 'full' (both networks), or a .pt "
@@ -59,6 +66,7 @@ def _parser() -> argparse.ArgumentParser:
     cal.add_argument(
         "--overlay", help="write an overlay PNG here (for several images: a folder, one <name>_overlay.png each)"
     )
+    cal.add_argument("--force", action="store_true", help=FORCE_HELP)
     pred = sub.add_parser("predict", help="calibrate every image of a folder into a JSON Lines file")
     pred.add_argument("folder", help="folder of images")
     pred.add_argument("--out", required=True, help="the .jsonl file to write: one JSON object per image")
@@ -85,6 +93,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     rect.add_argument("--weights", default="default", help=WEIGHTS_HELP)
     rect.add_argument("--seed", type=int, default=0, help="seed of the candidate sampling")
+    rect.add_argument("--force", action="store_true", help=FORCE_HELP)
     demo = sub.add_parser("demo", help="calibrate a built-in rendered example and print the estimate and the truth")
     demo.add_argument("--overlay", help="write the overlay PNG here")
     demo.add_argument("--seed", type=int, default=2, help="which built-in scene to render")
@@ -98,6 +107,7 @@ def _parser() -> argparse.ArgumentParser:
     render.add_argument("--count", type=int, default=16, help="number of scenes")
     render.add_argument("--seed", type=int, default=0, help="dataset seed: each image gets its own seed from it")
     render.add_argument("--size", default="640x480", help="image size WxH in pixels")
+    render.add_argument("--force", action="store_true", help="write into a folder that is not empty")
     for command in sub.choices.values():  # defaults in every --help
         command.formatter_class = _HelpFormatter
     return p
@@ -115,39 +125,73 @@ def _overlay_path(target: str, image: str, many: bool) -> Path:
     return Path(target) / f"{Path(image).stem}_overlay.png"
 
 
+def check_output(path: Path, force: bool, inputs: list[str] = ()) -> None:
+    """Refuse an output image path that OpenCV cannot write (no or unknown extension), that is one of the inputs,
+    or that exists already (unless ``force``).
+
+    Raises:
+        OutputError: with the fix in the message.
+    """
+    if path.is_dir():
+        raise OutputError(f"{path} is a folder; give the image file to write, e.g. {path / 'out.png'}")
+    if not cv2.haveImageWriter(str(path)):
+        raise OutputError(f"{path}: cannot tell the image format from the extension; end the name with .png or .jpg")
+    if path.exists():
+        if any(path.resolve() == Path(i).resolve() for i in inputs):
+            raise OutputError(f"{path} is one of the input images; write the output to another file")
+        if not force:
+            raise OutputError(f"{path} exists; add --force to overwrite it, or choose another name")
+
+
+def _write_image(path: Path, rgb: np.ndarray) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if not cv2.imwrite(str(path), cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2BGR)):
+        raise OutputError(f"could not write {path}")
+
+
 def _write_overlay(path: Path, rgb: np.ndarray, calibration, config: ParserConfig | None = None) -> None:
     from ngp_kornia.detect import detect_segments
     from ngp_kornia.viz import draw_calibration
 
     segments = detect_segments(rgb, config)[0][0].numpy()  # the lines the calibration saw (same settings)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    if not cv2.imwrite(str(path), cv2.cvtColor(draw_calibration(rgb, calibration, segments), cv2.COLOR_RGB2BGR)):
-        raise OSError(f"could not write the overlay to {path}")
+    _write_image(path, draw_calibration(rgb, calibration, segments))
 
 
 def _calibrate(args: argparse.Namespace) -> int:
-    from ngp_kornia.api import calibrate
-    from ngp_kornia.io import read_image_file
+    from ngp_kornia.api import calibrate, with_orientation
+    from ngp_kornia.io import read_image
 
+    many = len(args.images) > 1
+    if args.overlay and many and Path(args.overlay).is_file():
+        raise OutputError(f"--overlay {args.overlay} is a file; for several images give a folder")
+    if args.overlay and not many:
+        check_output(Path(args.overlay), args.force, args.images)
     failed = 0
     for start in range(0, len(args.images), _CHUNK):  # a few images at a time, so results come as they are done
         loaded = []
         for image in args.images[start : start + _CHUNK]:
             try:
-                loaded.append((image, read_image_file(image)))
-            except (ValueError, TypeError, OSError) as err:
+                if args.overlay and many:
+                    check_output(_overlay_path(args.overlay, image, True), args.force, args.images)
+                loaded.append((image, *read_image(image)))
+            except USER_ERRORS as err:
                 failed += 1
-                print(f"ngp: error: {err}", file=sys.stderr, flush=True)
-        results = calibrate([rgb for _, rgb in loaded], weights=args.weights, seed=args.seed) if loaded else []
-        for (image, rgb), result in zip(loaded, results, strict=True):
+                print(f"ngp: error: {_one_line(err)}", file=sys.stderr, flush=True)
+        results = calibrate([rgb for _, rgb, _ in loaded], weights=args.weights, seed=args.seed) if loaded else []
+        for (image, rgb, orientation), result in zip(loaded, results, strict=True):
+            result = with_orientation(result, orientation)
             print(json.dumps({"image": image, **result.to_dict()}), flush=True)
             try:
                 if args.overlay:
-                    _write_overlay(_overlay_path(args.overlay, image, len(args.images) > 1), rgb, result)
-            except (ValueError, TypeError, OSError) as err:
+                    _write_overlay(_overlay_path(args.overlay, image, many), rgb, result)
+            except USER_ERRORS as err:
                 failed += 1
-                print(f"ngp: error: {err}", file=sys.stderr, flush=True)
+                print(f"ngp: error: {_one_line(err)}", file=sys.stderr, flush=True)
     return 1 if failed else 0
+
+
+def _one_line(err: BaseException) -> str:
+    return " ".join(str(err).split()) or type(err).__name__
 
 
 def _predict(args: argparse.Namespace) -> int:
@@ -174,11 +218,18 @@ def _predict(args: argparse.Namespace) -> int:
             seed=args.seed,
             progress_bar=sys.stdout.isatty(),
         )
-    except (ValueError, OSError) as err:
-        print(f"ngp: error: {err}", file=sys.stderr, flush=True)
+    except USER_ERRORS as err:
+        print(f"ngp: error: {_one_line(err)}", file=sys.stderr, flush=True)
         return 1
     if counts is None:  # another process of a multi-process run: the main one reports
         return 0
+    if counts["interrupted"]:
+        print(
+            f"ngp: interrupted: the {counts['images']} images finished are in {args.out}; "
+            "the run does not resume: run the command again to calibrate the whole folder",
+            file=sys.stderr,
+        )
+        return 130
     print(f"{counts['images']} rows written to {args.out}")
     if counts["errors"]:
         print(
@@ -197,7 +248,9 @@ def _rectify(args: argparse.Namespace) -> int:
     from ngp_kornia.geometry.rectify import frontal_homography, level_homography, rectify, upright_homography
     from ngp_kornia.io import read_image_file
 
+    path = Path(args.output)
     try:
+        check_output(path, args.force, [args.image])
         rgb = read_image_file(args.image)
         result = calibrate(rgb, weights=args.weights, seed=args.seed)
         K, R = result.K[None].double(), result.R[None].double()
@@ -211,12 +264,9 @@ def _rectify(args: argparse.Namespace) -> int:
         crop = args.crop or ("valid" if args.mode == "frontal" else "keep")
         warped, _ = rectify(image, homography, crop=crop)  # a too oblique view with keep: the error names --crop
         out = warped[0].permute(1, 2, 0).mul(255.0).round().clamp(0, 255).to(torch.uint8).numpy()
-        path = Path(args.output)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        if not cv2.imwrite(str(path), cv2.cvtColor(np.ascontiguousarray(out), cv2.COLOR_RGB2BGR)):
-            raise OSError(f"could not write the rectified image to {path}")
-    except (ValueError, TypeError, OSError) as err:
-        print(f"ngp: error: {err}", file=sys.stderr, flush=True)
+        _write_image(path, out)
+    except USER_ERRORS as err:
+        print(f"ngp: error: {_one_line(err)}", file=sys.stderr, flush=True)
         return 1
     print(f"{args.mode} image ({out.shape[1]}x{out.shape[0]}) written to {path}")
     return 0
@@ -234,6 +284,7 @@ def _demo(args: argparse.Namespace) -> int:
     for key in ("focal", "fov_v", "fov_h", "pitch", "roll"):
         print(f"{key:8}{result[key]:10.2f}{truth[key]:10.2f}")
     if args.overlay:
+        check_output(Path(args.overlay), force=True)
         _write_overlay(Path(args.overlay), scene.image, calibration)
         print(f"overlay written to {args.overlay}")
     return 0
@@ -250,6 +301,11 @@ def _render(args: argparse.Namespace) -> int:
     if args.count < 1:
         print("ngp: error: --count must be at least 1", file=sys.stderr)
         return 2
+    outdir = Path(args.outdir)
+    if outdir.exists() and not outdir.is_dir():
+        raise OutputError(f"{outdir} is a file; give a folder to render into")
+    if outdir.is_dir() and any(outdir.iterdir()) and not args.force:
+        raise OutputError(f"{outdir} is not empty; add --force to write into it (same names are replaced)")
     from tqdm import tqdm
 
     # a progress bar on a terminal only, and only for runs long enough to need one
@@ -267,7 +323,7 @@ def _check_weights(parser: argparse.ArgumentParser, command: str, weights: str) 
 
     try:
         _networks(weights)
-    except (ValueError, TypeError, OSError) as err:
+    except USER_ERRORS as err:
         subcommands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
         subcommands.choices[command].error(f"--weights: {err}")
 
@@ -282,12 +338,16 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return commands[args.command](args)
     except KeyboardInterrupt:
+        print("ngp: interrupted", file=sys.stderr)
         return 130
     except BrokenPipeError:  # stop quietly, like other command-line tools, when the output is cut short
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 141
+    except USER_ERRORS as err:
+        print(f"ngp: error: {_one_line(err)}", file=sys.stderr)
+        return 1
     except Exception as err:  # a one-line message instead of a traceback, whatever went wrong
-        print(f"ngp: error: {type(err).__name__}: {err}", file=sys.stderr)
+        print(f"ngp: error: {type(err).__name__}: {_one_line(err)}", file=sys.stderr)
         return 1
 
 

@@ -1,19 +1,27 @@
 """Calibrating a whole folder with Lightning's ``Trainer.predict``, one JSON line per image, in one or several
 processes (``ngp predict FOLDER --out results.jsonl --devices N``).
 
-Rows are written as batches finish and nothing is kept in memory, so a folder of any size can be processed. With
-several processes (DDP on the CPU, gloo backend) each rank writes its own part file ``<out>.rank<R>`` holding
-``<dataset index>\\t<json>`` lines; after a barrier rank 0 merges the parts in dataset order into ``out``, keeping
-each index once, and deletes them.
+Rows are written as batches finish and nothing is kept in memory, so a folder of any size can be processed. They go
+to a hidden temporary file beside ``out`` (``.<out name>.<run id>.tmp``) that is renamed to ``out`` at the end, so
+``out`` is never half-written. With several processes (DDP on the CPU, gloo backend) each rank writes its own part
+file ``.<out name>.<run id>.part<R>`` holding ``<dataset index>\\t<json>`` lines; after a barrier rank 0 merges the
+parts in dataset order, keeping each index once, and deletes them (the run id is drawn per run, so no other file is
+ever touched). An ``out`` that is one of the input images is refused.
+
+Every image is isolated: any exception while reading or calibrating it becomes its error row, never the end of the
+run. An interrupted run (Ctrl+C, SIGINT) still leaves ``out`` holding the rows of the images finished so far, in
+folder order, and the run reports it; it does not resume: running the command again starts over.
 
 Every image is calibrated on its own, exactly as :func:`ngp_kornia.calibrate` does for a file (LSD on the decoded
-8-bit image, the candidate sampling seeded per call), so a row equals what ``ngp calibrate`` prints for that file.
+8-bit image, the candidate sampling seeded per image), so a row equals what ``ngp calibrate`` prints for that file.
 """
 
 from __future__ import annotations
 
 import heapq
 import json
+import secrets
+import signal
 import warnings
 from collections.abc import Iterator
 from dataclasses import replace
@@ -26,8 +34,10 @@ from lightning.pytorch.callbacks import BasePredictionWriter
 from torch import Tensor
 from torch.utils.data import DataLoader, Dataset
 
-from ngp_kornia.api import load_parser
+from ngp_kornia.api import load_parser, with_orientation
 from ngp_kornia.data.folder import IMAGE_EXTENSIONS, ImageFolder
+from ngp_kornia.errors import OutputError
+from ngp_kornia.io import read_rgb_oriented
 from ngp_kornia.models import Calibration, NeuralGeometricParser, ParserConfig
 
 __all__ = ["FolderImages", "FolderItem", "FolderPredictor", "JsonlWriter", "merge_parts", "predict_folder"]
@@ -41,6 +51,7 @@ class FolderItem(NamedTuple):
     name: str
     image: Tensor | None
     error: str | None
+    orientation: int | None = None
 
 
 class FolderImages(Dataset):
@@ -54,8 +65,24 @@ class FolderImages(Dataset):
         return len(self.folder)
 
     def __getitem__(self, index: int) -> FolderItem:
-        path, image, error = self.folder.safe_load(index)
-        return FolderItem(index, path.relative_to(self.folder.root).as_posix(), image, error)
+        path = self.folder.paths[index]
+        name = path.relative_to(self.folder.root).as_posix()
+        try:
+            rgb, orientation = read_rgb_oriented(path)
+        except Exception as err:  # whatever goes wrong with one file is that file's error row
+            return FolderItem(index, name, None, _reason(err, path))
+        image = torch.from_numpy(rgb).permute(2, 0, 1).float().div(255.0)
+        return FolderItem(index, name, image, None, orientation)
+
+
+def _reason(err: BaseException, path) -> str:
+    """One line for an error row: the message, naming the file."""
+    text = " ".join(str(err).split()) or type(err).__name__
+    if isinstance(err, OSError) and err.strerror:
+        text = f"cannot read the file: {err.strerror}"
+    elif not isinstance(err, ValueError):
+        text = f"{type(err).__name__}: {text}"
+    return text if str(path) in text else f"{path}: {text}"
 
 
 def collate_items(items: list[FolderItem]) -> list[FolderItem]:
@@ -89,20 +116,24 @@ class FolderPredictor(L.LightningModule):
                 rows.append((item.index, {"image": item.name, "error": item.error}))
                 continue
             try:
-                rows.append((item.index, {"image": item.name, **self.calibrate(item.image).to_dict()}))
-            except ValueError as err:
-                rows.append((item.index, {"image": item.name, "error": str(err)}))
+                result = self.calibrate(item.image)
+                if item.orientation is not None:
+                    result = with_orientation(result, item.orientation)
+                rows.append((item.index, {"image": item.name, **result.to_dict()}))
+            except Exception as err:  # one image's failure is its row, never the end of the run
+                rows.append((item.index, {"image": item.name, "error": _reason(err, item.name)}))
         return rows
 
 
 class JsonlWriter(BasePredictionWriter):
-    """Writes each batch's rows as soon as it is predicted: straight to ``out`` in a single process, to the part
-    file ``<out>.rank<R>`` (lines ``<index>\\t<json>``) in a multi-process run, which rank 0 then merges into
-    ``out``.
+    """Writes each batch's rows as soon as it is predicted: to a temporary file beside ``out`` in a single process,
+    to a part file per rank (lines ``<index>\\t<json>``) in a multi-process run, which rank 0 merges; the result
+    is renamed to ``out`` at the end, or when the run is interrupted (then holding the images finished so far).
 
     Attributes:
         images: rows written by this process; after the run, on every rank, the total over all ranks.
         errors: error rows, counted the same way.
+        interrupted: the run was stopped (KeyboardInterrupt or an exception) before every image was done.
     """
 
     def __init__(self, out: str | Path) -> None:
@@ -110,17 +141,29 @@ class JsonlWriter(BasePredictionWriter):
         self.out = Path(out)
         self.file: IO[str] | None = None
         self.multi = False
+        self.rank, self.world = 0, 1
+        self.run_id = ""
         self.images = self.errors = 0
+        self.interrupted = False
 
     def part(self, rank: int) -> Path:
-        """The part file of a rank."""
-        return self.out.with_name(f"{self.out.name}.rank{rank}")
+        """The part file of a rank (hidden, named by this run's id so no other file is ever touched)."""
+        return self.out.with_name(f".{self.out.name}.{self.run_id}.part{rank}")
+
+    @property
+    def temporary(self) -> Path:
+        """The file the rows go to before it is renamed to ``out``."""
+        return self.out.with_name(f".{self.out.name}.{self.run_id}.tmp")
 
     def on_predict_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         self.multi = trainer.world_size > 1
+        self.rank, self.world = trainer.global_rank, trainer.world_size
         self.images = self.errors = 0
+        self.interrupted = False
+        run_id = secrets.token_hex(4)
+        self.run_id = trainer.strategy.broadcast(run_id, src=0) if self.multi else run_id
         self.out.parent.mkdir(parents=True, exist_ok=True)
-        path = self.part(trainer.global_rank) if self.multi else self.out
+        path = self.part(self.rank) if self.multi else self.temporary
         self.file = path.open("w", encoding="utf-8")
 
     def write_on_batch_end(
@@ -131,23 +174,37 @@ class JsonlWriter(BasePredictionWriter):
             self.file.write(f"{index}\t{line}\n" if self.multi else line + "\n")
             self.images += 1
             self.errors += "error" in row
-        self.file.flush()  # rows become visible as they are made, and survive a crash later in the run
+        self.file.flush()  # rows survive an interruption or a crash later in the run
 
     def on_predict_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         self.close()
         if not self.multi:
+            self.temporary.replace(self.out)
             return
         counts = torch.tensor([self.images, self.errors])
         self.images, self.errors = (int(v) for v in trainer.strategy.reduce(counts, reduce_op="sum"))
         trainer.strategy.barrier("ngp_predict_parts_written")
         if trainer.is_global_zero:
-            parts = [self.part(rank) for rank in range(trainer.world_size)]
-            self.images = merge_parts(parts, self.out)
-            for part in parts:
-                part.unlink()
+            self.images = self.finish()
 
     def on_exception(self, trainer: L.Trainer, pl_module: L.LightningModule, exception: BaseException) -> None:
+        """Interrupted: the main process keeps the rows finished so far, in folder order, as ``out``."""
         self.close()
+        self.interrupted = True
+        if self.rank == 0 and self.run_id:
+            if self.multi:
+                self.images = self.finish()
+            elif self.temporary.exists():
+                self.temporary.replace(self.out)
+
+    def finish(self) -> int:
+        """Merge the part files that exist into ``out`` (through the temporary file), delete them; rows written."""
+        parts = [p for p in (self.part(rank) for rank in range(self.world)) if p.exists()]
+        written = merge_parts(parts, self.temporary)
+        self.temporary.replace(self.out)
+        for part in parts:
+            part.unlink(missing_ok=True)
+        return written
 
     def close(self) -> None:
         if self.file is not None:
@@ -158,6 +215,8 @@ class JsonlWriter(BasePredictionWriter):
 def _read_part(path: Path) -> Iterator[tuple[int, str]]:
     with path.open(encoding="utf-8") as lines:
         for line in lines:
+            if not line.endswith("\n"):  # a process stopped in the middle of a line: that image is not done
+                return
             index, row = line.split("\t", 1)
             yield int(index), row
 
@@ -204,6 +263,14 @@ def _trainer(devices: int, writer: JsonlWriter, progress_bar: bool) -> L.Trainer
     )
 
 
+def _check_out(out: Path, images: ImageFolder) -> None:
+    if out.is_dir():
+        raise OutputError(f"--out {out} is a folder; give the .jsonl file to write, e.g. {out / 'results.jsonl'}")
+    target = out.resolve()
+    if any(path.resolve() == target for path in images.paths):
+        raise OutputError(f"--out {out} is one of the input images; give another file, e.g. results.jsonl")
+
+
 def predict_folder(
     folder: str | Path,
     out: str | Path,
@@ -218,14 +285,16 @@ def predict_folder(
 ) -> dict | None:
     """Calibrate every image of a folder into a JSON Lines file, one row per image in sorted path order.
 
-    A row is ``{"image": <path relative to folder>, **Calibration.to_dict()}``, or ``{"image": ..., "error":
-    <reason>}`` for a file that cannot be read. With ``devices > 1`` the work is split over that many CPU processes
+    A row is ``{"image": <path relative to folder>, **Calibration.to_dict()}`` (with ``exif_orientation``), or
+    ``{"image": ..., "error": <reason>}`` for a file that cannot be read or calibrated, whatever the reason. An
+    interrupted run (Ctrl+C) leaves ``out`` holding the rows of the images finished so far and returns with
+    ``"interrupted": True``; it does not resume. With ``devices > 1`` the work is split over that many CPU processes
     (Lightning's ``"ddp"`` strategy, gloo backend), at most one per image. Lightning starts them by running the
     current command again, so call this from a script or a command, not from an interactive session.
 
     Args:
         folder: the folder of images.
-        out: the ``.jsonl`` file to write (replaced if it exists).
+        out: the ``.jsonl`` file to write (replaced if it exists, once the run ends; never one of the images).
         devices: number of processes.
         weights: a weight set name or weights file, as for :func:`ngp_kornia.calibrate`.
         recursive: also calibrate the images of sub-folders.
@@ -236,19 +305,21 @@ def predict_folder(
         progress_bar: show Lightning's progress bar.
 
     Returns:
-        ``{"images": rows written, "errors": error rows}`` in the main process; None in the other processes of a
-        multi-process run.
+        ``{"images": rows written, "errors": error rows, "interrupted": bool}`` in the main process; None in the
+        other processes of a multi-process run.
 
     Raises:
         FileNotFoundError: ``folder`` does not exist.
         NotADirectoryError: ``folder`` is a file.
         ValueError: no images in ``folder``, ``devices`` or ``batch_size`` below 1, unknown weights.
+        OutputError: ``out`` is one of the images, or a folder.
     """
     if devices < 1:
         raise ValueError(f"devices must be at least 1, got {devices}")
     if batch_size < 1:
         raise ValueError(f"batch size must be at least 1, got {batch_size}")
     images = _check_folder(Path(folder), recursive)
+    _check_out(Path(out), images)
     devices = min(devices, len(images))  # Lightning's predict sampler refuses a process without an image
     module = FolderPredictor(load_parser(weights, replace(config or ParserConfig(), seed=seed)))
     loader = DataLoader(FolderImages(images), batch_size=batch_size, num_workers=num_workers, collate_fn=collate_items)
@@ -258,7 +329,14 @@ def predict_folder(
         # the parser, not the loader, is the bottleneck; and the pytree notice is between Lightning and torch
         warnings.filterwarnings("ignore", message=".*does not have many workers.*")
         warnings.filterwarnings("ignore", message=".*LeafSpec.*is deprecated.*", category=FutureWarning)
-        trainer.predict(module, loader, return_predictions=False)
+        handler = signal.getsignal(signal.SIGINT)
+        try:
+            trainer.predict(module, loader, return_predictions=False)
+        except SystemExit:  # Lightning's answer to Ctrl+C: the writer has kept the finished rows
+            if not writer.interrupted:
+                raise
+        finally:
+            signal.signal(signal.SIGINT, handler)  # Lightning ignores further Ctrl+C once it has seen one
     if not trainer.is_global_zero:
         return None
-    return {"images": writer.images, "errors": writer.errors}
+    return {"images": writer.images, "errors": writer.errors, "interrupted": writer.interrupted}

@@ -4,11 +4,15 @@ candidates and Manhattan-frame candidates.
 Everything works in the pseudo camera (:func:`ngp_kornia.geometry.to_pseudo_camera`): the image centre is the
 origin and one unit is half the image's long side, so a focal length ``f`` here is ``f * max(H, W) / 2`` pixels.
 Sampling is random, batched and reproducible through a ``torch.Generator``; variable counts are padded and masked.
+Every ``generator`` argument also takes a sequence of B generators, one per image: each image then draws from its
+own stream, and its candidates do not depend on the other images of the batch or on its position in it (the parser
+gives every image a generator seeded with the same seed, so an image gets in a batch the answer it gets alone).
 """
 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import torch
@@ -23,8 +27,12 @@ from ngp_kornia.geometry import (
     segment_vp_angle,
 )
 
+#: a random generator, or one per image of the batch
+Generators = torch.Generator | Sequence[torch.Generator] | None
+
 __all__ = [
     "FrameCandidates",
+    "Generators",
     "cat_frames",
     "frames_from_vps",
     "sample_horizontal_pair_frames",
@@ -40,14 +48,14 @@ __all__ = [
 
 
 def sample_pairs(
-    weights: Tensor, count: int, generator: torch.Generator | None = None
+    weights: Tensor, count: int, generator: Generators = None
 ) -> tuple[Tensor, Tensor, Tensor]:
     """Draw ``count`` random pairs of distinct items per row, each item with probability proportional to its weight.
 
     Args:
         weights: (B, N) non-negative weights; zero for items that must not be drawn.
         count: pairs per row.
-        generator: random generator for reproducibility.
+        generator: random generator for reproducibility, or one per row.
 
     Returns:
         first (B, count) and second (B, count) long indices and valid (B, count) bool; a pair is invalid when its
@@ -65,9 +73,22 @@ def sample_pairs(
         return empty, empty, torch.zeros(B, count, dtype=torch.bool, device=weights.device)
     usable = (weights > 0).sum(-1, keepdim=True) >= 2
     w = torch.where(usable, weights.clamp_min(0), torch.ones_like(weights)).float()
-    draws = torch.multinomial(w.cpu(), 2 * count, replacement=True, generator=generator).to(weights.device)
+    draws = _multinomial(w.cpu(), 2 * count, generator).to(weights.device)
     first, second = draws[:, :count], draws[:, count:]
     return first, second, usable & (first != second)
+
+
+def _multinomial(weights: Tensor, count: int, generator: Generators) -> Tensor:
+    """``count`` draws with replacement per row of (B, N) ``weights``; with one generator per row, row b uses only
+    ``generator[b]``."""
+    if generator is None or isinstance(generator, torch.Generator):
+        return torch.multinomial(weights, count, replacement=True, generator=generator)
+    generators = list(generator)
+    if len(generators) != len(weights):
+        raise ValueError(f"got {len(generators)} generators for a batch of {len(weights)}; give one per image")
+    pairs = zip(weights, generators, strict=True)
+    rows = [torch.multinomial(w[None], count, replacement=True, generator=g) for w, g in pairs]
+    return torch.cat(rows) if rows else weights.new_zeros(0, count, dtype=torch.long)
 
 
 def _gather(x: Tensor, index: Tensor) -> Tensor:
@@ -83,7 +104,7 @@ def sample_zenith_candidates(
     num_lines: int = 256,
     num_candidates: int = 256,
     threshold_deg: float = 67.5,
-    generator: torch.Generator | None = None,
+    generator: Generators = None,
 ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """Near-vertical lines L_z (Eq. 4) and zenith candidates Z from random pairs of them (Eq. 3).
 
@@ -96,7 +117,7 @@ def sample_zenith_candidates(
         num_lines: |L_z|.
         num_candidates: |Z|.
         threshold_deg: delta_z of Eq. 4.
-        generator: random generator.
+        generator: random generator, or one per image.
 
     Returns:
         L_z (B, num_lines, 3), its mask (B, num_lines), Z (B, num_candidates, 3) unit homogeneous points and
@@ -188,7 +209,7 @@ def sample_horizontal_vps(
     horizontal: Tensor,
     right: Tensor,
     count: int = 256,
-    generator: torch.Generator | None = None,
+    generator: Generators = None,
 ) -> tuple[Tensor, Tensor]:
     """Horizontal VP candidates: intersections of random pairs within each group, ``count // 2`` per group.
 
@@ -198,7 +219,7 @@ def sample_horizontal_vps(
         horizontal: (B, N) bool mask of horizontal-direction lines.
         right: (B, N) bool group of each line (:func:`split_by_pseudo_horizon`).
         count: number of candidates.
-        generator: random generator.
+        generator: random generator, or one per image.
 
     Returns:
         (B, 2 * (count // 2), 3) unit homogeneous VPs, the right-hand group first, and their mask.
@@ -329,7 +350,7 @@ def sample_frames(
     horizontal_mask: Tensor,
     count: int = 1024,
     focal_range: tuple[float, float] = (0.8, 4.0),
-    generator: torch.Generator | None = None,
+    generator: Generators = None,
 ) -> FrameCandidates:
     """Manhattan-frame candidates: each pairs a zenith drawn by its weight (ZSNet score, or uniform over Z_c) with a
     uniformly drawn horizontal VP.
@@ -341,7 +362,7 @@ def sample_frames(
         horizontal_mask: (B, H) bool.
         count: number of frames F.
         focal_range: see :func:`frames_from_vps`.
-        generator: random generator.
+        generator: random generator, or one per image.
 
     Returns:
         :class:`FrameCandidates` with F = ``count``.
@@ -354,14 +375,14 @@ def sample_frames(
 
 
 def _draw(  # one weighted draw per frame, with replacement
-    weights: Tensor, count: int, generator: torch.Generator | None
+    weights: Tensor, count: int, generator: Generators
 ) -> tuple[Tensor, Tensor]:
     if weights.shape[1] == 0:
         idx = torch.zeros(weights.shape[0], count, dtype=torch.long, device=weights.device)
         return idx, torch.zeros_like(idx, dtype=torch.bool)
     usable = (weights > 0).any(-1, keepdim=True)
     w = torch.where(usable, weights.clamp_min(0), torch.ones_like(weights)).float()
-    idx = torch.multinomial(w.cpu(), count, replacement=True, generator=generator).to(weights.device)
+    idx = _multinomial(w.cpu(), count, generator).to(weights.device)
     return idx, usable & (torch.gather(weights, 1, idx) > 0)
 
 
@@ -370,7 +391,7 @@ def sample_horizontal_pair_frames(
     horizontal_mask: Tensor,
     count: int = 512,
     focal_range: tuple[float, float] = (0.8, 4.0),
-    generator: torch.Generator | None = None,
+    generator: Generators = None,
 ) -> FrameCandidates:
     """Manhattan-frame candidates from two horizontal VPs, one from each group of :func:`sample_horizontal_vps`
     (its first half is the right-hand group, its second half the left-hand one).
@@ -383,7 +404,7 @@ def sample_horizontal_pair_frames(
         horizontal_mask: (B, H) bool.
         count: number of frames.
         focal_range: see :func:`frames_from_vps`.
-        generator: random generator.
+        generator: random generator, or one per image.
 
     Returns:
         :class:`FrameCandidates` with F = ``count``.

@@ -185,3 +185,18 @@ def test_image_without_lines_gives_a_defined_level_camera(weights):
 
 def test_version_is_exposed():
     assert ngp_kornia.__version__.count(".") == 2
+
+
+@pytest.mark.parametrize("weights", ["none", "fsnet", "full"])
+def test_an_image_gets_the_same_answer_in_a_batch_as_alone(weights):
+    from ngp_kornia.data.synth.render import render_scene
+
+    scenes = [render_scene(s, size=(320, 240)).image for s in (1, 2, 3)]
+    images = [torch.from_numpy(image).permute(2, 0, 1).float() / 255 for image in scenes]
+    order = [0, 1, 2, 0]  # the same image at positions 0 and 3, beside images with other line counts
+    batch = calibrate(torch.stack([images[i] for i in order]), weights=weights)
+    for position, i in enumerate(order):
+        alone = calibrate(images[i], weights=weights)
+        assert torch.allclose(batch[position].K, alone.K, rtol=1e-5), (position, batch.focal, alone.focal)
+        assert torch.allclose(batch[position].R, alone.R, atol=1e-5)
+        assert torch.allclose(batch[position].horizon, alone.horizon, atol=1e-4)

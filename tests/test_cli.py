@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from ngp_kornia.cli import main
+from tests.image_files import jpeg_with_orientation
 
 
 @pytest.fixture
@@ -142,3 +143,66 @@ def test_output_cut_short_stops_quietly(photo):
     proc.stdout.close()
     assert proc.wait(timeout=120) == 141
     assert b"error" not in proc.stderr.read()
+
+
+def _one_error_line(err):
+    return err.count("\n") == 1 and err.startswith("ngp: error: ") and "Traceback" not in err
+
+
+def test_overlay_path_without_extension_is_one_line(photo, tmp_path, capsys):
+    assert main(["calibrate", str(photo), "--overlay", str(tmp_path / "overlay")]) == 1
+    out, err = capsys.readouterr()
+    assert _one_error_line(err) and "end the name with .png or .jpg" in err and out == ""
+
+
+def test_existing_outputs_need_force(photo, tmp_path, capsys):
+    target = tmp_path / "overlay.png"
+    target.write_bytes(b"keep me")
+    assert main(["calibrate", str(photo), "--overlay", str(target)]) == 1
+    assert "exists; add --force" in capsys.readouterr().err and target.read_bytes() == b"keep me"
+    assert main(["calibrate", str(photo), "--overlay", str(target), "--force"]) == 0
+    assert cv2.imread(str(target)) is not None
+    rectified = tmp_path / "upright.png"
+    rectified.write_bytes(b"keep me")
+    assert main(["rectify", str(photo), "-o", str(rectified)]) == 1
+    assert "exists; add --force" in capsys.readouterr().err and rectified.read_bytes() == b"keep me"
+    assert main(["rectify", str(photo), "-o", str(rectified), "--force"]) == 0
+
+
+def test_an_input_is_never_overwritten_even_with_force(photo, capsys):
+    before = photo.read_bytes()
+    assert main(["calibrate", str(photo), "--overlay", str(photo), "--force"]) == 1
+    assert main(["rectify", str(photo), "-o", str(photo), "--force"]) == 1
+    err = capsys.readouterr().err
+    assert err.count("is one of the input images") == 2 and photo.read_bytes() == before
+
+
+def test_render_into_a_dataset_needs_force(tmp_path, capsys):
+    assert main(["render", str(tmp_path / "set"), "--count", "1", "--size", "64x48"]) == 0
+    truth = (tmp_path / "set" / "ground_truth.json").read_text()
+    assert main(["render", str(tmp_path / "set"), "--count", "1", "--size", "64x48", "--seed", "5"]) == 1
+    err = capsys.readouterr().err
+    assert _one_error_line(err) and "is not empty; add --force" in err
+    assert (tmp_path / "set" / "ground_truth.json").read_text() == truth
+    assert main(["render", str(tmp_path / "set"), "--count", "1", "--size", "64x48", "--seed", "5", "--force"]) == 0
+
+
+def test_exif_orientation_is_applied_and_reported(tmp_path, capsys):
+    stored = np.zeros((80, 120, 3), np.uint8)
+    path = tmp_path / "phone.jpg"
+    path.write_bytes(jpeg_with_orientation(stored, 8))
+    assert main(["calibrate", str(path)]) == 0
+    record = json.loads(capsys.readouterr().out)
+    assert record["exif_orientation"] == 8 and (record["height"], record["width"]) == (120, 80)
+
+
+def test_libpng_noise_does_not_reach_stderr(tmp_path):
+    png = cv2.imencode(".png", np.zeros((64, 64, 3), np.uint8))[1].tobytes()
+    bad = bytearray(png)
+    bad[len(bad) // 2] ^= 0xFF
+    path = tmp_path / "crc.png"
+    path.write_bytes(bytes(bad))
+    run = subprocess.run(
+        [sys.executable, "-m", "ngp_kornia.cli", "calibrate", str(path)], capture_output=True, text=True, timeout=120
+    )
+    assert run.returncode == 1 and _one_error_line(run.stderr) and run.stderr.startswith(f"ngp: error: {path}")

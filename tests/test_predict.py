@@ -48,7 +48,7 @@ def test_a_row_for_every_file_and_error_rows_for_the_bad_ones(predicted):
     names = [row["image"] for row in rows]
     expected = ["corrupt.png", "empty.jpg", "scene00.png", "scene01.png", "scene02.png", "scene03.png"]
     assert names == [*expected, "sub/scene04.png"]
-    assert counts == {"images": 7, "errors": 2}
+    assert counts == {"images": 7, "errors": 2, "interrupted": False}
     errors = {row["image"]: row["error"] for row in rows if "error" in row}
     assert set(errors) == {"corrupt.png", "empty.jpg"} and "file is empty" in errors["empty.jpg"]
     for row in rows:
@@ -108,3 +108,124 @@ def test_two_processes_write_every_image_exactly_once(tmp_path):
     assert "error" in rows[-1] and all("focal" in r for r in rows[:-1])
     assert sorted(p.name for p in tmp_path.iterdir()) == ["photos", "results.jsonl"]  # the part files are gone
     assert "11 rows written" in run.stdout and "Traceback" not in run.stderr
+
+
+def test_out_that_is_an_input_is_refused(tmp_path, capsys):
+    folder = tmp_path / "photos"
+    _write_scenes(folder, [0])
+    image = folder / "scene00.png"
+    before = image.read_bytes()
+    assert main(["predict", str(folder), "--out", str(image)]) == 1
+    err = capsys.readouterr().err
+    assert "is one of the input images" in err and err.count("\n") == 1 and image.read_bytes() == before
+
+
+def test_unrelated_part_files_and_the_old_results_survive_until_the_end(tmp_path, monkeypatch):
+    from ngp_kornia import predict as predict_module
+
+    folder = tmp_path / "photos"
+    _write_scenes(folder, [0, 1])
+    out = tmp_path / "results.jsonl"
+    out.write_text("old results\n")
+    unrelated = tmp_path / "results.jsonl.rank0"
+    unrelated.write_text("someone else's file\n")
+    seen = []
+    original = predict_module.FolderPredictor.calibrate
+
+    def spy(self, image):
+        seen.append(out.read_text())  # mid-run: out still holds the old results, never a half-written file
+        return original(self, image)
+
+    monkeypatch.setattr(predict_module.FolderPredictor, "calibrate", spy)
+    predict_folder(folder, out)
+    assert seen == ["old results\n"] * 2 and len(_rows(out)) == 2
+    assert unrelated.read_text() == "someone else's file\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["photos", "results.jsonl", "results.jsonl.rank0"]
+
+
+def test_any_failure_of_one_image_is_its_row(tmp_path, monkeypatch):
+    from ngp_kornia import predict as predict_module
+    from tests.image_files import png_declaring
+
+    folder = tmp_path / "photos"
+    _write_scenes(folder, [0, 1, 2])
+    (folder / "bomb.png").write_bytes(png_declaring(30000, 30000))
+    read = predict_module.read_rgb_oriented
+
+    def flaky_read(path):
+        if path.name == "scene01.png":
+            raise MemoryError("no memory left for this one")
+        return read(path)
+
+    original = predict_module.FolderPredictor.calibrate
+    calls = []
+
+    def flaky_calibrate(self, image):
+        calls.append(1)
+        if len(calls) == 2:
+            raise RuntimeError("something unexpected inside the parser")
+        return original(self, image)
+
+    monkeypatch.setattr(predict_module, "read_rgb_oriented", flaky_read)
+    monkeypatch.setattr(predict_module.FolderPredictor, "calibrate", flaky_calibrate)
+    counts = predict_folder(folder, tmp_path / "r.jsonl")
+    rows = {r["image"]: r for r in _rows(tmp_path / "r.jsonl")}
+    assert counts["images"] == 4 and counts["errors"] == 3
+    assert "over the limit" in rows["bomb.png"]["error"]
+    assert "MemoryError: no memory left" in rows["scene01.png"]["error"]
+    assert "RuntimeError: something unexpected" in rows["scene02.png"]["error"]
+    assert "focal" in rows["scene00.png"]
+
+
+def test_rows_report_the_exif_orientation(tmp_path):
+    from tests.image_files import jpeg_with_orientation
+
+    folder = tmp_path / "photos"
+    folder.mkdir()
+    stored = render_scene(0, size=(160, 120)).image
+    (folder / "phone.jpg").write_bytes(jpeg_with_orientation(stored, 6))
+    predict_folder(folder, tmp_path / "r.jsonl")
+    (row,) = _rows(tmp_path / "r.jsonl")
+    assert row["exif_orientation"] == 6 and (row["height"], row["width"]) == (160, 120)
+    assert row == {"image": "phone.jpg", **calibrate(folder / "phone.jpg").to_dict()}
+
+
+def _interrupt(tmp_path, devices, count):
+    """Start ``ngp predict`` on ``count`` images in its own session, press Ctrl+C (SIGINT to the whole process
+    group, as a terminal does) once some rows exist, and return the finished run and its results file."""
+    import os
+    import signal
+    import time
+
+    folder, out = tmp_path / "photos", tmp_path / "results.jsonl"
+    for seed in range(count):  # the same small scene under many names: cheap to write, slow enough to interrupt
+        if seed == 0:
+            _write_scenes(folder, [0])
+        else:
+            (folder / f"scene{seed:02d}.png").write_bytes((folder / "scene00.png").read_bytes())
+    command = [sys.executable, "-m", "ngp_kornia.cli", "predict", str(folder), "--out", str(out)]
+    command += ["--devices", str(devices)]
+    proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    deadline = time.time() + 240
+    while time.time() < deadline and proc.poll() is None:
+        written = [p for p in tmp_path.iterdir() if p.name.startswith(".results.jsonl.")]
+        if sum(p.read_text().count("\n") for p in written if p.is_file()) >= 2 * devices:
+            break
+        time.sleep(0.2)
+    assert proc.poll() is None, "the run ended before it could be interrupted"
+    os.killpg(proc.pid, signal.SIGINT)
+    stdout, stderr = proc.communicate(timeout=120)
+    return proc.returncode, stderr, out, folder
+
+
+@pytest.mark.parametrize("devices", [1, 2])
+def test_interrupted_run_keeps_the_finished_rows(tmp_path, devices):
+    code, stderr, out, folder = _interrupt(tmp_path, devices, count=200)
+    assert code == 130, stderr
+    lines = [line for line in stderr.splitlines() if line.startswith("ngp")]
+    assert len(lines) == 1 and lines[0].startswith("ngp: interrupted: the ") and "Traceback" not in stderr
+    rows = _rows(out)
+    assert 2 <= len(rows) < 200 and f"the {len(rows)} images finished are in {out}" in lines[0]
+    names = [r["image"] for r in rows]
+    assert names == sorted(set(names)) and all("focal" in r for r in rows)  # folder order, each once, complete
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["photos", "results.jsonl"]  # no part or temporary files

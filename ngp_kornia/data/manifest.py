@@ -46,6 +46,7 @@ from typing import overload
 import torch
 from torch import Tensor
 
+from ngp_kornia.errors import ManifestError
 from ngp_kornia.geometry.camera import (
     focal_from_fov,
     fov_from_focal,
@@ -60,7 +61,7 @@ from ngp_kornia.geometry.camera import (
     zenith_from_horizon,
     zenith_from_up,
 )
-from ngp_kornia.io import ImageError, read_image_file
+from ngp_kornia.io import ImageError, exif_orientation, read_image_file
 
 __all__ = ["COLUMNS", "CSVManifest", "ManifestError", "ManifestSample", "read_image_size"]
 
@@ -78,10 +79,6 @@ _RANGES = {  # column: (low, high, inclusive, what the value means)
     "roll_deg": (-180.0, 180.0, True, "roll must lie in [-180, 180] degrees"),
 }
 _F64 = torch.float64
-
-
-class ManifestError(ValueError):
-    """A CSV manifest that cannot be read, with the file, the line and the fix."""
 
 
 @dataclass(frozen=True)
@@ -166,7 +163,7 @@ def _jpeg_size(data: bytes) -> tuple[int, int] | None:
 def read_image_size(path: str | Path) -> tuple[int, int]:
     """``(height, width)`` of an image file: from the header for PNG and JPEG, else by decoding it.
 
-    The size is the one :func:`ngp_kornia.io.read_image_file` decodes (no EXIF rotation).
+    The size is the one :func:`ngp_kornia.io.read_image_file` decodes: as displayed, after the EXIF orientation.
 
     Raises:
         ImageError: missing or unreadable files.
@@ -177,6 +174,8 @@ def read_image_size(path: str | Path) -> tuple[int, int]:
             size = _png_size(head) or _jpeg_size(head)
             if size is None and head[:2] == b"\xff\xd8":  # large metadata blocks before the frame header
                 size = _jpeg_size(head + f.read())
+            if size is not None and exif_orientation(head) >= 5:  # stored turned by 90 degrees
+                size = size[::-1]
     except OSError:
         size = None
     if size is not None:

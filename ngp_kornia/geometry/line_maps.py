@@ -7,8 +7,6 @@ differentiable with respect to the per-segment values (so closeness maps pass gr
 
 from __future__ import annotations
 
-import math
-
 import torch
 from kornia.core.check import KORNIA_CHECK, KORNIA_CHECK_SHAPE
 from torch import Tensor
@@ -116,18 +114,29 @@ def line_map_and_pooled_maps(
     return lines.view(B, 1, height, width), pooled
 
 
+def _steps(counts: list[int], like: Tensor) -> tuple[Tensor, Tensor]:
+    """(B, S) positions ``linspace(0, 1, counts[b])`` padded to the longest, and (B, S) bool: which are real."""
+    size = max(counts)
+    t = like.new_zeros(len(counts), size)
+    for b, n in enumerate(counts):
+        t[b, :n] = torch.linspace(0.0, 1.0, n, device=like.device, dtype=like.dtype)
+    sampled = torch.arange(size, device=like.device) < torch.tensor(counts, device=like.device)[:, None]
+    return t, sampled
+
+
 def _segment_pixels(segments: Tensor, mask: Tensor, height: int, width: int) -> tuple[Tensor, Tensor, Tensor]:
     """Every (segment, pixel) pair a drawn segment covers, once: image index, segment index and flat pixel index
     (``y * width + x``), from points sampled about one pixel apart and rounded to the nearest pixel."""
     N = segments.shape[1]
     area = height * width
-    length = (segments[..., 1, :] - segments[..., 0, :]).norm(dim=-1)
-    steps = int(math.ceil(float(length[mask].max()))) + 2
-    t = torch.linspace(0.0, 1.0, steps, device=segments.device, dtype=segments.dtype)
+    length = (segments[..., 1, :] - segments[..., 0, :]).norm(dim=-1).detach()
+    # sample points per image, by its own longest segment: an image's map does not depend on the rest of its batch
+    longest = torch.where(mask, length, torch.zeros_like(length)).amax(-1).ceil().long() + 2  # (B,)
+    t, sampled = _steps(longest.tolist(), segments)  # (B, S)
     p0, p1 = segments[..., 0, :].detach(), segments[..., 1, :].detach()
-    ij = (p0[:, :, None] + (p1 - p0)[:, :, None] * t[:, None]).round().long()  # (B, N, S, 2)
+    ij = (p0[:, :, None] + (p1 - p0)[:, :, None] * t[:, None, :, None]).round().long()  # (B, N, S, 2)
     inside = (ij[..., 0] >= 0) & (ij[..., 0] < width) & (ij[..., 1] >= 0) & (ij[..., 1] < height)
-    inside &= mask[:, :, None]
+    inside &= mask[:, :, None] & sampled[:, None]
     pixel = ij[..., 1] * width + ij[..., 0]
     b, n, s = inside.nonzero(as_tuple=True)
     key = torch.unique((b * N + n) * area + pixel[b, n, s])  # each (segment, pixel) once

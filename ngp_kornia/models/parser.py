@@ -10,12 +10,14 @@ flow from the outputs to FSNet's parameters and to the image's pixels.
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass
 
 import torch
 from torch import Tensor, nn
 
 from ngp_kornia.detect import detect_segments
+from ngp_kornia.errors import ConfigError, InputError
 from ngp_kornia.geometry import (
     angles_from_rotation,
     canonical_manhattan_rotation,
@@ -42,6 +44,7 @@ from ngp_kornia.models.trace import ParserTrace
 from ngp_kornia.models.zsnet import zenith_estimate, zenith_weights_from_scores
 from ngp_kornia.sampling import (
     FrameCandidates,
+    Generators,
     cat_frames,
     horizontal_line_mask,
     sample_frames,
@@ -105,6 +108,72 @@ class ParserConfig:
     fallback_fov: float = 60.0
     seed: int = 0
 
+    def __post_init__(self) -> None:
+        check_config(self)
+
+
+#: field: (kind, low, high, what the bounds mean); kind "int" or "float"; None: no bound; bounds inclusive unless
+#: the meaning says otherwise (checked as written in the message)
+_FIELDS = {
+    "working_size": ("int", 32, None, "at least 32 pixels"),
+    "min_length": ("float", 0.0, None, "a length in pixels, at least 0"),
+    "max_segments": ("int", 1, None, "at least 1"),
+    "num_zenith_lines": ("int", 1, None, "at least 1"),
+    "num_zenith": ("int", 1, None, "at least 1"),
+    "vertical_threshold": ("float", 0.0, 90.0, "an angle in degrees, in (0, 90)"),
+    "zenith_threshold": ("float", 0.0, 1.0, "a score in [0, 1)"),
+    "vertical_tol": ("float", 0.0, 90.0, "an angle in degrees, in [0, 90)"),
+    "junction_radius": ("float", 0.0, None, "a distance, at least 0"),
+    "num_horizontal": ("int", 2, None, "at least 2 (half per group)"),
+    "num_frames": ("int", 1, None, "at least 1"),
+    "num_horizontal_frames": ("int", 0, None, "at least 0 (0 disables them)"),
+    "kernel_angle": ("float", 0.0, 90.0, "an angle in degrees, in (0, 90)"),
+    "top_k": ("int", 1, None, "at least 1"),
+    "num_scored": ("int", 1, None, "at least 1"),
+    "fallback_fov": ("float", 0.0, 180.0, "an angle in degrees, in (0, 180)"),
+    "seed": ("int", 0, 2**64 - 1, "in [0, 2**64 - 1]"),
+}
+_OPEN_LOW = {"vertical_threshold", "kernel_angle", "fallback_fov"}
+_OPEN_HIGH = {"vertical_threshold", "zenith_threshold", "vertical_tol", "kernel_angle", "fallback_fov"}
+
+
+def check_config(config: ParserConfig) -> None:
+    """Check every field of a :class:`ParserConfig`; called on construction and by ``dataclasses.replace``.
+
+    Raises:
+        ConfigError: a field of the wrong type, NaN, or out of range; the message names the field and the range.
+
+    Example:
+        >>> ParserConfig(num_frames=0)
+        Traceback (most recent call last):
+        ...
+        ngp_kornia.errors.ConfigError: ParserConfig.num_frames must be an integer at least 1, got 0
+    """
+    for name, (kind, low, high, meaning) in _FIELDS.items():
+        value = getattr(config, name)
+        if kind == "int":
+            if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+                raise ConfigError(f"ParserConfig.{name} must be an integer {meaning}, got {value!r}")
+        elif isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(value):
+            raise ConfigError(f"ParserConfig.{name} must be a finite number, {meaning}; got {value!r}")
+        below = value <= low if name in _OPEN_LOW else value < low
+        above = high is not None and (value >= high if name in _OPEN_HIGH else value > high)
+        if below or above:
+            article = "an integer " if kind == "int" else ""
+            raise ConfigError(f"ParserConfig.{name} must be {article}{meaning}, got {value!r}")
+    focal = config.focal_range
+    if (
+        not isinstance(focal, (tuple, list))
+        or len(focal) != 2
+        or not all(isinstance(f, numbers.Real) and not isinstance(f, bool) and math.isfinite(f) for f in focal)
+        or not 0 < focal[0] < focal[1]
+    ):
+        raise ConfigError(
+            f"ParserConfig.focal_range must be two finite numbers 0 < low < high (half image widths), got {focal!r}"
+        )
+    if not isinstance(config.use_manhattan, bool):
+        raise ConfigError(f"ParserConfig.use_manhattan must be True or False, got {config.use_manhattan!r}")
+
 
 class NeuralGeometricParser(nn.Module):
     """Single-image calibration of a Manhattan / Atlanta-world scene.
@@ -137,8 +206,10 @@ class NeuralGeometricParser(nn.Module):
         """Calibrate a batch.
 
         Args:
-            images: (B, 3, H, W) float RGB in [0, 1].
-            segments: optional (B, N, 2, 2) precomputed segments in the images' pixels (skips LSD).
+            images: (B, 3, H, W) float RGB in [0, 1]; float16 and bfloat16 are computed in float32 and the result
+                returned in the input's dtype.
+            segments: optional (B, N, 2, 2) precomputed segments in the images' pixels (skips LSD). Segments the
+                mask keeps must be finite (NaN or infinite ones are refused); padding may hold anything.
             mask: (B, N) bool, required with ``segments``.
             return_trace: also return the intermediate stages.
 
@@ -146,18 +217,23 @@ class NeuralGeometricParser(nn.Module):
             a batched :class:`Calibration`; with ``return_trace``, the pair ``(calibration, trace)``, the trace a
             :class:`ParserTrace` of the stages (the same computation: the calibration does not change).
         """
+        if images.dtype in (torch.float16, torch.bfloat16):  # computed in float32, returned in the input's dtype
+            low = None if segments is None else segments.float()
+            out = self(images.float(), low, mask, return_trace)
+            return (out[0].to(images.dtype), out[1]) if return_trace else out.to(images.dtype)
         cfg = self.config
         height, width = images.shape[-2:]
         if segments is None:
             segments, mask = detect_segments(images, cfg)
-        elif mask is None:
-            raise ValueError("segments were given without their (B, N) mask; pass mask=torch.ones(B, N, dtype=bool)")
+        else:
+            segments, mask = checked_segments(segments, mask, len(images))
         segments = segments.to(images)
         if segments.shape[1] == 0:  # no lines anywhere in the batch: one masked dummy keeps every shape non-empty
             segments, mask = segments.new_zeros(len(images), 1, 2, 2), mask.new_zeros(len(images), 1)
-        generator = torch.Generator().manual_seed(cfg.seed)
+        # one generator per image, each seeded alike: an image's answer does not depend on its batch or position
+        generators = [torch.Generator().manual_seed(cfg.seed) for _ in range(len(images))]
         stages = {"segments": segments, "mask": mask} if return_trace else None
-        frames, scores = self.score_frames(segments, mask, height, width, generator, stages)
+        frames, scores = self.score_frames(segments, mask, height, width, generators, stages)
         if self.fsnet is not None:
             frames, scores = self.rescore_frames(images, segments, mask, frames, scores, stages)
         result = self.calibrate_from_frames(frames, scores, height, width, stages)
@@ -169,7 +245,7 @@ class NeuralGeometricParser(nn.Module):
         mask: Tensor,
         height: int,
         width: int,
-        generator: torch.Generator,
+        generator: Generators,
         stages: dict | None = None,
     ) -> tuple[FrameCandidates, Tensor]:
         """Sample frame candidates (pseudo camera) and score each one: (B, F) scores, zero for invalid frames.
@@ -279,3 +355,29 @@ class NeuralGeometricParser(nn.Module):
             valid=valid,
             image_size=size,
         )
+
+
+def checked_segments(segments: Tensor, mask: Tensor | None, batch: int) -> tuple[Tensor, Tensor]:
+    """Segments given to the parser: (B, N, 2, 2) with a (B, N) bool mask, finite where the mask keeps them;
+    padding (mask False) is set to zero whatever it holds.
+
+    Raises:
+        InputError: no mask, shapes that do not match, or NaN / infinite coordinates in a kept segment.
+    """
+    if mask is None:
+        raise InputError("segments were given without their (B, N) mask; pass mask=torch.ones(B, N, dtype=bool)")
+    if segments.dim() != 4 or segments.shape[0] != batch or segments.shape[2:] != (2, 2):
+        raise InputError(f"segments must be ({batch}, N, 2, 2), got {tuple(segments.shape)}")
+    if mask.shape != segments.shape[:2] or mask.dtype != torch.bool:
+        raise InputError(
+            f"mask must be a bool tensor of shape {tuple(segments.shape[:2])}, got {mask.dtype} {tuple(mask.shape)}"
+        )
+    finite = torch.isfinite(segments).flatten(2).all(-1)
+    bad = mask & ~finite
+    if bool(bad.any()):
+        b, n = (int(v) for v in bad.nonzero()[0])
+        raise InputError(
+            f"segment {n} of image {b} has NaN or infinite coordinates ({int(bad.sum())} such segments); "
+            "drop them or set their mask to False"
+        )
+    return torch.where(mask[..., None, None], segments, torch.zeros_like(segments)), mask

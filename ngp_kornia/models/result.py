@@ -39,6 +39,9 @@ class Calibration:
         valid: (B,) bool; False when the image offered no valid frame candidate, in which case the result is a
             level camera with a 60 degree field of view on the long side.
         image_size: (B, 2) ``(height, width)`` in pixels.
+        exif_orientation: (B,) long, for images read from files: the EXIF orientation tag (1-8) that was applied
+            before calibrating, so every field is in the pixels of the image as displayed (1: stored upright, 6: a
+            phone photo stored turned, ...); None for arrays and tensors, which are taken as they are.
     """
 
     K: Tensor
@@ -56,6 +59,7 @@ class Calibration:
     score: Tensor
     valid: Tensor
     image_size: Tensor
+    exif_orientation: Tensor | None = None
 
     @property
     def batched(self) -> bool:
@@ -70,13 +74,16 @@ class Calibration:
         """The calibration of one image of a batch, without the batch dim."""
         if not self.batched:
             raise TypeError("an unbatched Calibration cannot be indexed")
-        return Calibration(**{f.name: getattr(self, f.name)[index] for f in fields(self)})
+        return Calibration(**{f.name: _index(getattr(self, f.name), index) for f in fields(self)})
 
     def to(self, *args, **kwargs) -> Calibration:
         """Move or cast every floating-point tensor, like :meth:`torch.Tensor.to`."""
         out = {}
         for f in fields(self):
             t = getattr(self, f.name)
+            if t is None:
+                out[f.name] = None
+                continue
             out[f.name] = t.to(*args, **kwargs) if t.is_floating_point() else t.to(device=t.device)
         return Calibration(**out)
 
@@ -90,6 +97,8 @@ class Calibration:
             return [self[i].to_dict() for i in range(len(self))]
         out = {}
         for f in fields(self):
+            if getattr(self, f.name) is None:
+                continue
             value = getattr(self, f.name).detach().cpu()
             out[f.name] = value.tolist() if value.dim() else value.item()
         out["height"], out["width"] = (int(v) for v in out.pop("image_size"))
@@ -104,7 +113,6 @@ class Calibration:
             f"pitch={float(self.pitch):.2f}, roll={float(self.roll):.2f}, yaw={float(self.yaw):.2f}, "
             f"valid={bool(self.valid)})"
         )
-
 
     # --- the camera types of other tools (ngp_kornia.models.cameras) ---
 
@@ -163,3 +171,7 @@ class Calibration:
         if self.batched:
             return [self[i].to_colmap(model, camera_id + i) for i in range(len(self))]
         return cameras.colmap_camera(self.K, self.image_size, model, camera_id)
+
+
+def _index(value: Tensor | None, index: int) -> Tensor | None:
+    return None if value is None else value[index]

@@ -12,6 +12,7 @@ import hashlib
 import json
 import os
 import sys
+import zipfile
 from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, fields
@@ -92,6 +93,18 @@ def _digest(spec: dict) -> str:
     return hashlib.sha1(json.dumps(spec, sort_keys=True, default=str).encode()).hexdigest()[:12]
 
 
+def read_cached_sample(path: Path) -> Sample | None:
+    """A cached sample, or None when the file cannot be used (truncated, damaged, or holding pickled objects, which
+    are never loaded: ``allow_pickle=False``); the caller then computes the sample again and rewrites the file."""
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            sample = Sample(**{f.name: data[f.name] if f.name in data else None for f in fields(Sample)})
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError):
+        return None
+    complete = all(getattr(sample, f.name) is not None for f in fields(Sample) if f.name != "image")
+    return sample if complete else None
+
+
 class CachedScenes(Dataset):
     """Base of the scene datasets: ``keys[i]`` -> :class:`Sample` by :meth:`compute`, cached as one ``.npz`` per key
     in a folder named by ``tag`` and a digest of everything that changes the samples.
@@ -136,8 +149,9 @@ class CachedScenes(Dataset):
         key = self.keys[index]
         path = None if self.cache is None else self.cache / f"{key}.npz"
         if path is not None and path.exists():
-            with np.load(path) as data:
-                return Sample(**{f.name: data[f.name] if f.name in data else None for f in fields(Sample)})
+            cached = read_cached_sample(path)
+            if cached is not None:
+                return cached
         sample = self.compute(key)
         if path is not None:
             tmp = path.with_suffix(f".{os.getpid()}.tmp.npz")

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import heapq
 import json
+import os
 import warnings
 from collections.abc import Iterator
 from dataclasses import replace
@@ -29,8 +30,18 @@ from torch.utils.data import DataLoader, Dataset
 from ngp_kornia.api import load_parser, segments_of_rgb
 from ngp_kornia.data.folder import IMAGE_EXTENSIONS, ImageFolder
 from ngp_kornia.models import Calibration, NeuralGeometricParser, ParserConfig
+from ngp_kornia.threads import pipeline_threads
 
-__all__ = ["FolderImages", "FolderItem", "FolderPredictor", "JsonlWriter", "merge_parts", "predict_folder"]
+__all__ = [
+    "FolderImages",
+    "FolderItem",
+    "FolderPredictor",
+    "JsonlWriter",
+    "cap_devices",
+    "merge_parts",
+    "predict_folder",
+    "usable_cores",
+]
 
 
 class FolderItem(NamedTuple):
@@ -80,9 +91,10 @@ class FolderPredictor(L.LightningModule):
         """Calibrate one (3, H, W) image as :func:`ngp_kornia.calibrate` does for a file."""
         # back to the exact 8-bit pixels the file decoded to (the float image is uint8 / 255), since calibrate()
         # runs LSD on those and the lines decide the answer
-        rgb = image.mul(255.0).round().to(torch.uint8).permute(1, 2, 0).contiguous().numpy()
-        segments, mask = segments_of_rgb(rgb, self.parser.config)
-        return self.parser(image[None].to(self.device), segments, mask)[0]
+        with pipeline_threads(self.parser.config.num_threads):  # one thread per process unless configured
+            rgb = image.mul(255.0).round().to(torch.uint8).permute(1, 2, 0).contiguous().numpy()
+            segments, mask = segments_of_rgb(rgb, self.parser.config)
+            return self.parser(image[None].to(self.device), segments, mask)[0]
 
     def predict_step(self, batch: list[FolderItem], batch_idx: int) -> list[tuple[int, dict]]:
         rows = []
@@ -194,6 +206,25 @@ def _check_folder(folder: Path, recursive: bool) -> ImageFolder:
     return images
 
 
+def usable_cores() -> int:
+    """The CPU cores this process may run on (its affinity mask where the system has one, else the core count)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # macOS, Windows
+        return os.cpu_count() or 1
+
+
+def cap_devices(devices: int) -> int:
+    """``devices`` capped at :func:`usable_cores`, with a warning when capped: each process runs the parser on one
+    thread, so more processes than cores only take turns on the same cores (and each costs its own memory)."""
+    cores = usable_cores()
+    if devices > cores:
+        warnings.warn(
+            f"devices={devices} is more than the {cores} CPU cores this process may use; using {cores}", stacklevel=2
+        )
+    return min(devices, cores)
+
+
 def predict_folder(
     folder: str | Path,
     out: str | Path,
@@ -210,7 +241,8 @@ def predict_folder(
 
     A row is ``{"image": <path relative to folder>, **Calibration.to_dict()}``, or ``{"image": ..., "error":
     <reason>}`` for a file that cannot be read. With ``devices > 1`` the work is split over that many CPU processes
-    (Lightning's ``"ddp"`` strategy, gloo backend), at most one per image. Lightning starts them by running the
+    (Lightning's ``"ddp"`` strategy, gloo backend), at most one per image and one per usable CPU core (a larger
+    count is capped, with a warning). Lightning starts them by running the
     current command again, so call this from a script or a command, not from an interactive session.
 
     Args:
@@ -239,7 +271,7 @@ def predict_folder(
     if batch_size < 1:
         raise ValueError(f"batch size must be at least 1, got {batch_size}")
     images = _check_folder(Path(folder), recursive)
-    devices = min(devices, len(images))  # Lightning's predict sampler refuses a process without an image
+    devices = min(cap_devices(devices), len(images))  # Lightning's predict sampler refuses a process without an image
     module = FolderPredictor(load_parser(weights, replace(config or ParserConfig(), seed=seed)))
     loader = DataLoader(FolderImages(images), batch_size=batch_size, num_workers=num_workers, collate_fn=collate_items)
     writer = JsonlWriter(out)

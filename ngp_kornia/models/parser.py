@@ -50,6 +50,7 @@ from ngp_kornia.sampling import (
     split_by_pseudo_horizon,
     top_frames,
 )
+from ngp_kornia.threads import pipeline_threads
 
 __all__ = ["NeuralGeometricParser", "ParserConfig"]
 
@@ -81,6 +82,10 @@ class ParserConfig:
         use_manhattan: with FSNet, the final score is ``s_vh * m_i`` (Eq. 22); False uses ``s_vh`` alone.
         fallback_fov: long-side field of view (degrees) reported when an image has no valid frame.
         seed: seed of the candidate sampling; every call with the same input gives the same result.
+        num_threads: torch and OpenCV threads for a call (:func:`ngp_kornia.threads.pipeline_threads`): None takes
+            ``$NGP_NUM_THREADS`` or else 1, the fastest for these small tensors and independent of the machine;
+            0 keeps the caller's setting; more may pay for large batches on an idle machine. The caller's
+            setting is restored after the call.
     """
 
     working_size: int = 640
@@ -102,6 +107,7 @@ class ParserConfig:
     use_manhattan: bool = True
     fallback_fov: float = 60.0
     seed: int = 0
+    num_threads: int | None = None
 
 
 class NeuralGeometricParser(nn.Module):
@@ -140,6 +146,10 @@ class NeuralGeometricParser(nn.Module):
         Returns:
             a batched :class:`Calibration`.
         """
+        with pipeline_threads(self.config.num_threads):
+            return self._forward(images, segments, mask)
+
+    def _forward(self, images: Tensor, segments: Tensor | None, mask: Tensor | None) -> Calibration:
         cfg = self.config
         height, width = images.shape[-2:]
         if segments is None:

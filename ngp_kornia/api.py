@@ -72,7 +72,8 @@ def segments_of_rgb(rgb: np.ndarray, config: ParserConfig) -> tuple[Tensor, Tens
     """LSD segments (1, N, 2, 2) and mask (1, N) of an (H, W, 3) uint8 RGB image, as :func:`calibrate` finds them
     for a file: on the 8-bit grey image, at the config's working size, length limit and count."""
     gray = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
-    return pad_segments([detect_segments_gray(gray, config.working_size, config.min_length, config.max_segments)])
+    seg = detect_segments_gray(gray, config.working_size, config.min_length, config.max_segments, config.detector)
+    return pad_segments([seg])
 
 
 def calibrate(

@@ -86,6 +86,8 @@ class ParserConfig:
             ``$NGP_NUM_THREADS`` or else 1, the fastest for these small tensors and independent of the machine;
             0 keeps the caller's setting; more may pay for large batches on an idle machine. The caller's
             setting is restored after the call.
+        detector: the line detector, ``"lsd"`` (the most accurate) or ``"fld"`` (OpenCV's FastLineDetector,
+            faster and less accurate; :func:`ngp_kornia.detect.detect_segments_gray`).
     """
 
     working_size: int = 640
@@ -108,6 +110,7 @@ class ParserConfig:
     fallback_fov: float = 60.0
     seed: int = 0
     num_threads: int | None = None
+    detector: str = "lsd"
 
 
 class NeuralGeometricParser(nn.Module):
@@ -153,7 +156,9 @@ class NeuralGeometricParser(nn.Module):
         cfg = self.config
         height, width = images.shape[-2:]
         if segments is None:
-            segments, mask = detect_segments(images, cfg.working_size, cfg.min_length, cfg.max_segments)
+            segments, mask = detect_segments(
+                images, cfg.working_size, cfg.min_length, cfg.max_segments, cfg.detector
+            )
         elif mask is None:
             raise ValueError("segments were given without their (B, N) mask; pass mask=torch.ones(B, N, dtype=bool)")
         segments = segments.to(images)
@@ -185,7 +190,7 @@ class NeuralGeometricParser(nn.Module):
         if cfg.num_horizontal_frames > 0:
             pairs = sample_horizontal_pair_frames(h_vps, h_ok, cfg.num_horizontal_frames, cfg.focal_range, generator)
             frames = cat_frames(frames, pairs)
-        scores = frame_manhattan_scores(lines, frames.vps, lengths, mask, cfg.kernel_angle)
+        scores = frame_manhattan_scores(lines, frames.vps, lengths, mask, cfg.kernel_angle, frames.valid)
         return frames, torch.where(frames.valid, scores, torch.zeros_like(scores))
 
     def rescore_frames(

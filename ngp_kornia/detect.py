@@ -36,8 +36,8 @@ def _fld():
         ximgproc = getattr(cv2, "ximgproc", None)
         if ximgproc is None:
             raise ValueError("detector='fld' needs OpenCV's contrib modules (opencv-contrib-python-headless)")
-        # length 0: the caller drops short segments, as for LSD
-        _local.fld = ximgproc.createFastLineDetector(0)
+        # OpenCV's defaults but the shortest length it allows: the caller drops short segments, as for LSD
+        _local.fld = ximgproc.createFastLineDetector(1)
     return _local.fld
 
 

@@ -119,8 +119,6 @@ def line_map_and_pooled_maps(
 def _segment_pixels(segments: Tensor, mask: Tensor, height: int, width: int) -> tuple[Tensor, Tensor, Tensor]:
     """Every (segment, pixel) pair a drawn segment covers, once: image index, segment index and flat pixel index
     (``y * width + x``), from points sampled about one pixel apart and rounded to the nearest pixel."""
-    N = segments.shape[1]
-    area = height * width
     length = (segments[..., 1, :] - segments[..., 0, :]).norm(dim=-1)
     steps = int(math.ceil(float(length[mask].max()))) + 2
     t = torch.linspace(0.0, 1.0, steps, device=segments.device, dtype=segments.dtype)
@@ -128,11 +126,12 @@ def _segment_pixels(segments: Tensor, mask: Tensor, height: int, width: int) -> 
     ij = (p0[:, :, None] + (p1 - p0)[:, :, None] * t[:, None]).round().long()  # (B, N, S, 2)
     inside = (ij[..., 0] >= 0) & (ij[..., 0] < width) & (ij[..., 1] >= 0) & (ij[..., 1] < height)
     inside &= mask[:, :, None]
+    # along a straight segment both rounded coordinates are monotone, so a pixel's samples are consecutive: keeping
+    # the first of each run gives every (segment, pixel) once, without sorting all the samples
+    inside[..., 1:] &= (ij[..., 1:, :] != ij[..., :-1, :]).any(-1)
     pixel = ij[..., 1] * width + ij[..., 0]
     b, n, s = inside.nonzero(as_tuple=True)
-    key = torch.unique((b * N + n) * area + pixel[b, n, s])  # each (segment, pixel) once
-    seg, pix = key // area, key % area
-    return seg // N, seg % N, pix
+    return b, n, pixel[b, n, s]
 
 
 def line_map(segments: Tensor, mask: Tensor, height: int, width: int) -> Tensor:

@@ -129,3 +129,15 @@ def test_usable_cores_is_at_most_the_core_count():
     from ngp_kornia.predict import usable_cores
 
     assert 1 <= usable_cores() <= (os.cpu_count() or 1)
+
+
+def test_predict_keeps_the_callers_thread_count(folder, tmp_path):
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(3)
+    try:
+        predict_folder(folder / "sub", tmp_path / "r.jsonl")
+        assert torch.get_num_threads() == 3
+    finally:
+        torch.set_num_threads(before)

@@ -17,6 +17,7 @@ from ngp_kornia.errors import WeightsError
 from ngp_kornia.io import as_batch, read_rgb_oriented
 from ngp_kornia.models import Calibration, NeuralGeometricParser, ParserConfig
 from ngp_kornia.models.weights import load_network, network_name, shipped_weights
+from ngp_kornia.threads import pipeline_threads
 
 __all__ = ["DEFAULT_WEIGHTS", "WEIGHTS", "calibrate", "load_parser", "with_orientation"]
 
@@ -94,7 +95,8 @@ def calibrate(
             candidates scored by the shipped ZSNet), ``"fsnet"`` (frames rescored by the shipped FSNet), ``"full"``
             (both), or the path of a weights file (or a list of paths: one ZSNet and one FSNet file).
         seed: seed of the random candidate sampling; the same input and seed give the same result.
-        config: pipeline settings (:class:`ngp_kornia.models.ParserConfig`).
+        config: pipeline settings (:class:`ngp_kornia.models.ParserConfig`); its ``num_threads`` sets the torch and
+            OpenCV threads of the call (default: ``$NGP_NUM_THREADS`` or 1), the caller's count is restored after.
 
     Returns:
         a :class:`Calibration` in the input's pixels: ``K``, ``R``, ``focal``, ``fov_v``, ``fov_h``, ``pitch``,
@@ -120,17 +122,24 @@ def calibrate(
         return _calibrate_list(image, weights, seed, config)
     cfg = replace(config or ParserConfig(), seed=seed)
     segments = mask = orientation = None
-    if isinstance(image, Tensor):
-        batch, batched = as_batch(image)
-    else:  # detect lines on the 8-bit image we already have instead of converting back from float
-        (rgb, orientation), batched = read_rgb_oriented(image), False
-        batch = torch.from_numpy(rgb).permute(2, 0, 1)[None].float().div(255.0)
-        segments, mask = detect_segments(rgb, cfg)
-    parser = _parser(weights, cfg, copy=False).to(batch.device)  # the cached networks, read only
-    with torch.no_grad():
-        result = parser(batch, segments, mask)
+    with pipeline_threads(cfg.num_threads):  # one thread unless configured; the caller's count is restored
+        if isinstance(image, Tensor):
+            batch, batched = as_batch(image)
+        else:  # detect lines on the 8-bit image we already have instead of converting back from float
+            (rgb, orientation), batched = read_rgb_oriented(image), False
+            batch = torch.from_numpy(rgb).permute(2, 0, 1)[None].float().div(255.0)
+            segments, mask = detect_segments(rgb, cfg)
+        parser = _on_device(_parser(weights, cfg, copy=False), batch.device)  # the cached networks, read only
+        with torch.no_grad():
+            result = parser(batch, segments, mask)
     result = result if batched else result[0]
     return result if orientation is None else with_orientation(result, orientation)
+
+
+def _on_device(parser: NeuralGeometricParser, device: torch.device) -> NeuralGeometricParser:
+    # moving walks every submodule: skip it when the networks are already there (the usual CPU case)
+    first = next(parser.parameters(), None)
+    return parser if first is None or first.device == device else parser.to(device)
 
 
 def with_orientation(result: Calibration, orientation: int) -> Calibration:

@@ -70,7 +70,7 @@ def _parser() -> argparse.ArgumentParser:
     pred = sub.add_parser("predict", help="calibrate every image of a folder into a JSON Lines file")
     pred.add_argument("folder", help="folder of images")
     pred.add_argument("--out", required=True, help="the .jsonl file to write: one JSON object per image")
-    pred.add_argument("--devices", type=int, default=1, help="CPU processes to share the work (DDP, gloo)")
+    pred.add_argument("--devices", type=int, default=1, help="CPU processes (DDP, gloo), at most one per core")
     pred.add_argument("--weights", default="default", help="a weight set as for calibrate, or a weights file")
     pred.add_argument("--recursive", action="store_true", help="also calibrate the images of sub-folders")
     pred.add_argument("--batch-size", type=int, default=1, help="images per loader batch")
@@ -197,11 +197,14 @@ def _one_line(err: BaseException) -> str:
 def _predict(args: argparse.Namespace) -> int:
     import logging
 
-    from ngp_kornia.predict import predict_folder
+    from ngp_kornia.predict import predict_folder, usable_cores
 
     if args.devices < 1:
         print(f"ngp: error: --devices must be at least 1, got {args.devices}", file=sys.stderr)
         return 2
+    if args.devices > (cores := usable_cores()):
+        print(f"ngp: warning: --devices {args.devices} capped at {cores}, the CPU cores available", file=sys.stderr)
+        args.devices = cores
     if args.batch_size < 1:
         print(f"ngp: error: --batch-size must be at least 1, got {args.batch_size}", file=sys.stderr)
         return 2

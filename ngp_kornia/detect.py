@@ -7,7 +7,8 @@ the same lines for the same image.
 
 LSD runs on the 8-bit greyscale image resized so its long side is at most ``working_size`` (aspect ratio kept); the
 segments are mapped back to the input's pixels (pixel-centre convention), filtered by length and padded to
-``(B, N, 2, 2)`` with a ``(B, N)`` mask.
+``(B, N, 2, 2)`` with a ``(B, N)`` mask. ``ParserConfig(detector="fld")`` uses OpenCV's FastLineDetector
+(opencv-contrib's ximgproc) instead: faster, and less accurate on real photos (see BENCHMARKS.md).
 """
 
 from __future__ import annotations
@@ -27,7 +28,10 @@ from ngp_kornia.io import read_rgb
 if TYPE_CHECKING:  # the settings live beside the parser, which itself calls this module
     from ngp_kornia.models.parser import ParserConfig
 
-__all__ = ["LineDetector", "detect_segments", "detect_segments_gray", "pad_segments"]
+__all__ = ["DETECTORS", "LineDetector", "detect_segments", "detect_segments_gray", "pad_segments"]
+
+#: line detectors ``ParserConfig.detector`` accepts
+DETECTORS = ("lsd", "fld")
 
 _local = threading.local()
 
@@ -39,6 +43,16 @@ def _lsd() -> cv2.LineSegmentDetector:
     return _local.lsd
 
 
+def _fld():
+    if not hasattr(_local, "fld"):
+        ximgproc = getattr(cv2, "ximgproc", None)
+        if ximgproc is None:
+            raise ValueError("detector='fld' needs OpenCV's contrib modules (opencv-contrib-python-headless)")
+        # OpenCV's defaults but the shortest length it allows: the caller drops short segments, as for LSD
+        _local.fld = ximgproc.createFastLineDetector(1)
+    return _local.fld
+
+
 def detect_segments_gray(gray: np.ndarray, config: ParserConfig | None = None) -> np.ndarray:
     """Detect segments on one greyscale uint8 image: the LSD step of :func:`detect_segments`.
 
@@ -46,20 +60,23 @@ def detect_segments_gray(gray: np.ndarray, config: ParserConfig | None = None) -
         gray: (H, W) uint8 image.
         config: the settings used: LSD runs on a copy whose long side is at most ``working_size`` pixels, segments
             shorter than ``min_length`` (working-resolution pixels) are dropped and at most ``max_segments`` kept,
-            the longest first. None for the defaults of :class:`~ngp_kornia.models.ParserConfig`.
+            the longest first, found by ``detector`` (``"lsd"`` or ``"fld"``). None for the defaults of
+            :class:`~ngp_kornia.models.ParserConfig`.
 
     Returns:
         (N, 2, 2) float32 segments ``[[x0, y0], [x1, y1]]`` in the input's pixels, longest first.
     """
-    working_size, min_length, max_segments = _settings(config)
+    working_size, min_length, max_segments, detector = _settings(config)
     if gray.ndim != 2 or gray.dtype != np.uint8:
         raise ValueError(f"expected an (H, W) uint8 greyscale image, got shape {gray.shape} dtype {gray.dtype}")
+    if detector not in DETECTORS:
+        raise ValueError(f"unknown line detector {detector!r}; choose one of {', '.join(DETECTORS)}")
     h, w = gray.shape
     scale = min(1.0, working_size / max(h, w))
     small = (
         gray if scale == 1.0 else cv2.resize(gray, (round(w * scale), round(h * scale)), interpolation=cv2.INTER_AREA)
     )
-    found = _lsd().detect(small)[0]
+    found = _lsd().detect(small)[0] if detector == "lsd" else _fld().detect(small)
     if found is None or found.size == 0:
         return np.zeros((0, 2, 2), np.float32)
     seg = found.reshape(-1, 2, 2).astype(np.float32)  # OpenCV 4 gives (N, 1, 4), OpenCV 5 (N, 4)
@@ -91,12 +108,12 @@ def pad_segments(segments: list[np.ndarray | Tensor], like: Tensor | None = None
     return out, mask
 
 
-def _settings(config: ParserConfig | None) -> tuple[int, float, int]:
+def _settings(config: ParserConfig | None) -> tuple[int, float, int, str]:
     if config is None:
         from ngp_kornia.models.parser import ParserConfig
 
         config = ParserConfig()
-    return config.working_size, config.min_length, config.max_segments
+    return config.working_size, config.min_length, config.max_segments, config.detector
 
 
 def _to_gray_uint8(image: Tensor) -> np.ndarray:

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import heapq
 import json
+import os
 import secrets
 import signal
 import warnings
@@ -40,7 +41,16 @@ from ngp_kornia.errors import OutputError
 from ngp_kornia.io import read_rgb_oriented
 from ngp_kornia.models import Calibration, NeuralGeometricParser, ParserConfig
 
-__all__ = ["FolderImages", "FolderItem", "FolderPredictor", "JsonlWriter", "merge_parts", "predict_folder"]
+__all__ = [
+    "FolderImages",
+    "FolderItem",
+    "FolderPredictor",
+    "JsonlWriter",
+    "cap_devices",
+    "merge_parts",
+    "predict_folder",
+    "usable_cores",
+]
 
 
 class FolderItem(NamedTuple):
@@ -271,6 +281,25 @@ def _check_out(out: Path, images: ImageFolder) -> None:
         raise OutputError(f"--out {out} is one of the input images; give another file, e.g. results.jsonl")
 
 
+def usable_cores() -> int:
+    """The CPU cores this process may run on (its affinity mask where the system has one, else the core count)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # macOS, Windows
+        return os.cpu_count() or 1
+
+
+def cap_devices(devices: int) -> int:
+    """``devices`` capped at :func:`usable_cores`, with a warning when capped: each process runs the parser on one
+    thread, so more processes than cores only take turns on the same cores (and each costs its own memory)."""
+    cores = usable_cores()
+    if devices > cores:
+        warnings.warn(
+            f"devices={devices} is more than the {cores} CPU cores this process may use; using {cores}", stacklevel=2
+        )
+    return min(devices, cores)
+
+
 def predict_folder(
     folder: str | Path,
     out: str | Path,
@@ -289,7 +318,8 @@ def predict_folder(
     ``{"image": ..., "error": <reason>}`` for a file that cannot be read or calibrated, whatever the reason. An
     interrupted run (Ctrl+C) leaves ``out`` holding the rows of the images finished so far and returns with
     ``"interrupted": True``; it does not resume. With ``devices > 1`` the work is split over that many CPU processes
-    (Lightning's ``"ddp"`` strategy, gloo backend), at most one per image. Lightning starts them by running the
+    (Lightning's ``"ddp"`` strategy, gloo backend), at most one per image and one per usable CPU core (a larger
+    count is capped, with a warning). Lightning starts them by running the
     current command again, so call this from a script or a command, not from an interactive session.
 
     Args:
@@ -320,7 +350,7 @@ def predict_folder(
         raise ValueError(f"batch size must be at least 1, got {batch_size}")
     images = _check_folder(Path(folder), recursive)
     _check_out(Path(out), images)
-    devices = min(devices, len(images))  # Lightning's predict sampler refuses a process without an image
+    devices = min(cap_devices(devices), len(images))  # Lightning's predict sampler refuses a process without an image
     module = FolderPredictor(load_parser(weights, replace(config or ParserConfig(), seed=seed)))
     loader = DataLoader(FolderImages(images), batch_size=batch_size, num_workers=num_workers, collate_fn=collate_items)
     writer = JsonlWriter(out)

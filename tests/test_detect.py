@@ -197,3 +197,26 @@ def test_pad_segments():
     assert seg.shape == (2, 0, 2, 2) and mask.shape == (2, 0)
     seg, mask = pad_segments([])
     assert seg.shape == (0, 0, 2, 2) and mask.shape == (0, 0)
+
+
+def test_fast_line_detector_finds_the_rectangle():
+    # FastLineDetector puts edges on Canny's edge pixels, up to half a pixel off LSD's sub-pixel ones
+    img = _rectangle(80, 120, 10, 49, 30, 99)
+    seg, mask = detect_segments(img, ParserConfig(detector="fld"))
+    _check_rectangle(seg[0], mask[0], 29.5, 99.5, 9.5, 49.5, tol=1.0)
+    assert int(LineDetector(ParserConfig(detector="fld"))(img)[1].sum()) == 4
+
+
+def test_unknown_detector_names_the_choices():
+    with pytest.raises(ValueError, match="ParserConfig.detector must be one of lsd, fld, got 'hough'"):
+        ParserConfig(detector="hough")
+
+
+def test_parser_config_selects_the_detector():
+    from ngp_kornia import calibrate
+    from ngp_kornia.data.synth.render import render_scene
+    from ngp_kornia.models import ParserConfig
+
+    image = render_scene(3, size=(320, 240)).image
+    lsd, fld = calibrate(image), calibrate(image, config=ParserConfig(detector="fld"))
+    assert bool(lsd.valid) and bool(fld.valid) and float(lsd.focal) != float(fld.focal)

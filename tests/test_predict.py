@@ -2,6 +2,7 @@
 calibrate(), and every image exactly once when several processes share the work."""
 
 import json
+import os
 import subprocess
 import sys
 
@@ -229,3 +230,35 @@ def test_interrupted_run_keeps_the_finished_rows(tmp_path, devices):
     names = [r["image"] for r in rows]
     assert names == sorted(set(names)) and all("focal" in r for r in rows)  # folder order, each once, complete
     assert sorted(p.name for p in tmp_path.iterdir()) == ["photos", "results.jsonl"]  # no part or temporary files
+
+
+def test_devices_are_capped_at_the_usable_cores(monkeypatch, folder, tmp_path, capsys):
+    import ngp_kornia.predict as predict
+
+    monkeypatch.setattr(predict, "usable_cores", lambda: 1)
+    with pytest.warns(UserWarning, match="devices=100 is more than the 1 CPU cores"):
+        assert predict.cap_devices(100) == 1
+    assert predict.cap_devices(1) == 1
+    out = tmp_path / "r.jsonl"
+    assert main(["predict", str(folder / "sub"), "--out", str(out), "--devices", "100"]) == 0
+    err = capsys.readouterr().err
+    assert err == "ngp: warning: --devices 100 capped at 1, the CPU cores available\n"
+    assert len(_rows(out)) == 1
+
+
+def test_usable_cores_is_at_most_the_core_count():
+    from ngp_kornia.predict import usable_cores
+
+    assert 1 <= usable_cores() <= (os.cpu_count() or 1)
+
+
+def test_predict_keeps_the_callers_thread_count(folder, tmp_path):
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(3)
+    try:
+        predict_folder(folder / "sub", tmp_path / "r.jsonl")
+        assert torch.get_num_threads() == 3
+    finally:
+        torch.set_num_threads(before)

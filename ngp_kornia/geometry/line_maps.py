@@ -127,8 +127,6 @@ def _steps(counts: list[int], like: Tensor) -> tuple[Tensor, Tensor]:
 def _segment_pixels(segments: Tensor, mask: Tensor, height: int, width: int) -> tuple[Tensor, Tensor, Tensor]:
     """Every (segment, pixel) pair a drawn segment covers, once: image index, segment index and flat pixel index
     (``y * width + x``), from points sampled about one pixel apart and rounded to the nearest pixel."""
-    N = segments.shape[1]
-    area = height * width
     length = (segments[..., 1, :] - segments[..., 0, :]).norm(dim=-1).detach()
     # sample points per image, by its own longest segment: an image's map does not depend on the rest of its batch
     longest = torch.where(mask, length, torch.zeros_like(length)).amax(-1).ceil().long() + 2  # (B,)
@@ -137,11 +135,12 @@ def _segment_pixels(segments: Tensor, mask: Tensor, height: int, width: int) -> 
     ij = (p0[:, :, None] + (p1 - p0)[:, :, None] * t[:, None, :, None]).round().long()  # (B, N, S, 2)
     inside = (ij[..., 0] >= 0) & (ij[..., 0] < width) & (ij[..., 1] >= 0) & (ij[..., 1] < height)
     inside &= mask[:, :, None] & sampled[:, None]
+    # along a straight segment both rounded coordinates are monotone, so a pixel's samples are consecutive: keeping
+    # the first of each run gives every (segment, pixel) once, without sorting all the samples
+    inside[..., 1:] &= (ij[..., 1:, :] != ij[..., :-1, :]).any(-1)
     pixel = ij[..., 1] * width + ij[..., 0]
     b, n, s = inside.nonzero(as_tuple=True)
-    key = torch.unique((b * N + n) * area + pixel[b, n, s])  # each (segment, pixel) once
-    seg, pix = key // area, key % area
-    return seg // N, seg % N, pix
+    return b, n, pixel[b, n, s]
 
 
 def line_map(segments: Tensor, mask: Tensor, height: int, width: int) -> Tensor:

@@ -223,7 +223,7 @@ def manhattan_score(closeness_to_vps: Tensor, lengths: Tensor, mask: Tensor) -> 
 
 
 def frame_manhattan_scores(
-    lines: Tensor, vps: Tensor, lengths: Tensor, mask: Tensor, angle_deg: float = 89.0
+    lines: Tensor, vps: Tensor, lengths: Tensor, mask: Tensor, angle_deg: float = 89.0, valid: Tensor | None = None
 ) -> Tensor:
     """Manhattan score (Eq. 21) of many frames at once with the sharp kernel: the same values as
     ``manhattan_score(sharp_kernel(line_vp_cosine(lines, vps).amin(-2, keepdim=True), angle_deg), lengths, mask)``
@@ -239,6 +239,8 @@ def frame_manhattan_scores(
         lengths: (B, N) segment lengths.
         mask: (B, N) bool, False for padding.
         angle_deg: kernel width of :func:`sharp_kernel`.
+        valid: optional (B, F) bool; frames marked False are not scored (their score is 0), which saves their
+            share of the work (about half the sampled candidates are invalid).
 
     Returns:
         (B, F) scores in [0, 1].
@@ -251,6 +253,17 @@ def frame_manhattan_scores(
     """
     KORNIA_CHECK_SHAPE(lines, ["B", "N", "3"])
     KORNIA_CHECK_SHAPE(vps, ["B", "F", "V", "3"])
+    if valid is not None:
+        KORNIA_CHECK_SHAPE(valid, ["B", "F"])
+        count = int(valid.sum(-1).max()) if valid.numel() else 0
+        if count == 0:
+            return lines.new_zeros(valid.shape)
+        if count < vps.shape[1]:  # score each image's valid frames (moved to the front) and scatter them back
+            order = valid.to(torch.uint8).argsort(dim=-1, descending=True, stable=True)[:, :count]  # (B, count)
+            picked = vps.gather(1, order[..., None, None].expand(*order.shape, *vps.shape[2:]))
+            scores = frame_manhattan_scores(lines, picked, lengths, mask, angle_deg)
+            scattered = scores.new_zeros(valid.shape).scatter(1, order, scores)
+            return torch.where(valid, scattered, torch.zeros_like(scattered))
     B, F, V = vps.shape[:3]
     dots = normalize(vps).reshape(B, F * V, 3) @ normalize(lines).transpose(-1, -2)  # (B, F V, N)
     nearest = dots.square_().reshape(B, F, V, -1).amin(2)  # squared cosine to the closest VP, (B, F, N)

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor, nn
 
-from ngp_kornia.detect import detect_segments
+from ngp_kornia.detect import DETECTORS, detect_segments
 from ngp_kornia.errors import ConfigError, InputError
 from ngp_kornia.geometry import (
     angles_from_rotation,
@@ -55,6 +55,7 @@ from ngp_kornia.sampling import (
     split_by_pseudo_horizon,
     top_frames,
 )
+from ngp_kornia.threads import pipeline_threads
 
 __all__ = ["NeuralGeometricParser", "ParserConfig", "ParserTrace"]
 
@@ -86,6 +87,12 @@ class ParserConfig:
         use_manhattan: with FSNet, the final score is ``s_vh * m_i`` (Eq. 22); False uses ``s_vh`` alone.
         fallback_fov: long-side field of view (degrees) reported when an image has no valid frame.
         seed: seed of the candidate sampling; every call with the same input gives the same result.
+        num_threads: torch and OpenCV threads for a call (:func:`ngp_kornia.threads.pipeline_threads`): None takes
+            ``$NGP_NUM_THREADS`` or else 1, the fastest for these small tensors and independent of the machine;
+            0 keeps the caller's setting; more may pay for large batches on an idle machine. The caller's
+            setting is restored after the call.
+        detector: the line detector, ``"lsd"`` (the most accurate) or ``"fld"`` (OpenCV's FastLineDetector,
+            faster and less accurate; :func:`ngp_kornia.detect.detect_segments_gray`).
     """
 
     working_size: int = 640
@@ -107,6 +114,8 @@ class ParserConfig:
     use_manhattan: bool = True
     fallback_fov: float = 60.0
     seed: int = 0
+    num_threads: int | None = None
+    detector: str = "lsd"
 
     def __post_init__(self) -> None:
         check_config(self)
@@ -173,6 +182,8 @@ def check_config(config: ParserConfig) -> None:
         )
     if not isinstance(config.use_manhattan, bool):
         raise ConfigError(f"ParserConfig.use_manhattan must be True or False, got {config.use_manhattan!r}")
+    if config.detector not in DETECTORS:
+        raise ConfigError(f"ParserConfig.detector must be one of {', '.join(DETECTORS)}, got {config.detector!r}")
 
 
 class NeuralGeometricParser(nn.Module):
@@ -217,9 +228,15 @@ class NeuralGeometricParser(nn.Module):
             a batched :class:`Calibration`; with ``return_trace``, the pair ``(calibration, trace)``, the trace a
             :class:`ParserTrace` of the stages (the same computation: the calibration does not change).
         """
+        with pipeline_threads(self.config.num_threads):  # one thread unless configured; the caller's count is restored
+            return self._forward(images, segments, mask, return_trace)
+
+    def _forward(
+        self, images: Tensor, segments: Tensor | None, mask: Tensor | None, return_trace: bool
+    ) -> Calibration | tuple[Calibration, ParserTrace]:
         if images.dtype in (torch.float16, torch.bfloat16):  # computed in float32, returned in the input's dtype
             low = None if segments is None else segments.float()
-            out = self(images.float(), low, mask, return_trace)
+            out = self._forward(images.float(), low, mask, return_trace)
             return (out[0].to(images.dtype), out[1]) if return_trace else out.to(images.dtype)
         cfg = self.config
         height, width = images.shape[-2:]
@@ -266,7 +283,7 @@ class NeuralGeometricParser(nn.Module):
         if cfg.num_horizontal_frames > 0:
             pairs = sample_horizontal_pair_frames(h_vps, h_ok, cfg.num_horizontal_frames, cfg.focal_range, generator)
             frames = cat_frames(frames, pairs)
-        scores = frame_manhattan_scores(lines, frames.vps, lengths, mask, cfg.kernel_angle)
+        scores = frame_manhattan_scores(lines, frames.vps, lengths, mask, cfg.kernel_angle, frames.valid)
         scores = torch.where(frames.valid, scores, torch.zeros_like(scores))
         if stages is not None:
             stages.update(lines=lines, zenith_lines=lines_z, zenith_lines_ok=lines_z_ok, zenith_candidates=zenith)

@@ -497,3 +497,22 @@ def test_topk_weighted_average_gradcheck():
     assert gradcheck(lambda s, v: topk_weighted_average(s, v, k=3)[0], (scores, values))
     with pytest.raises(ShapeError):
         topk_weighted_average(torch.rand(6), torch.rand(6))
+
+
+def test_frame_manhattan_scores_of_valid_frames_only():
+    from ngp_kornia.geometry import frame_manhattan_scores
+
+    g = torch.Generator().manual_seed(0)
+    lines = torch.randn(2, 40, 3, generator=g)
+    vps = torch.randn(2, 30, 3, 3, generator=g)
+    lengths = torch.rand(2, 40, generator=g)
+    mask = torch.rand(2, 40, generator=g) > 0.2
+    valid = torch.rand(2, 30, generator=g) > 0.5
+    valid[1] = False  # an image without a valid frame
+    full = frame_manhattan_scores(lines, vps, lengths, mask)
+    part = frame_manhattan_scores(lines, vps, lengths, mask, valid=valid)
+    assert part.shape == (2, 30) and bool((part[~valid] == 0).all())
+    torch.testing.assert_close(part[valid], full[valid])
+    everything = torch.ones(2, 30, dtype=torch.bool)
+    assert torch.equal(frame_manhattan_scores(lines, vps, lengths, mask, valid=everything), full)
+    assert torch.equal(frame_manhattan_scores(lines, vps, lengths, mask, valid=~everything), torch.zeros(2, 30))

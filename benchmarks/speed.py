@@ -1,0 +1,208 @@
+"""calibrate() against lu-vp-detect on York Urban photos, on a quiet machine and beside busy processes.
+
+Usage::
+
+    python benchmarks/speed.py --yud /path/to/YorkUrbanDB [--split train] [--limit N] [--busy 0 1 2]
+                               [--weights default --weights none] [--passes 1] [--out speed.json]
+
+For each condition (0, 1 and 2 busy background processes: plain Python loops this script starts before the timed
+calls and kills afterwards, each bounded to ``--busy-seconds`` in case the script dies), every image is calibrated
+by each ``--weights`` set and by lu-vp-detect (given the true focal length and principal point), interleaved image
+by image in this one process, the order rotating from image to image, after one warm-up call of each. Every call
+reads the file itself.
+
+Printed (and written as JSON with ``--out``): per method the mean and median ms per image and the ratio of the
+means to lu-vp-detect's in the same condition; per weight set the stages of the call (reading and decoding the file,
+line detection, the rest), and the whole call over the line detection alone.
+
+The thread count is left as the environment sets it (run it without ``OMP_NUM_THREADS`` to see what users get);
+the load average before and after each condition is printed, since other jobs on the machine slow every figure.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import subprocess
+import sys
+import time
+from collections import defaultdict
+from datetime import datetime, timezone
+from pathlib import Path
+
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from calibration import load_yud, make_lu  # noqa: E402
+
+import ngp_kornia.api as api  # noqa: E402
+from ngp_kornia import calibrate  # noqa: E402
+
+_BUSY = "import time\nend = time.time() + {seconds}\nwhile time.time() < end:\n    pass\n"
+
+
+class _Timer:
+    """Wall time of one function, accumulated until taken."""
+
+    def __init__(self) -> None:
+        self.total = 0.0
+
+    def wrap(self, fn):
+        def timed(*args, **kwargs):
+            start = time.perf_counter()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                self.total += time.perf_counter() - start
+
+        return timed
+
+    def take(self) -> float:
+        out, self.total = self.total, 0.0
+        return out
+
+
+def start_busy(count: int, seconds: float) -> list[subprocess.Popen]:
+    """``count`` processes that each keep one core busy for at most ``seconds``."""
+    return [
+        subprocess.Popen([sys.executable, "-c", _BUSY.format(seconds=seconds)], stdin=subprocess.DEVNULL)
+        for _ in range(count)
+    ]
+
+
+def stop_busy(procs: list[subprocess.Popen]) -> None:
+    for proc in procs:
+        proc.kill()
+    for proc in procs:
+        proc.wait()
+
+
+def run_condition(samples, weights: list[str], lu, passes: int) -> dict[str, dict[str, list[float]]]:
+    """Per method, per stage, the seconds of every call (methods interleaved image by image)."""
+    read, lsd = _Timer(), _Timer()
+    original = api.read_rgb, api.detect_segments_gray
+    api.read_rgb, api.detect_segments_gray = read.wrap(original[0]), lsd.wrap(original[1])
+    times: dict[str, dict[str, list[float]]] = defaultdict(lambda: defaultdict(list))
+
+    def ngp(w):
+        def call(sample):
+            read.take(), lsd.take()
+            start = time.perf_counter()
+            calibrate(sample.image_path, weights=w)
+            total = time.perf_counter() - start
+            r, d = read.take(), lsd.take()
+            return {"whole call": total, "reading": r, "line detection": d, "the rest": total - r - d}
+
+        return call
+
+    def peer(sample):
+        start = time.perf_counter()
+        lu(sample)
+        return {"whole call": time.perf_counter() - start}
+
+    methods = [(w, ngp(w)) for w in weights] + ([("lu-vp-detect", peer)] if lu is not None else [])
+    try:
+        for _, fn in methods:  # warm-up: first calls load weights and build detectors
+            fn(samples[0])
+        for p in range(passes):
+            for i, sample in enumerate(samples):
+                k = (i + p) % len(methods)
+                for name, fn in methods[k:] + methods[:k]:
+                    for stage, seconds in fn(sample).items():
+                        times[name][stage].append(seconds)
+    finally:
+        api.read_rgb, api.detect_segments_gray = original
+    return times
+
+
+def summarize(times: dict[str, dict[str, list[float]]]) -> dict[str, dict]:
+    lu = times.get("lu-vp-detect", {}).get("whole call")
+    lu_mean = statistics.fmean(lu) if lu else None
+    out = {}
+    for name, stages in times.items():
+        whole = stages["whole call"]
+        row = {
+            "mean_ms": 1000 * statistics.fmean(whole),
+            "median_ms": 1000 * statistics.median(whole),
+            "ratio_to_lu": statistics.fmean(whole) / lu_mean if lu_mean else None,
+            "stages_mean_ms": {s: 1000 * statistics.fmean(v) for s, v in stages.items()},
+        }
+        if "line detection" in stages:
+            row["whole_over_line_detection"] = statistics.fmean(whole) / statistics.fmean(stages["line detection"])
+        out[name] = row
+    return out
+
+
+def table(results: dict[int, dict]) -> str:
+    lines = [
+        "| busy processes | method | mean ms | median ms | ratio to lu (means) | reading | line detection | the rest "
+        "| whole / line detection | load before / after |",
+        "|---:|---|---:|---:|---:|---:|---:|---:|---:|---|",
+    ]
+    for busy, res in results.items():
+        load = f"{res['load_before']:.2f} / {res['load_after']:.2f}"
+        for name, row in res["methods"].items():
+            st = row["stages_mean_ms"]
+            ratio = f"{row['ratio_to_lu']:.2f}x" if row["ratio_to_lu"] else "-"
+            cells = [f"{st[s]:.1f}" if s in st else "-" for s in ("reading", "line detection", "the rest")]
+            over = f"{row['whole_over_line_detection']:.2f}x" if "whole_over_line_detection" in row else "-"
+            lines.append(
+                f"| {busy} | {name} | {row['mean_ms']:.1f} | {row['median_ms']:.1f} | {ratio} | "
+                + " | ".join(cells)
+                + f" | {over} | {load} |"
+            )
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--yud", type=Path, required=True, help="York Urban DB root")
+    p.add_argument("--split", default="train", choices=["all", "train", "test"], help="default: the ECCV half")
+    p.add_argument("--limit", type=int, default=None, help="use only the first N images")
+    p.add_argument("--weights", action="append", default=None, help="weight sets (default: default and none)")
+    p.add_argument("--busy", type=int, nargs="+", default=[0, 1, 2], help="busy background processes per condition")
+    p.add_argument("--busy-seconds", type=float, default=600.0, help="upper bound of a busy process's life")
+    p.add_argument("--passes", type=int, default=1, help="passes over the images per condition")
+    p.add_argument("--no-lu", action="store_true", help="skip lu-vp-detect (no ratios then)")
+    p.add_argument("--out", type=Path, default=None, help="write the figures as JSON here")
+    args = p.parse_args(argv)
+    samples = load_yud(args.yud, split=args.split)[: args.limit]
+    if not samples:
+        p.error(f"no York Urban images under {args.yud}")
+    weights = args.weights or ["default", "none"]
+    lu = None if args.no_lu else make_lu()
+    header = {
+        "date": datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+        "machine": f"{platform.machine()}, {os.cpu_count()} CPUs",
+        "torch": torch.__version__,
+        "caller torch threads": torch.get_num_threads(),
+        "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS"),
+        "NGP_NUM_THREADS": os.environ.get("NGP_NUM_THREADS"),
+        "images": len(samples),
+        "passes": args.passes,
+    }
+    print(json.dumps(header))
+    results = {}
+    for busy in args.busy:
+        procs = start_busy(busy, args.busy_seconds)
+        try:
+            time.sleep(0.5 if busy else 0.0)  # let them start
+            load_before = os.getloadavg()[0]
+            times = run_condition(samples, weights, lu, args.passes)
+            load_after = os.getloadavg()[0]
+        finally:
+            stop_busy(procs)
+        results[busy] = {"load_before": load_before, "load_after": load_after, "methods": summarize(times)}
+        print(f"condition: {busy} busy processes done (load {load_before:.2f} -> {load_after:.2f})", flush=True)
+    print(table(results))
+    if args.out:
+        args.out.write_text(json.dumps({"header": header, "results": results}, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,120 @@
+"""Images per second of calibrate() over a list of files and of ``ngp predict`` on a folder, with 1 and 2
+processes.
+
+Usage::
+
+    python benchmarks/throughput.py --yud /path/to/YorkUrbanDB [--split train] [--copies 2] [--processes 1 2]
+                                    [--weights default]
+
+The York Urban images (``--copies`` times each, as symbolic links in a temporary folder, so the work is long enough
+to see past start-up costs) are calibrated
+
+* by ``calibrate(path)`` in a loop, split over N fresh Python processes (each takes every N-th file); the time is
+  the wall time from starting the processes to the last one's end, and each process also reports its own loop
+  time (without importing and loading), and
+* by ``ngp predict FOLDER --devices N`` (Lightning DDP on the CPU), wall time of the whole command.
+
+Images per second = files / wall time. Start-up (importing torch, loading weights, starting DDP) is included in the
+wall times; the loop-only figure of the calibrate() runs shows what a long-running process reaches.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from datetime import datetime, timezone
+from pathlib import Path
+
+_WORKER = """
+import json, sys, time
+from ngp_kornia import calibrate
+files, weights = json.loads(sys.argv[1]), sys.argv[2]
+calibrate(files[0], weights=weights)  # warm-up: loads the weights
+start = time.perf_counter()
+for f in files:
+    calibrate(f, weights=weights)
+print(json.dumps({"loop_s": time.perf_counter() - start, "images": len(files)}))
+"""
+
+
+def calibrate_processes(files: list[str], processes: int, weights: str) -> dict:
+    start = time.perf_counter()
+    procs = [
+        subprocess.Popen(
+            [sys.executable, "-c", _WORKER, json.dumps(files[i::processes]), weights],
+            stdout=subprocess.PIPE,
+            text=True,
+        )
+        for i in range(processes)
+    ]
+    reports = [json.loads(p.communicate()[0]) for p in procs]
+    wall = time.perf_counter() - start
+    loop = max(r["loop_s"] for r in reports)
+    return {"wall_s": wall, "images_per_s": len(files) / wall, "loop_images_per_s": len(files) / loop}
+
+
+def predict_processes(folder: Path, count: int, processes: int, weights: str) -> dict:
+    ngp = Path(sys.executable).with_name("ngp")
+    cmd = [str(ngp), "predict", str(folder), "--out", str(folder.parent / f"out{processes}.jsonl")]
+    cmd += ["--devices", str(processes), "--weights", weights]
+    start = time.perf_counter()
+    run = subprocess.run(cmd, capture_output=True, text=True)
+    wall = time.perf_counter() - start
+    if run.returncode != 0:
+        raise RuntimeError(f"{' '.join(cmd)} failed: {run.stderr[-2000:]}")
+    return {"wall_s": wall, "images_per_s": count / wall}
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--yud", type=Path, required=True)
+    p.add_argument("--split", default="train", choices=["all", "train", "test"])
+    p.add_argument("--copies", type=int, default=2, help="times each image is listed")
+    p.add_argument("--processes", type=int, nargs="+", default=[1, 2])
+    p.add_argument("--weights", default="default")
+    p.add_argument("--no-predict", action="store_true")
+    args = p.parse_args(argv)
+    from ngp_kornia.data.yud import YorkUrbanDB
+
+    images = [s.image_path for s in YorkUrbanDB(args.yud, split=args.split)]
+    print(
+        f"{datetime.now(timezone.utc):%Y-%m-%d %H:%M UTC}, {os.cpu_count()} CPUs, load {os.getloadavg()[0]:.2f}, "
+        f"{len(images)} images x {args.copies}, weights {args.weights}, OMP_NUM_THREADS="
+        f"{os.environ.get('OMP_NUM_THREADS')}"
+    )
+    rows = ["| what | processes | images | wall s | images / s | images / s, loop only |"]
+    rows.append("|---|---:|---:|---:|---:|---:|")
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp) / "images"
+        folder.mkdir()
+        files = []
+        for c in range(args.copies):
+            for path in images:
+                link = folder / f"{c}_{path.name}"
+                link.symlink_to(path.resolve())
+                files.append(str(link))
+        for n in args.processes:
+            r = calibrate_processes(files, n, args.weights)
+            rows.append(
+                f"| calibrate(path) loop | {n} | {len(files)} | {r['wall_s']:.1f} | {r['images_per_s']:.2f} | "
+                f"{r['loop_images_per_s']:.2f} |"
+            )
+            print(rows[-1], flush=True)
+        if not args.no_predict:
+            for n in args.processes:
+                r = predict_processes(folder, len(files), n, args.weights)
+                rows.append(f"| ngp predict --devices {n} | {n} | {len(files)} | {r['wall_s']:.1f} | "
+                            f"{r['images_per_s']:.2f} | - |")
+                print(rows[-1], flush=True)
+    print(f"load after {os.getloadavg()[0]:.2f}")
+    print("\n".join(rows))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

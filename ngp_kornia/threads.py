@@ -1,0 +1,114 @@
+"""The pipeline's thread policy: its small tensors run on one CPU thread unless asked otherwise.
+
+The parser's tensors are small (a few thousand candidates, a 224x224 FSNet input), so torch's intra-op threads
+gain nothing on an idle machine and spin against every other process on a busy one: with two busy processes
+beside it on two cores, the default call took about 4x as long with two threads as with one. :func:`calibrate`,
+:class:`~ngp_kornia.models.NeuralGeometricParser` and ``ngp predict`` therefore run inside :func:`pipeline_threads`,
+which sets torch's (and OpenCV's) thread count for the duration of the call and restores the caller's afterwards,
+also when the call raises.
+
+How many threads: ``ParserConfig.num_threads`` (or ``calibrate(..., num_threads=N)``) when given; else the
+environment variable ``NGP_NUM_THREADS``; else 1. ``0`` leaves the caller's setting alone (the parser then runs
+with whatever ``torch.get_num_threads()`` says, as a layer of a larger model may want). With one thread the results
+do not depend on the machine's thread count; with more, sums may differ in the last bits from run to run of
+differently configured processes.
+
+Threads: ``torch.set_num_threads`` and ``cv2.setNumThreads`` are process-wide, not per Python thread. While a call
+runs, other Python threads of the same process that use torch see its thread count too. Calls that overlap in
+several Python threads share one setting: the first to enter saves the caller's counts, the last to leave restores
+them, so the caller's setting is never lost; the count in force is that of the most recent call to enter.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+import cv2
+import torch
+
+__all__ = ["ENV_VAR", "pipeline_threads", "resolve_num_threads"]
+
+#: environment variable with the default thread count of the pipeline (a positive integer, or 0: do not change)
+ENV_VAR = "NGP_NUM_THREADS"
+
+_lock = threading.Lock()
+_depth = 0
+_saved: tuple[int, int] | None = None
+
+
+def resolve_num_threads(num_threads: int | None = None) -> int:
+    """The thread count the pipeline uses: ``num_threads`` if given, else ``$NGP_NUM_THREADS``, else 1.
+
+    Returns:
+        a count >= 1, or 0 for "leave the caller's setting alone".
+
+    Raises:
+        ValueError: a negative count, or an environment value that is not a non-negative integer.
+
+    Example:
+        >>> resolve_num_threads(3)
+        3
+    """
+    if num_threads is None:
+        raw = os.environ.get(ENV_VAR, "").strip()
+        if not raw:
+            return 1
+        try:
+            num_threads = int(raw)
+        except ValueError:
+            raise ValueError(f"{ENV_VAR}={raw!r} is not an integer; set it to a thread count such as 1 or 4") from None
+        source = f"{ENV_VAR}={raw}"
+    else:
+        source = f"num_threads={num_threads}"
+    if isinstance(num_threads, bool) or not isinstance(num_threads, int) or num_threads < 0:
+        raise ValueError(f"{source}: expected a thread count >= 1, or 0 to keep the caller's setting")
+    return num_threads
+
+
+@contextmanager
+def pipeline_threads(num_threads: int | None = None) -> Iterator[int]:
+    """Run a block with torch's and OpenCV's thread counts set to :func:`resolve_num_threads` ``(num_threads)``,
+    restoring the caller's counts on the way out (also on an exception).
+
+    Nested and concurrent uses are counted, so only the outermost exit restores (see the module's notes on
+    threads). A count of 0 changes nothing.
+
+    Yields:
+        the thread count in force inside the block.
+
+    Example:
+        >>> before = torch.get_num_threads()
+        >>> with pipeline_threads(1):
+        ...     torch.get_num_threads()
+        1
+        >>> torch.get_num_threads() == before
+        True
+    """
+    global _depth, _saved
+    n = resolve_num_threads(num_threads)
+    if n == 0:
+        yield torch.get_num_threads()
+        return
+    with _lock:
+        if _depth == 0:
+            _saved = (torch.get_num_threads(), cv2.getNumThreads())
+        _depth += 1
+        _set(n, n)
+    try:
+        yield n
+    finally:
+        with _lock:
+            _depth -= 1
+            if _depth == 0 and _saved is not None:
+                _set(*_saved)
+                _saved = None
+
+
+def _set(torch_threads: int, cv2_threads: int) -> None:
+    if torch.get_num_threads() != torch_threads:
+        torch.set_num_threads(torch_threads)
+    if cv2.getNumThreads() != cv2_threads:
+        cv2.setNumThreads(cv2_threads)

@@ -14,6 +14,7 @@ import torch
 from torch import Tensor
 
 from ngp_kornia.detect import detect_segments_gray, pad_segments
+from ngp_kornia.exif import exif_focal
 from ngp_kornia.io import as_batch, read_rgb
 from ngp_kornia.models import Calibration, NeuralGeometricParser, ParserConfig
 from ngp_kornia.models.weights import load_network, network_name, shipped_weights
@@ -79,6 +80,9 @@ def calibrate(
     weights: str = "default",
     seed: int = 0,
     config: ParserConfig | None = None,
+    focal: float | None = None,
+    fov_v: float | None = None,
+    exif: bool = False,
 ) -> Calibration:
     """Calibrate a camera from one photo (or a batch) of a man-made scene.
 
@@ -90,10 +94,16 @@ def calibrate(
             (both), or the path of a weights file (or a list of paths: one ZSNet and one FSNet file).
         seed: seed of the random candidate sampling; the same input and seed give the same result.
         config: pipeline settings (:class:`ngp_kornia.models.ParserConfig`).
+        focal: a known focal length in pixels of the input image (a prior; overrides the config's).
+        fov_v: a known vertical field of view in degrees (a prior; ``focal`` wins when both are given).
+        exif: for a file without ``focal`` / ``fov_v``, use the focal length its EXIF block records
+            (``FocalLengthIn35mmFilm``, or ``FocalLength`` with the sensor resolution); no prior when it has none.
 
     Returns:
         a :class:`Calibration` in the input's pixels: ``K``, ``R``, ``focal``, ``fov_v``, ``fov_h``, ``pitch``,
-        ``roll``, ``yaw``, ``up``, ``zenith``, ``horizon``, ``vps``, ``score``, ``valid``; batched (leading dim B) for
+        ``roll``, ``yaw``, ``up``, ``zenith``, ``horizon``, ``vps``, ``score``, ``valid``, ``confidence`` (the
+        probability that the horizon is within 0.02 image heights), ``pitch_std``, ``roll_std``, ``fov_v_std``
+        (degrees); batched (leading dim B) for
         batched tensor input. Pixels: x right, y down, origin at the centre of the top-left pixel. Camera: x right,
         y down, z forward. Pitch > 0 looks up; roll > 0 when the scene's up leans right in the image. Degrees.
 
@@ -107,7 +117,9 @@ def calibrate(
         >>> sorted(cal.to_dict())[:4]
         ['K', 'R', 'focal', 'fov_h']
     """
-    cfg = replace(config or ParserConfig(), seed=seed)
+    cfg = replace(config or ParserConfig(), seed=seed, exif=exif or (config is not None and config.exif))
+    if focal is not None or fov_v is not None:
+        cfg = replace(cfg, focal=focal, fov_v=fov_v)
     segments = mask = None
     if isinstance(image, Tensor):
         batch, batched = as_batch(image)
@@ -115,6 +127,8 @@ def calibrate(
         rgb, batched = read_rgb(image), False
         batch = torch.from_numpy(rgb).permute(2, 0, 1)[None].float().div(255.0)
         segments, mask = segments_of_rgb(rgb, cfg)
+        if cfg.exif and cfg.focal is None and cfg.fov_v is None and isinstance(image, (str, Path)):
+            cfg = replace(cfg, focal=exif_focal(image, *rgb.shape[:2]))
     parser = _parser(weights, cfg, copy=False).to(batch.device)  # the cached networks, read only
     with torch.no_grad():
         result = parser(batch, segments, mask)

@@ -30,6 +30,7 @@ def _parser() -> argparse.ArgumentParser:
     cal.add_argument(
         "--overlay", help="write an overlay PNG here (for several images: a folder, one <name>_overlay.png each)"
     )
+    _add_prior_arguments(cal)
     pred = sub.add_parser("predict", help="calibrate every image of a folder into a JSON Lines file")
     pred.add_argument("folder", help="folder of images")
     pred.add_argument("--out", required=True, help="the .jsonl file to write: one JSON object per image")
@@ -38,6 +39,7 @@ def _parser() -> argparse.ArgumentParser:
     pred.add_argument("--recursive", action="store_true", help="also calibrate the images of sub-folders")
     pred.add_argument("--batch-size", type=int, default=1, help="images per loader batch")
     pred.add_argument("--seed", type=int, default=0, help="seed of the candidate sampling")
+    _add_prior_arguments(pred)
     rect = sub.add_parser("rectify", help="calibrate a photo and write it rectified (level, upright or frontal)")
     rect.add_argument("image", help="image file")
     rect.add_argument(
@@ -64,6 +66,24 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
+def _add_prior_arguments(command: argparse.ArgumentParser) -> None:
+    command.add_argument("--focal", type=float, default=None, help="known focal length, pixels of the input image")
+    command.add_argument("--fov", type=float, default=None, help="known vertical field of view, degrees")
+    command.add_argument(
+        "--exif", action="store_true", help="use the focal length in each file's EXIF, where it has one"
+    )
+
+
+def _prior(args: argparse.Namespace, image: str, rgb: np.ndarray) -> dict:
+    """calibrate()'s prior arguments for one file: --focal, --fov, else the EXIF focal length with --exif."""
+    from ngp_kornia.exif import exif_focal
+
+    focal = args.focal
+    if focal is None and args.fov is None and args.exif:
+        focal = exif_focal(image, *rgb.shape[:2])
+    return {"focal": focal, "fov_v": args.fov}
+
+
 def _overlay_path(target: str, image: str, many: bool) -> Path:
     if not many:
         return Path(target)
@@ -88,7 +108,7 @@ def _calibrate(args: argparse.Namespace) -> int:
     for image in args.images:
         try:
             rgb = read_image_file(image)
-            result = calibrate(rgb, weights=args.weights, seed=args.seed)
+            result = calibrate(rgb, weights=args.weights, seed=args.seed, **_prior(args, image, rgb))
             print(json.dumps({"image": image, **result.to_dict()}), flush=True)
             if args.overlay:
                 _write_overlay(_overlay_path(args.overlay, image, len(args.images) > 1), rgb, result)
@@ -113,6 +133,8 @@ def _predict(args: argparse.Namespace) -> int:
         return 2
     for name in ("lightning.pytorch", "lightning.fabric"):  # the rows go to --out; keep the terminal quiet
         logging.getLogger(name).setLevel(logging.WARNING)
+    from ngp_kornia.models import ParserConfig
+
     try:
         counts = predict_folder(
             args.folder,
@@ -122,6 +144,7 @@ def _predict(args: argparse.Namespace) -> int:
             recursive=args.recursive,
             batch_size=args.batch_size,
             seed=args.seed,
+            config=ParserConfig(focal=args.focal, fov_v=args.fov, exif=args.exif),
             progress_bar=sys.stdout.isatty(),
         )
     except (ValueError, OSError) as err:

@@ -28,6 +28,7 @@ from torch.utils.data import DataLoader, Dataset
 
 from ngp_kornia.api import load_parser, segments_of_rgb
 from ngp_kornia.data.folder import IMAGE_EXTENSIONS, ImageFolder
+from ngp_kornia.exif import exif_focal
 from ngp_kornia.models import Calibration, NeuralGeometricParser, ParserConfig
 
 __all__ = ["FolderImages", "FolderItem", "FolderPredictor", "JsonlWriter", "merge_parts", "predict_folder"]
@@ -69,20 +70,29 @@ class FolderPredictor(L.LightningModule):
     ``{"image": name, "error": reason}``.
 
     Args:
-        parser: the pipeline (see :func:`ngp_kornia.api.load_parser`); its config holds the seed.
+        parser: the pipeline (see :func:`ngp_kornia.api.load_parser`); its config holds the seed and the priors.
+        root: the folder the item names are relative to; with ``config.exif`` the files' EXIF focal lengths are
+            read from there.
     """
 
-    def __init__(self, parser: NeuralGeometricParser) -> None:
+    def __init__(self, parser: NeuralGeometricParser, root: str | Path | None = None) -> None:
         super().__init__()
         self.parser = parser
+        self.root = None if root is None else Path(root)
 
-    def calibrate(self, image: Tensor) -> Calibration:
-        """Calibrate one (3, H, W) image as :func:`ngp_kornia.calibrate` does for a file."""
+    def calibrate(self, image: Tensor, name: str | None = None) -> Calibration:
+        """Calibrate one (3, H, W) image as :func:`ngp_kornia.calibrate` does for a file (``name``, relative to
+        ``root``, is where an EXIF focal length is read from)."""
         # back to the exact 8-bit pixels the file decoded to (the float image is uint8 / 255), since calibrate()
         # runs LSD on those and the lines decide the answer
         rgb = image.mul(255.0).round().to(torch.uint8).permute(1, 2, 0).contiguous().numpy()
         segments, mask = segments_of_rgb(rgb, self.parser.config)
-        return self.parser(image[None].to(self.device), segments, mask)[0]
+        parser, cfg = self.parser, self.parser.config
+        if cfg.exif and cfg.focal is None and cfg.fov_v is None and name is not None and self.root is not None:
+            focal = exif_focal(self.root / name, *rgb.shape[:2])
+            if focal is not None:  # the same networks, the image's own prior
+                parser = NeuralGeometricParser(replace(cfg, focal=focal), parser.zsnet, parser.fsnet)
+        return parser(image[None].to(self.device), segments, mask)[0]
 
     def predict_step(self, batch: list[FolderItem], batch_idx: int) -> list[tuple[int, dict]]:
         rows = []
@@ -91,7 +101,7 @@ class FolderPredictor(L.LightningModule):
                 rows.append((item.index, {"image": item.name, "error": item.error}))
                 continue
             try:
-                rows.append((item.index, {"image": item.name, **self.calibrate(item.image).to_dict()}))
+                rows.append((item.index, {"image": item.name, **self.calibrate(item.image, item.name).to_dict()}))
             except ValueError as err:
                 rows.append((item.index, {"image": item.name, "error": str(err)}))
         return rows
@@ -222,7 +232,7 @@ def predict_folder(
         batch_size: images per loader batch (each image is still calibrated on its own).
         seed: seed of the candidate sampling, as for :func:`ngp_kornia.calibrate`.
         num_workers: loader worker processes per device, to read images while the parser runs.
-        config: pipeline settings.
+        config: pipeline settings, with the priors (``focal``, ``fov_v``, ``exif``) for every image.
         progress_bar: show Lightning's progress bar.
 
     Returns:
@@ -240,7 +250,7 @@ def predict_folder(
         raise ValueError(f"batch size must be at least 1, got {batch_size}")
     images = _check_folder(Path(folder), recursive)
     devices = min(devices, len(images))  # Lightning's predict sampler refuses a process without an image
-    module = FolderPredictor(load_parser(weights, replace(config or ParserConfig(), seed=seed)))
+    module = FolderPredictor(load_parser(weights, replace(config or ParserConfig(), seed=seed)), images.root)
     loader = DataLoader(FolderImages(images), batch_size=batch_size, num_workers=num_workers, collate_fn=collate_items)
     writer = JsonlWriter(out)
     trainer = L.Trainer(

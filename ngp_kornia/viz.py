@@ -33,7 +33,8 @@ def draw_calibration(
 
     Segments that point at one of the three VPs within ``tolerance_deg`` are drawn in that axis' colour (x red,
     vertical green, z blue); the horizon is a yellow line, the up (zenith) direction an arrow at the image centre, and
-    the estimate is written in the top-left corner.
+    the estimate (and, when the calibration carries them, its confidence and standard deviations) is written in the
+    top-left corner.
 
     Args:
         image: (H, W, 3) uint8 RGB.
@@ -58,10 +59,19 @@ def draw_calibration(
         f"pitch={float(calibration.pitch):.1f}  roll={float(calibration.roll):.1f}"
     )
     scale = max(0.4, max(h, w) / 1400)
-    cv2.putText(
-        out, text, (8, int(24 * scale / 0.5)), cv2.FONT_HERSHEY_SIMPLEX, scale, (255, 255, 255), thick, cv2.LINE_AA
-    )
+    lines = [text] + ([_trust_text(calibration)] if calibration.confidence is not None else [])
+    for i, line in enumerate(lines):
+        origin = (8, int((24 + 22 * i) * scale / 0.5))
+        cv2.putText(out, line, origin, cv2.FONT_HERSHEY_SIMPLEX, scale, (255, 255, 255), thick, cv2.LINE_AA)
     return out
+
+
+def _trust_text(cal: Calibration) -> str:
+    """The second line of the overlay: confidence and one standard deviation of each angle."""
+    return (
+        f"confidence={float(cal.confidence):.2f}  std: pitch {float(cal.pitch_std):.1f}  "
+        f"roll {float(cal.roll_std):.1f}  vFoV {float(cal.fov_v_std):.1f}"
+    )
 
 
 def _pt(x: float, y: float) -> tuple[int, int]:

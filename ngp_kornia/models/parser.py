@@ -37,6 +37,7 @@ from ngp_kornia.geometry import (
     weighted_structure_tensor,
     zenith_from_up,
 )
+from ngp_kornia.models.confidence import attach_trust
 from ngp_kornia.models.result import Calibration
 from ngp_kornia.sampling import (
     FrameCandidates,
@@ -51,7 +52,7 @@ from ngp_kornia.sampling import (
     top_frames,
 )
 
-__all__ = ["NeuralGeometricParser", "ParserConfig"]
+__all__ = ["NeuralGeometricParser", "ParserConfig", "prior_focal"]
 
 
 @dataclass
@@ -81,6 +82,14 @@ class ParserConfig:
         use_manhattan: with FSNet, the final score is ``s_vh * m_i`` (Eq. 22); False uses ``s_vh`` alone.
         fallback_fov: long-side field of view (degrees) reported when an image has no valid frame.
         seed: seed of the candidate sampling; every call with the same input gives the same result.
+        focal: a known focal length in pixels of the input image (a prior): every frame candidate then uses it, so
+            frames are built from one zenith or horizontal VP plus another VP moved onto its orthogonal plane, not
+            filtered by it. None estimates it.
+        fov_v: a known vertical field of view in degrees (the same prior in other units); ignored when ``focal``
+            is given.
+        exif: when calibrating a file (:func:`ngp_kornia.calibrate`, ``ngp predict``), take ``focal`` from its EXIF
+            focal length where it has one and neither prior is set (:mod:`ngp_kornia.exif`); the parser itself
+            only sees tensors and ignores it.
     """
 
     working_size: int = 640
@@ -102,6 +111,38 @@ class ParserConfig:
     use_manhattan: bool = True
     fallback_fov: float = 60.0
     seed: int = 0
+    focal: float | None = None
+    fov_v: float | None = None
+    exif: bool = False
+
+
+def prior_focal(config: ParserConfig, height: int, width: int) -> float | None:
+    """The config's known focal length (``focal`` in pixels, else ``fov_v`` in degrees) in pseudo-camera units
+    (half the long side), or None when neither is set.
+
+    Example:
+        >>> prior_focal(ParserConfig(fov_v=90.0), 480, 640)
+        0.75
+    """
+    if config.focal is not None:
+        focal = _number(config.focal)
+        if not (math.isfinite(focal) and focal > 0):
+            raise ValueError(f"focal must be a positive number of pixels, got {config.focal!r}")
+    elif config.fov_v is not None:
+        fov = _number(config.fov_v)
+        if not 0 < fov < 180:
+            raise ValueError(f"fov_v must be a vertical field of view in (0, 180) degrees, got {config.fov_v!r}")
+        focal = (height / 2.0) / math.tan(math.radians(fov) / 2.0)
+    else:
+        return None
+    return focal / pseudo_focal(height, width)
+
+
+def _number(value: object) -> float:
+    try:
+        return float(value)  # numbers, numpy scalars and one-element tensors
+    except (TypeError, ValueError):
+        return math.nan
 
 
 class NeuralGeometricParser(nn.Module):
@@ -153,7 +194,9 @@ class NeuralGeometricParser(nn.Module):
         frames, scores = self.score_frames(segments, mask, height, width, generator)
         if self.fsnet is not None:
             frames, scores = self.rescore_frames(images, segments, mask, frames, scores)
-        return self.calibrate_from_frames(frames, scores, height, width)
+        result = self.calibrate_from_frames(frames, scores, height, width)
+        known_focal = cfg.focal is not None or cfg.fov_v is not None
+        return attach_trust(result, frames, scores, segments, mask, cfg.top_k, cfg.kernel_angle, known_focal)
 
     def score_frames(
         self, segments: Tensor, mask: Tensor, height: int, width: int, generator: torch.Generator
@@ -171,9 +214,12 @@ class NeuralGeometricParser(nn.Module):
         horizontal = horizontal_line_mask(seg, mask, z_est, cfg.vertical_tol, cfg.junction_radius)
         right = split_by_pseudo_horizon(lines, z_est)
         h_vps, h_ok = sample_horizontal_vps(lines, lengths, horizontal, right, cfg.num_horizontal, generator)
-        frames = sample_frames(zenith, weights, h_vps, h_ok, cfg.num_frames, cfg.focal_range, generator)
+        known = prior_focal(cfg, height, width)
+        frames = sample_frames(zenith, weights, h_vps, h_ok, cfg.num_frames, cfg.focal_range, generator, known)
         if cfg.num_horizontal_frames > 0:
-            pairs = sample_horizontal_pair_frames(h_vps, h_ok, cfg.num_horizontal_frames, cfg.focal_range, generator)
+            pairs = sample_horizontal_pair_frames(
+                h_vps, h_ok, cfg.num_horizontal_frames, cfg.focal_range, generator, known
+            )
             frames = cat_frames(frames, pairs)
         scores = frame_manhattan_scores(lines, frames.vps, lengths, mask, cfg.kernel_angle)
         return frames, torch.where(frames.valid, scores, torch.zeros_like(scores))
@@ -212,7 +258,7 @@ class NeuralGeometricParser(nn.Module):
         zenith = dominant_eigenvector(st)
         best = scores.argmax(-1)
         horizontal = frames.horizontal[torch.arange(len(best)), best]
-        fallback = 1.0 / math.tan(math.radians(cfg.fallback_fov) / 2.0)
+        fallback = prior_focal(cfg, height, width) or 1.0 / math.tan(math.radians(cfg.fallback_fov) / 2.0)
         focal = torch.where(valid, focal, torch.full_like(focal, fallback))
         level = torch.tensor([0.0, 1.0, 0.0]).to(zenith)
         zenith = torch.where(valid[:, None], zenith, level)

@@ -37,6 +37,11 @@ class Calibration:
         valid: (B,) bool; False when the image offered no valid frame candidate, in which case the result is a
             level camera with a 60 degree field of view on the long side.
         image_size: (B, 2) ``(height, width)`` in pixels.
+        confidence: (B,) predicted probability, in [0, 1], that the horizon error is below 0.02 image heights
+            (:mod:`ngp_kornia.models.confidence`); 0 where ``valid`` is False. None when not computed.
+        pitch_std: (B,) standard deviation of the pitch, degrees (None when not computed).
+        roll_std: (B,) standard deviation of the roll, degrees.
+        fov_v_std: (B,) standard deviation of the vertical field of view, degrees (0 with a known focal length).
     """
 
     K: Tensor
@@ -54,6 +59,10 @@ class Calibration:
     score: Tensor
     valid: Tensor
     image_size: Tensor
+    confidence: Tensor | None = None
+    pitch_std: Tensor | None = None
+    roll_std: Tensor | None = None
+    fov_v_std: Tensor | None = None
 
     @property
     def batched(self) -> bool:
@@ -68,13 +77,16 @@ class Calibration:
         """The calibration of one image of a batch, without the batch dim."""
         if not self.batched:
             raise TypeError("an unbatched Calibration cannot be indexed")
-        return Calibration(**{f.name: getattr(self, f.name)[index] for f in fields(self)})
+        return Calibration(**{f.name: _index(getattr(self, f.name), index) for f in fields(self)})
 
     def to(self, *args, **kwargs) -> Calibration:
         """Move or cast every floating-point tensor, like :meth:`torch.Tensor.to`."""
         out = {}
         for f in fields(self):
             t = getattr(self, f.name)
+            if t is None:
+                out[f.name] = None
+                continue
             out[f.name] = t.to(*args, **kwargs) if t.is_floating_point() else t.to(device=t.device)
         return Calibration(**out)
 
@@ -84,6 +96,8 @@ class Calibration:
             return [self[i].to_dict() for i in range(len(self))]
         out = {}
         for f in fields(self):
+            if getattr(self, f.name) is None:
+                continue
             value = getattr(self, f.name).detach().cpu()
             out[f.name] = value.tolist() if value.dim() else value.item()
         out["height"], out["width"] = (int(v) for v in out.pop("image_size"))
@@ -95,6 +109,11 @@ class Calibration:
         return (
             f"Calibration(focal={float(self.focal):.1f}px, fov_v={float(self.fov_v):.1f}, "
             f"pitch={float(self.pitch):.2f}, roll={float(self.roll):.2f}, yaw={float(self.yaw):.2f}, "
-            f"valid={bool(self.valid)})"
+            f"valid={bool(self.valid)}"
+            + (f", confidence={float(self.confidence):.2f})" if self.confidence is not None else ")")
         )
+
+
+def _index(value: Tensor | None, index: int) -> Tensor | None:
+    return None if value is None else value[index]
 

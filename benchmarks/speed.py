@@ -84,8 +84,8 @@ def stop_busy(procs: list[subprocess.Popen]) -> None:
 def run_condition(samples, weights: list[str], lu, passes: int) -> dict[str, dict[str, list[float]]]:
     """Per method, per stage, the seconds of every call (methods interleaved image by image)."""
     read, lsd = _Timer(), _Timer()
-    original = api.read_rgb, api.detect_segments_gray
-    api.read_rgb, api.detect_segments_gray = read.wrap(original[0]), lsd.wrap(original[1])
+    original = api.read_rgb_oriented, api.detect_segments
+    api.read_rgb_oriented, api.detect_segments = read.wrap(original[0]), lsd.wrap(original[1])
     times: dict[str, dict[str, list[float]]] = defaultdict(lambda: defaultdict(list))
 
     def ngp(w):
@@ -115,7 +115,7 @@ def run_condition(samples, weights: list[str], lu, passes: int) -> dict[str, dic
                     for stage, seconds in fn(sample).items():
                         times[name][stage].append(seconds)
     finally:
-        api.read_rgb, api.detect_segments_gray = original
+        api.read_rgb_oriented, api.detect_segments = original
     return times
 
 

@@ -14,6 +14,7 @@ from torch import Tensor
 
 from ngp_kornia.detect import detect_segments
 from ngp_kornia.errors import WeightsError
+from ngp_kornia.exif import exif_focal
 from ngp_kornia.io import as_batch, read_rgb_oriented
 from ngp_kornia.models import Calibration, NeuralGeometricParser, ParserConfig
 from ngp_kornia.models.weights import load_network, network_name, shipped_weights
@@ -83,6 +84,9 @@ def calibrate(
     weights: str = "default",
     seed: int = 0,
     config: ParserConfig | None = None,
+    focal: float | None = None,
+    fov_v: float | None = None,
+    exif: bool = False,
 ) -> Calibration | list[Calibration]:
     """Calibrate a camera from one photo (or a batch, or a list of photos) of a man-made scene.
 
@@ -97,10 +101,16 @@ def calibrate(
         seed: seed of the random candidate sampling; the same input and seed give the same result.
         config: pipeline settings (:class:`ngp_kornia.models.ParserConfig`); its ``num_threads`` sets the torch and
             OpenCV threads of the call (default: ``$NGP_NUM_THREADS`` or 1), the caller's count is restored after.
+        focal: a known focal length in pixels of the input image (a prior; overrides the config's).
+        fov_v: a known vertical field of view in degrees (a prior; ``focal`` wins when both are given).
+        exif: for a file without ``focal`` / ``fov_v``, use the focal length its EXIF block records
+            (``FocalLengthIn35mmFilm``, or ``FocalLength`` with the sensor resolution); no prior when it has none.
 
     Returns:
         a :class:`Calibration` in the input's pixels: ``K``, ``R``, ``focal``, ``fov_v``, ``fov_h``, ``pitch``,
-        ``roll``, ``yaw``, ``up``, ``zenith``, ``horizon``, ``vps``, ``score``, ``valid``; batched (leading dim B) for
+        ``roll``, ``yaw``, ``up``, ``zenith``, ``horizon``, ``vps``, ``score``, ``valid``, ``confidence`` (the
+        probability that the horizon is within 0.02 image heights), ``pitch_std``, ``roll_std``, ``fov_v_std``
+        (degrees); batched (leading dim B) for
         batched tensor input. Pixels: x right, y down, origin at the centre of the top-left pixel. Camera: x right,
         y down, z forward. Pitch > 0 looks up; roll > 0 when the scene's up leans right in the image. Degrees.
         For a list: a list of results, one per item, each exactly what that item gives alone (same seed).
@@ -119,8 +129,10 @@ def calibrate(
         [[64, 64], [48, 80]]
     """
     if isinstance(image, (list, tuple)):
-        return _calibrate_list(image, weights, seed, config)
-    cfg = replace(config or ParserConfig(), seed=seed)
+        return _calibrate_list(image, weights, seed, config, focal=focal, fov_v=fov_v, exif=exif)
+    cfg = replace(config or ParserConfig(), seed=seed, exif=exif or (config is not None and config.exif))
+    if focal is not None or fov_v is not None:
+        cfg = replace(cfg, focal=focal, fov_v=fov_v)
     segments = mask = orientation = None
     with pipeline_threads(cfg.num_threads):  # one thread unless configured; the caller's count is restored
         if isinstance(image, Tensor):
@@ -129,6 +141,8 @@ def calibrate(
             (rgb, orientation), batched = read_rgb_oriented(image), False
             batch = torch.from_numpy(rgb).permute(2, 0, 1)[None].float().div(255.0)
             segments, mask = detect_segments(rgb, cfg)
+            if cfg.exif and cfg.focal is None and cfg.fov_v is None and isinstance(image, (str, Path)):
+                cfg = replace(cfg, focal=exif_focal(image, *rgb.shape[:2]))
         parser = _on_device(_parser(weights, cfg, copy=False), batch.device)  # the cached networks, read only
         with torch.no_grad():
             result = parser(batch, segments, mask)
@@ -147,7 +161,7 @@ def with_orientation(result: Calibration, orientation: int) -> Calibration:
     return replace(result, exif_orientation=torch.tensor(orientation, device=result.focal.device))
 
 
-def _calibrate_list(images, weights, seed: int, config: ParserConfig | None) -> list[Calibration]:
+def _calibrate_list(images, weights, seed: int, config: ParserConfig | None, **priors) -> list[Calibration]:
     """One result per item, each computed alone (so it equals what the item gives alone, whatever its size)."""
     if not images:
         raise ValueError("calibrate() got an empty list; give at least one image (path, array or tensor)")
@@ -156,5 +170,5 @@ def _calibrate_list(images, weights, seed: int, config: ParserConfig | None) -> 
     for index, item in enumerate(images):
         if isinstance(item, (list, tuple)):
             raise TypeError(f"calibrate(): item {index} is a {type(item).__name__}; lists of lists are not supported")
-        results.append(calibrate(item, weights=weights, seed=seed, config=config))
+        results.append(calibrate(item, weights=weights, seed=seed, config=config, **priors))
     return results

@@ -67,6 +67,7 @@ def _parser() -> argparse.ArgumentParser:
         "--overlay", help="write an overlay PNG here (for several images: a folder, one <name>_overlay.png each)"
     )
     cal.add_argument("--force", action="store_true", help=FORCE_HELP)
+    _add_prior_arguments(cal)
     pred = sub.add_parser("predict", help="calibrate every image of a folder into a JSON Lines file")
     pred.add_argument("folder", help="folder of images")
     pred.add_argument("--out", required=True, help="the .jsonl file to write: one JSON object per image")
@@ -75,6 +76,7 @@ def _parser() -> argparse.ArgumentParser:
     pred.add_argument("--recursive", action="store_true", help="also calibrate the images of sub-folders")
     pred.add_argument("--batch-size", type=int, default=1, help="images per loader batch")
     pred.add_argument("--seed", type=int, default=0, help="seed of the candidate sampling")
+    _add_prior_arguments(pred)
     rect = sub.add_parser("rectify", help="calibrate a photo and write it rectified (level, upright or frontal)")
     rect.add_argument("image", help="image file")
     rect.add_argument(
@@ -111,6 +113,24 @@ def _parser() -> argparse.ArgumentParser:
     for command in sub.choices.values():  # defaults in every --help
         command.formatter_class = _HelpFormatter
     return p
+
+
+def _add_prior_arguments(command: argparse.ArgumentParser) -> None:
+    command.add_argument("--focal", type=float, default=None, help="known focal length, pixels of the input image")
+    command.add_argument("--fov", type=float, default=None, help="known vertical field of view, degrees")
+    command.add_argument(
+        "--exif", action="store_true", help="use the focal length in each file's EXIF, where it has one"
+    )
+
+
+def _prior(args: argparse.Namespace, image: str, rgb: np.ndarray) -> dict:
+    """calibrate()'s prior arguments for one file: --focal, --fov, else the EXIF focal length with --exif."""
+    from ngp_kornia.exif import exif_focal
+
+    focal = args.focal
+    if focal is None and args.fov is None and args.exif:
+        focal = exif_focal(image, *rgb.shape[:2])
+    return {"focal": focal, "fov_v": args.fov}
 
 
 #: images read and calibrated together by ``ngp calibrate`` (one ``calibrate()`` call on a list)
@@ -157,8 +177,20 @@ def _write_overlay(path: Path, rgb: np.ndarray, calibration, config: ParserConfi
     _write_image(path, draw_calibration(rgb, calibration, segments))
 
 
+def _calibrate_loaded(loaded: list, args: argparse.Namespace) -> list:
+    """calibrate() on the (image, rgb, orientation) items read: one call on the list when every item has the same
+    prior (always, unless --exif finds different focal lengths), else one call per item."""
+    from ngp_kornia.api import calibrate
+
+    priors = [_prior(args, image, rgb) for image, rgb, _ in loaded]
+    options = {"weights": args.weights, "seed": args.seed}
+    if all(p == priors[0] for p in priors[1:]):
+        return calibrate([rgb for _, rgb, _ in loaded], **options, **priors[0]) if loaded else []
+    return [calibrate(rgb, **options, **p) for (_, rgb, _), p in zip(loaded, priors, strict=True)]
+
+
 def _calibrate(args: argparse.Namespace) -> int:
-    from ngp_kornia.api import calibrate, with_orientation
+    from ngp_kornia.api import with_orientation
     from ngp_kornia.io import read_image
 
     many = len(args.images) > 1
@@ -177,7 +209,7 @@ def _calibrate(args: argparse.Namespace) -> int:
             except USER_ERRORS as err:
                 failed += 1
                 print(f"ngp: error: {_one_line(err)}", file=sys.stderr, flush=True)
-        results = calibrate([rgb for _, rgb, _ in loaded], weights=args.weights, seed=args.seed) if loaded else []
+        results = _calibrate_loaded(loaded, args)
         for (image, rgb, orientation), result in zip(loaded, results, strict=True):
             result = with_orientation(result, orientation)
             print(json.dumps({"image": image, **result.to_dict()}), flush=True)
@@ -210,6 +242,8 @@ def _predict(args: argparse.Namespace) -> int:
         return 2
     for name in ("lightning.pytorch", "lightning.fabric"):  # the rows go to --out; keep the terminal quiet
         logging.getLogger(name).setLevel(logging.WARNING)
+    from ngp_kornia.models import ParserConfig
+
     try:
         counts = predict_folder(
             args.folder,
@@ -219,6 +253,7 @@ def _predict(args: argparse.Namespace) -> int:
             recursive=args.recursive,
             batch_size=args.batch_size,
             seed=args.seed,
+            config=ParserConfig(focal=args.focal, fov_v=args.fov, exif=args.exif),
             progress_bar=sys.stdout.isatty(),
         )
     except USER_ERRORS as err:

@@ -38,6 +38,7 @@ from torch.utils.data import DataLoader, Dataset
 from ngp_kornia.api import load_parser, with_orientation
 from ngp_kornia.data.folder import IMAGE_EXTENSIONS, ImageFolder
 from ngp_kornia.errors import OutputError
+from ngp_kornia.exif import exif_focal
 from ngp_kornia.io import read_rgb_oriented
 from ngp_kornia.models import Calibration, NeuralGeometricParser, ParserConfig
 
@@ -106,18 +107,27 @@ class FolderPredictor(L.LightningModule):
     ``{"image": name, "error": reason}``.
 
     Args:
-        parser: the pipeline (see :func:`ngp_kornia.api.load_parser`); its config holds the seed.
+        parser: the pipeline (see :func:`ngp_kornia.api.load_parser`); its config holds the seed and the priors.
+        root: the folder the item names are relative to; with ``config.exif`` the files' EXIF focal lengths are
+            read from there.
     """
 
-    def __init__(self, parser: NeuralGeometricParser) -> None:
+    def __init__(self, parser: NeuralGeometricParser, root: str | Path | None = None) -> None:
         super().__init__()
         self.parser = parser
+        self.root = None if root is None else Path(root)
 
-    def calibrate(self, image: Tensor) -> Calibration:
-        """Calibrate one (3, H, W) image as :func:`ngp_kornia.calibrate` does for a file."""
+    def calibrate(self, image: Tensor, name: str | None = None) -> Calibration:
+        """Calibrate one (3, H, W) image as :func:`ngp_kornia.calibrate` does for a file (``name``, relative to
+        ``root``, is where an EXIF focal length is read from)."""
+        parser, cfg = self.parser, self.parser.config
+        if cfg.exif and cfg.focal is None and cfg.fov_v is None and name is not None and self.root is not None:
+            focal = exif_focal(self.root / name, image.shape[-2], image.shape[-1])
+            if focal is not None:  # the same networks, the image's own prior
+                parser = NeuralGeometricParser(replace(cfg, focal=focal), parser.zsnet, parser.fsnet)
         # the parser detects lines on the image rounded to 8 bits, which are the exact pixels the file decoded to
         # (the float image is uint8 / 255): the same lines, hence the same answer, as calibrate() on the file
-        return self.parser(image[None].to(self.device))[0]
+        return parser(image[None].to(self.device))[0]
 
     def predict_step(self, batch: list[FolderItem], batch_idx: int) -> list[tuple[int, dict]]:
         rows = []
@@ -126,7 +136,7 @@ class FolderPredictor(L.LightningModule):
                 rows.append((item.index, {"image": item.name, "error": item.error}))
                 continue
             try:
-                result = self.calibrate(item.image)
+                result = self.calibrate(item.image, item.name)
                 if item.orientation is not None:
                     result = with_orientation(result, item.orientation)
                 rows.append((item.index, {"image": item.name, **result.to_dict()}))
@@ -331,7 +341,7 @@ def predict_folder(
         batch_size: images per loader batch (each image is still calibrated on its own).
         seed: seed of the candidate sampling, as for :func:`ngp_kornia.calibrate`.
         num_workers: loader worker processes per device, to read images while the parser runs.
-        config: pipeline settings.
+        config: pipeline settings, with the priors (``focal``, ``fov_v``, ``exif``) for every image.
         progress_bar: show Lightning's progress bar.
 
     Returns:
@@ -351,7 +361,7 @@ def predict_folder(
     images = _check_folder(Path(folder), recursive)
     _check_out(Path(out), images)
     devices = min(cap_devices(devices), len(images))  # Lightning's predict sampler refuses a process without an image
-    module = FolderPredictor(load_parser(weights, replace(config or ParserConfig(), seed=seed)))
+    module = FolderPredictor(load_parser(weights, replace(config or ParserConfig(), seed=seed)), images.root)
     loader = DataLoader(FolderImages(images), batch_size=batch_size, num_workers=num_workers, collate_fn=collate_items)
     writer = JsonlWriter(out)
     trainer = _trainer(devices, writer, progress_bar)

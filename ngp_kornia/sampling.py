@@ -285,7 +285,11 @@ def top_frames(frames: FrameCandidates, scores: Tensor, k: int) -> Tensor:
 
 
 def frames_from_vps(
-    first: Tensor, second: Tensor, valid: Tensor, focal_range: tuple[float, float] = (0.8, 4.0)
+    first: Tensor,
+    second: Tensor,
+    valid: Tensor,
+    focal_range: tuple[float, float] = (0.8, 4.0),
+    focal: float | None = None,
 ) -> FrameCandidates:
     """Complete pairs of orthogonal VPs into Manhattan frames: focal length from orthogonality, rotation and the
     third VP.
@@ -301,6 +305,9 @@ def frames_from_vps(
         valid: (B, F) bool validity of the pairs.
         focal_range: allowed focal lengths in pseudo-camera units; (0.8, 4.0) spans long-side fields of view from
             about 28 to 103 degrees.
+        focal: a known focal length (pseudo-camera units). Every pair then makes a frame: the first VP is kept and
+            the second is moved onto the first's orthogonal plane (for a zenith, onto its horizon), instead of
+            deriving the focal length from the pair and dropping pairs that disagree with ``focal_range``.
 
     Returns:
         :class:`FrameCandidates`; frames whose VPs cannot be orthogonal or whose focal is out of range are invalid
@@ -308,13 +315,18 @@ def frames_from_vps(
     """
     KORNIA_CHECK_SHAPE(first, ["B", "F", "3"])
     KORNIA_CHECK_SHAPE(second, ["B", "F", "3"])
-    focal, ok = focal_from_orthogonal_vps(first, second, first.new_zeros(2))
-    ok = ok & valid & (focal >= focal_range[0]) & (focal <= focal_range[1])
+    if focal is None:
+        focal, ok = focal_from_orthogonal_vps(first, second, first.new_zeros(2))
+        ok = ok & valid & (focal >= focal_range[0]) & (focal <= focal_range[1])
+    else:
+        focal, ok = torch.full_like(first[..., 0], focal), valid
     f = torch.where(ok, focal, torch.ones_like(focal))
     scale = torch.stack([f, f, torch.ones_like(f)], -1)  # K = diag(f, f, 1)
     a = normalize(first / scale)
     b = normalize(second / scale)
-    b = normalize(b - (b * a).sum(-1, keepdim=True) * a)
+    b = b - (b * a).sum(-1, keepdim=True) * a
+    ok = ok & (b.norm(dim=-1) > 1e-6)  # a second VP along the first has no orthogonal part
+    b = normalize(b)
     R = _vertical_axis_first(torch.stack([b, a, torch.linalg.cross(b, a)], -1))
     vps = normalize(R.transpose(-1, -2) * scale[..., None, :])
     zenith, horizontal = vps[..., 1, :], vps[..., 0, :]
@@ -351,6 +363,7 @@ def sample_frames(
     count: int = 1024,
     focal_range: tuple[float, float] = (0.8, 4.0),
     generator: Generators = None,
+    focal: float | None = None,
 ) -> FrameCandidates:
     """Manhattan-frame candidates: each pairs a zenith drawn by its weight (ZSNet score, or uniform over Z_c) with a
     uniformly drawn horizontal VP.
@@ -363,6 +376,7 @@ def sample_frames(
         count: number of frames F.
         focal_range: see :func:`frames_from_vps`.
         generator: random generator, or one per image.
+        focal: a known focal length (pseudo-camera units), see :func:`frames_from_vps`.
 
     Returns:
         :class:`FrameCandidates` with F = ``count``.
@@ -371,7 +385,7 @@ def sample_frames(
     KORNIA_CHECK_SHAPE(horizontal_mask, ["B", "H"])
     zi, zok = _draw(zenith_weights, count, generator)
     hi, hok = _draw(horizontal_mask.to(zenith_weights), count, generator)
-    return frames_from_vps(_gather(zenith, zi), _gather(horizontal, hi), zok & hok, focal_range)
+    return frames_from_vps(_gather(zenith, zi), _gather(horizontal, hi), zok & hok, focal_range, focal)
 
 
 def _draw(  # one weighted draw per frame, with replacement
@@ -392,6 +406,7 @@ def sample_horizontal_pair_frames(
     count: int = 512,
     focal_range: tuple[float, float] = (0.8, 4.0),
     generator: Generators = None,
+    focal: float | None = None,
 ) -> FrameCandidates:
     """Manhattan-frame candidates from two horizontal VPs, one from each group of :func:`sample_horizontal_vps`
     (its first half is the right-hand group, its second half the left-hand one).
@@ -405,6 +420,7 @@ def sample_horizontal_pair_frames(
         count: number of frames.
         focal_range: see :func:`frames_from_vps`.
         generator: random generator, or one per image.
+        focal: a known focal length (pseudo-camera units), see :func:`frames_from_vps`.
 
     Returns:
         :class:`FrameCandidates` with F = ``count``.
@@ -415,4 +431,4 @@ def sample_horizontal_pair_frames(
     ri, rok = _draw(weights[:, :half], count, generator)
     li, lok = _draw(weights[:, half:], count, generator)
     first, second = _gather(horizontal[:, :half], ri), _gather(horizontal[:, half:], li)
-    return frames_from_vps(first, second, rok & lok, focal_range)
+    return frames_from_vps(first, second, rok & lok, focal_range, focal)

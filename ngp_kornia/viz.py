@@ -33,8 +33,8 @@ def draw_calibration(
 
     Segments that point at one of the three VPs within ``tolerance_deg`` are drawn in that axis' colour (x red,
     vertical green, z blue); the horizon is a yellow line, the up (zenith) direction an arrow at the image centre, the
-    estimate is written in the top-left corner and a key of the colours (:data:`LEGEND`) in the bottom-left, both on a
-    dark box.
+    estimate (and, when the calibration carries them, its confidence and standard deviations) is written in the
+    top-left corner and a key of the colours (:data:`LEGEND`) in the bottom-left, both on a dark box.
 
     Args:
         image: (H, W, 3) uint8 RGB.
@@ -59,7 +59,8 @@ def draw_calibration(
         f"pitch={float(calibration.pitch):.1f}  roll={float(calibration.roll):.1f}"
     )
     scale = max(0.4, max(h, w) / 1400)
-    _draw_label(out, text, scale, thick)
+    lines = [text] + ([_trust_text(calibration)] if calibration.confidence is not None else [])
+    _draw_label(out, lines, scale, thick)
     _draw_legend(out, scale, thick, with_segments=segments is not None and len(segments) > 0)
     return out
 
@@ -86,12 +87,15 @@ def _panel(out: np.ndarray, x0: int, y0: int, x1: int, y1: int) -> None:
         out[y0:y1, x0:x1] = (box * (1 - _PANEL_ALPHA) + np.float32(_PANEL) * _PANEL_ALPHA).astype(np.uint8)
 
 
-def _draw_label(out: np.ndarray, text: str, scale: float, thick: int) -> None:
-    """White text on a dark box in the top-left corner."""
-    (tw, th), base = cv2.getTextSize(text, _FONT, scale, thick)
-    pad = max(3, int(6 * scale))
-    _panel(out, 0, 0, tw + 2 * pad + 4, th + base + 2 * pad + 4)
-    cv2.putText(out, text, (pad + 2, pad + 2 + th), _FONT, scale, (255, 255, 255), thick, cv2.LINE_AA)
+def _draw_label(out: np.ndarray, lines: list[str], scale: float, thick: int) -> None:
+    """White lines of text on a dark box in the top-left corner."""
+    sizes = [cv2.getTextSize(line, _FONT, scale, thick) for line in lines]
+    tw = max(w for (w, _), _ in sizes)
+    th, base = sizes[0][0][1], sizes[0][1]
+    pad, row = max(3, int(6 * scale)), th + base + max(2, int(4 * scale))
+    _panel(out, 0, 0, tw + 2 * pad + 4, len(lines) * row + 2 * pad + 4)
+    for i, line in enumerate(lines):
+        cv2.putText(out, line, (pad + 2, pad + 2 + th + i * row), _FONT, scale, (255, 255, 255), thick, cv2.LINE_AA)
 
 
 def _draw_legend(out: np.ndarray, scale: float, thick: int, with_segments: bool) -> None:
@@ -108,6 +112,14 @@ def _draw_legend(out: np.ndarray, scale: float, thick: int, with_segments: bool)
         y = top + pad + i * row + th
         cv2.line(out, (pad, y - th // 2), (pad + swatch, y - th // 2), colour, 2 * thick, cv2.LINE_AA)
         cv2.putText(out, name, (3 * pad + swatch, y), _FONT, scale, colour, thick, cv2.LINE_AA)
+
+
+def _trust_text(cal: Calibration) -> str:
+    """The second line of the overlay: confidence and one standard deviation of each angle."""
+    return (
+        f"confidence={float(cal.confidence):.2f}  std: pitch {float(cal.pitch_std):.1f}  "
+        f"roll {float(cal.roll_std):.1f}  vFoV {float(cal.fov_v_std):.1f}"
+    )
 
 
 def _pt(x: float, y: float) -> tuple[int, int]:

@@ -133,9 +133,9 @@ def test_unrelated_part_files_and_the_old_results_survive_until_the_end(tmp_path
     seen = []
     original = predict_module.FolderPredictor.calibrate
 
-    def spy(self, image):
+    def spy(self, image, *rest):
         seen.append(out.read_text())  # mid-run: out still holds the old results, never a half-written file
-        return original(self, image)
+        return original(self, image, *rest)
 
     monkeypatch.setattr(predict_module.FolderPredictor, "calibrate", spy)
     predict_folder(folder, out)
@@ -161,11 +161,11 @@ def test_any_failure_of_one_image_is_its_row(tmp_path, monkeypatch):
     original = predict_module.FolderPredictor.calibrate
     calls = []
 
-    def flaky_calibrate(self, image):
+    def flaky_calibrate(self, image, *rest):
         calls.append(1)
         if len(calls) == 2:
             raise RuntimeError("something unexpected inside the parser")
-        return original(self, image)
+        return original(self, image, *rest)
 
     monkeypatch.setattr(predict_module, "read_rgb_oriented", flaky_read)
     monkeypatch.setattr(predict_module.FolderPredictor, "calibrate", flaky_calibrate)

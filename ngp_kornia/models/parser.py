@@ -38,6 +38,7 @@ from ngp_kornia.geometry import (
     vanishing_points_from_rotation,
     zenith_from_up,
 )
+from ngp_kornia.models.confidence import attach_trust
 from ngp_kornia.models.fsnet import frame_scores
 from ngp_kornia.models.result import Calibration
 from ngp_kornia.models.trace import ParserTrace
@@ -57,7 +58,7 @@ from ngp_kornia.sampling import (
 )
 from ngp_kornia.threads import pipeline_threads
 
-__all__ = ["NeuralGeometricParser", "ParserConfig", "ParserTrace"]
+__all__ = ["NeuralGeometricParser", "ParserConfig", "ParserTrace", "prior_focal"]
 
 
 @dataclass
@@ -93,6 +94,14 @@ class ParserConfig:
             setting is restored after the call.
         detector: the line detector, ``"lsd"`` (the most accurate) or ``"fld"`` (OpenCV's FastLineDetector,
             faster and less accurate; :func:`ngp_kornia.detect.detect_segments_gray`).
+        focal: a known focal length in pixels of the input image (a prior): every frame candidate then uses it, so
+            frames are built from one zenith or horizontal VP plus another VP moved onto its orthogonal plane, not
+            filtered by it. None estimates it.
+        fov_v: a known vertical field of view in degrees (the same prior in other units); ignored when ``focal``
+            is given.
+        exif: when calibrating a file (:func:`ngp_kornia.calibrate`, ``ngp predict``), take ``focal`` from its EXIF
+            focal length where it has one and neither prior is set (:mod:`ngp_kornia.exif`); the parser itself
+            only sees tensors and ignores it.
     """
 
     working_size: int = 640
@@ -116,9 +125,41 @@ class ParserConfig:
     seed: int = 0
     num_threads: int | None = None
     detector: str = "lsd"
+    focal: float | None = None
+    fov_v: float | None = None
+    exif: bool = False
 
     def __post_init__(self) -> None:
         check_config(self)
+
+
+def prior_focal(config: ParserConfig, height: int, width: int) -> float | None:
+    """The config's known focal length (``focal`` in pixels, else ``fov_v`` in degrees) in pseudo-camera units
+    (half the long side), or None when neither is set.
+
+    Example:
+        >>> prior_focal(ParserConfig(fov_v=90.0), 480, 640)
+        0.75
+    """
+    if config.focal is not None:
+        focal = _number(config.focal)
+        if not (math.isfinite(focal) and focal > 0):
+            raise ValueError(f"focal must be a positive number of pixels, got {config.focal!r}")
+    elif config.fov_v is not None:
+        fov = _number(config.fov_v)
+        if not 0 < fov < 180:
+            raise ValueError(f"fov_v must be a vertical field of view in (0, 180) degrees, got {config.fov_v!r}")
+        focal = (height / 2.0) / math.tan(math.radians(fov) / 2.0)
+    else:
+        return None
+    return focal / pseudo_focal(height, width)
+
+
+def _number(value: object) -> float:
+    try:
+        return float(value)  # numbers, numpy scalars and one-element tensors
+    except (TypeError, ValueError):
+        return math.nan
 
 
 #: field: (kind, low, high, what the bounds mean); kind "int" or "float"; None: no bound; bounds inclusive unless
@@ -184,6 +225,12 @@ def check_config(config: ParserConfig) -> None:
         raise ConfigError(f"ParserConfig.use_manhattan must be True or False, got {config.use_manhattan!r}")
     if config.detector not in DETECTORS:
         raise ConfigError(f"ParserConfig.detector must be one of {', '.join(DETECTORS)}, got {config.detector!r}")
+    if config.focal is not None and not (math.isfinite(_number(config.focal)) and _number(config.focal) > 0):
+        raise ConfigError(f"ParserConfig.focal must be a positive number of pixels or None, got {config.focal!r}")
+    if config.fov_v is not None and not 0 < _number(config.fov_v) < 180:
+        raise ConfigError(f"ParserConfig.fov_v must be an angle in (0, 180) degrees or None, got {config.fov_v!r}")
+    if not isinstance(config.exif, bool):
+        raise ConfigError(f"ParserConfig.exif must be True or False, got {config.exif!r}")
 
 
 class NeuralGeometricParser(nn.Module):
@@ -254,6 +301,8 @@ class NeuralGeometricParser(nn.Module):
         if self.fsnet is not None:
             frames, scores = self.rescore_frames(images, segments, mask, frames, scores, stages)
         result = self.calibrate_from_frames(frames, scores, height, width, stages)
+        known_focal = cfg.focal is not None or cfg.fov_v is not None
+        result = attach_trust(result, frames, scores, segments, mask, cfg.top_k, cfg.kernel_angle, known_focal)
         return (result, ParserTrace(**stages)) if return_trace else result
 
     def score_frames(
@@ -279,9 +328,12 @@ class NeuralGeometricParser(nn.Module):
         horizontal = horizontal_line_mask(seg, mask, z_est, cfg.vertical_tol, cfg.junction_radius)
         right = split_by_pseudo_horizon(lines, z_est)
         h_vps, h_ok = sample_horizontal_vps(lines, lengths, horizontal, right, cfg.num_horizontal, generator)
-        frames = sample_frames(zenith, weights, h_vps, h_ok, cfg.num_frames, cfg.focal_range, generator)
+        known = prior_focal(cfg, height, width)
+        frames = sample_frames(zenith, weights, h_vps, h_ok, cfg.num_frames, cfg.focal_range, generator, known)
         if cfg.num_horizontal_frames > 0:
-            pairs = sample_horizontal_pair_frames(h_vps, h_ok, cfg.num_horizontal_frames, cfg.focal_range, generator)
+            pairs = sample_horizontal_pair_frames(
+                h_vps, h_ok, cfg.num_horizontal_frames, cfg.focal_range, generator, known
+            )
             frames = cat_frames(frames, pairs)
         scores = frame_manhattan_scores(lines, frames.vps, lengths, mask, cfg.kernel_angle, frames.valid)
         scores = torch.where(frames.valid, scores, torch.zeros_like(scores))
@@ -334,7 +386,7 @@ class NeuralGeometricParser(nn.Module):
         if stages is not None:
             stages.update(final_frames=frames, final_scores=scores, top_k_weights=top_k_weights, best=best)
         horizontal = frames.horizontal[torch.arange(len(best)), best]
-        fallback = 1.0 / math.tan(math.radians(cfg.fallback_fov) / 2.0)
+        fallback = prior_focal(cfg, height, width) or 1.0 / math.tan(math.radians(cfg.fallback_fov) / 2.0)
         focal = torch.where(valid, focal, torch.full_like(focal, fallback))
         level = torch.tensor([0.0, 1.0, 0.0]).to(zenith)
         zenith = torch.where(valid[:, None], zenith, level)

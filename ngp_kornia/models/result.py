@@ -42,6 +42,11 @@ class Calibration:
         exif_orientation: (B,) long, for images read from files: the EXIF orientation tag (1-8) that was applied
             before calibrating, so every field is in the pixels of the image as displayed (1: stored upright, 6: a
             phone photo stored turned, ...); None for arrays and tensors, which are taken as they are.
+        confidence: (B,) predicted probability, in [0, 1], that the horizon error is below 0.02 image heights
+            (:mod:`ngp_kornia.models.confidence`); 0 where ``valid`` is False. None when not computed.
+        pitch_std: (B,) standard deviation of the pitch, degrees (None when not computed).
+        roll_std: (B,) standard deviation of the roll, degrees.
+        fov_v_std: (B,) standard deviation of the vertical field of view, degrees (0 with a known focal length).
     """
 
     K: Tensor
@@ -60,6 +65,10 @@ class Calibration:
     valid: Tensor
     image_size: Tensor
     exif_orientation: Tensor | None = None
+    confidence: Tensor | None = None
+    pitch_std: Tensor | None = None
+    roll_std: Tensor | None = None
+    fov_v_std: Tensor | None = None
 
     @property
     def batched(self) -> bool:
@@ -111,7 +120,8 @@ class Calibration:
         return (
             f"Calibration(focal={float(self.focal):.1f}px, fov_v={float(self.fov_v):.1f}, "
             f"pitch={float(self.pitch):.2f}, roll={float(self.roll):.2f}, yaw={float(self.yaw):.2f}, "
-            f"valid={bool(self.valid)})"
+            f"valid={bool(self.valid)}"
+            + (f", confidence={float(self.confidence):.2f})" if self.confidence is not None else ")")
         )
 
     # --- the camera types of other tools (ngp_kornia.models.cameras) ---

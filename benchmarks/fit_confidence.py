@@ -1,0 +1,267 @@
+"""Fit the trust model (confidence and standard deviations) that ships in ``ngp_kornia/weights/trust.json``.
+
+Two steps, so the expensive one runs once per data set and seed::
+
+    # 1. run calibrate() and record, per image, the trust features, the answer and its errors
+    python benchmarks/fit_confidence.py collect rendered /tmp/renders_fit --out fit.json          # renders only
+    python benchmarks/fit_confidence.py collect yud /path/to/YorkUrbanDB --out yud.json           # for checking
+    python benchmarks/fit_confidence.py collect manifest /path/to/manifest.csv --out ecd.json     # for checking
+        options: --seed S, --weights SPEC (as benchmarks/calibration.py), --prior {none,true}, --limit N
+    # 2. fit the coefficients on the renders' records and write them
+    python benchmarks/fit_confidence.py fit fit.json --out ngp_kornia/weights/trust.json
+
+The confidence is a logistic regression (L2 penalty 1e-2 on standardised inputs, Newton's method) of
+``horizon error < threshold`` on :func:`ngp_kornia.models.confidence.confidence_inputs`. Each standard deviation is
+``exp(a + b * log(spread + 0.01) + c * logit(confidence))``: (b, c) and a first ``a`` by least squares on
+``log |error|``, then ``a`` shifted so that 68.3% of the fitting errors lie within one standard deviation (the
+share a normal distribution puts there). Fit on renders only, never on the real photos used to check it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from calibration import Sample, load_rendered, load_yud, weights_and_config  # noqa: E402
+
+import ngp_kornia.models.parser as parser_module  # noqa: E402
+from ngp_kornia import calibrate  # noqa: E402
+from ngp_kornia.metrics import fov_error, horizon_error, pitch_error, roll_error, up_vector_error  # noqa: E402
+from ngp_kornia.models.confidence import (  # noqa: E402
+    INPUT_NAMES,
+    STD_SPREADS,
+    TrustFeatures,
+    confidence_inputs,
+    trust_features,
+)
+
+THRESHOLD = 0.02
+#: York Urban's calibrated horizon (its own K and vp_orthogonal) by image name; samples carry the published one
+CALIBRATED_HORIZON: dict[str, torch.Tensor] = {}
+
+
+# ----------------------------------------------------------------------------------------------------------
+# samples
+
+
+def load_manifest(path: Path) -> list[Sample]:
+    """Samples of a CSV manifest; fields the manifest does not give (pitch, roll, focal for ECD) are NaN."""
+    from ngp_kornia.data import CSVManifest
+
+    nan3 = torch.full((3,), math.nan, dtype=torch.float64)
+    out = []
+    for s in CSVManifest(path):
+        if s.horizon is None:
+            raise SystemExit(f"{s.image_path}: the manifest gives no horizon")
+        out.append(
+            Sample(
+                name=s.image_path.stem,
+                image_path=s.image_path,
+                K=s.K if s.K is not None else torch.full((3, 3), math.nan, dtype=torch.float64),
+                up=s.up if s.up is not None else nan3,
+                horizon=s.horizon,
+                pitch=math.nan if s.pitch is None else s.pitch,
+                roll=math.nan if s.roll is None else s.roll,
+                fov_v=math.nan if s.fov_v is None else s.fov_v,
+                height=s.height,
+                width=s.width,
+                kind="manifest",
+            )
+        )
+    return out
+
+
+def published_yud_horizon(root: Path, sample: Sample) -> torch.Tensor:
+    """York Urban's published horizon: the line through its two raw horizontal VPs, ``(K v_a) x (K v_b)``."""
+    import scipy.io
+
+    vp = scipy.io.loadmat(root / sample.name / f"{sample.name}GroundTruthVP_CamParams.mat")["vp"]
+    vp = torch.as_tensor(np.asarray(vp, dtype=np.float64))
+    flip = torch.diag(torch.tensor([1.0, -1.0, 1.0], dtype=torch.float64))
+    a, b = (sample.K @ flip @ vp[:, j] for j in (0, 2))
+    line = torch.linalg.cross(a, b)
+    line = line / line[:2].norm()
+    return line if line[1] >= 0 else -line
+
+
+def load_samples(dataset: str, path: Path) -> list[Sample]:
+    if dataset == "rendered":
+        return load_rendered(path)
+    if dataset == "manifest":
+        return load_manifest(path)
+    samples = load_yud(path, "all", "orthogonal")
+    CALIBRATED_HORIZON.update((s.name, s.horizon) for s in samples)
+    return [replace(s, kind="yud", horizon=published_yud_horizon(path, s)) for s in samples]
+
+
+# ----------------------------------------------------------------------------------------------------------
+# collecting
+
+
+def collect(samples: list[Sample], spec: str | None, seed: int, prior: str) -> list[dict]:
+    """Run calibrate() on every sample; one record per image: features, answer, trust outputs, errors."""
+    weights, config = weights_and_config(spec)
+    captured: list[TrustFeatures] = []
+    attach = parser_module.attach_trust
+
+    def recording(result, frames, scores, segments, mask, *args, **kwargs):
+        with torch.no_grad():
+            captured.append(trust_features(result, frames, scores, segments, mask, *args[:2]))
+        return attach(result, frames, scores, segments, mask, *args, **kwargs)
+
+    parser_module.attach_trust = recording
+    records = []
+    try:
+        for i, s in enumerate(samples):
+            cfg = config
+            if prior == "true":
+                if not math.isfinite(float(s.K[0, 0])):
+                    raise SystemExit(f"{s.name}: --prior true needs a known focal length")
+                cfg = replace(config, focal=float(s.K[0, 0]))
+            cal = calibrate(str(s.image_path), weights=weights, seed=seed, config=cfg)
+            feats = {k: float(v[0]) for k, v in captured.pop().as_dict().items()}
+            h_err = float(horizon_error(cal.horizon[None].double(), s.horizon[None], s.height, s.width)[0])
+            rec = {
+                "name": s.name,
+                "kind": s.kind,
+                "features": feats,
+                "valid": bool(cal.valid),
+                "score": float(cal.score),
+                "confidence": float(cal.confidence),
+                "pitch_std": float(cal.pitch_std),
+                "roll_std": float(cal.roll_std),
+                "fov_v_std": float(cal.fov_v_std),
+                "horizon": h_err,
+            }
+            if s.name in CALIBRATED_HORIZON:
+                truth = CALIBRATED_HORIZON[s.name][None]
+                calibrated = horizon_error(cal.horizon[None].double(), truth, s.height, s.width)
+                rec["horizon_calibrated"] = float(calibrated[0])
+            if math.isfinite(s.pitch):
+                p = torch.tensor([float(cal.pitch)], dtype=torch.float64)
+                r = torch.tensor([float(cal.roll)], dtype=torch.float64)
+                rec["pitch_signed"] = float(cal.pitch) - s.pitch
+                rec["roll_signed"] = float(cal.roll) - s.roll
+                rec["pitch"] = float(pitch_error(p, torch.tensor([s.pitch], dtype=torch.float64))[0])
+                rec["roll"] = float(roll_error(r, torch.tensor([s.roll], dtype=torch.float64))[0])
+                rec["up"] = float(up_vector_error(cal.up[None].double(), s.up[None])[0])
+            if math.isfinite(s.fov_v):
+                fov = torch.tensor([float(cal.fov_v)], dtype=torch.float64)
+                rec["fov_v"] = float(fov_error(fov, torch.tensor([s.fov_v], dtype=torch.float64))[0])
+            records.append(rec)
+            print(f"\r{i + 1}/{len(samples)} {s.name}", end="", file=sys.stderr, flush=True)
+    finally:
+        parser_module.attach_trust = attach
+    print(file=sys.stderr)
+    return records
+
+
+# ----------------------------------------------------------------------------------------------------------
+# fitting
+
+
+def inputs_of(records: list[dict]) -> np.ndarray:
+    feats = TrustFeatures(
+        **{k: torch.tensor([r["features"][k] for r in records], dtype=torch.float64) for k in records[0]["features"]}
+    )
+    return confidence_inputs(feats).numpy()
+
+
+def fit_logistic(x: np.ndarray, y: np.ndarray, l2: float = 1e-2, steps: int = 50) -> tuple[np.ndarray, float]:
+    """L2-penalised logistic regression by Newton's method; returns (weights, bias)."""
+    n, d = x.shape
+    xb = np.concatenate([x, np.ones((n, 1))], 1)
+    w = np.zeros(d + 1)
+    penalty = np.full(d + 1, l2 * n)
+    penalty[-1] = 0.0
+    for _ in range(steps):
+        p = 1.0 / (1.0 + np.exp(-xb @ w))
+        grad = xb.T @ (p - y) + penalty * w
+        hess = (xb * (p * (1 - p))[:, None]).T @ xb + np.diag(penalty)
+        step = np.linalg.solve(hess, grad)
+        w -= step
+        if np.abs(step).max() < 1e-10:
+            break
+    return w[:-1], float(w[-1])
+
+
+def fit_std(spread: np.ndarray, logit_conf: np.ndarray, error: np.ndarray) -> tuple[float, float, float]:
+    """(a, b, c) of ``log std = a + b log(spread + 0.01) + c logit(conf)``, a set for 68.3% one-sigma coverage."""
+    ok = np.isfinite(error)
+    s, q, e = np.log(spread[ok] + 0.01), logit_conf[ok], np.abs(error[ok])
+    x = np.stack([np.ones_like(s), s, q], 1)
+    coef, *_ = np.linalg.lstsq(x, np.log(e + 1e-3), rcond=None)
+    pred = x @ coef
+    # the shift that puts 68.3% of the errors within one sigma
+    shift = np.quantile(np.log(e + 1e-12) - pred, 0.6827)
+    return float(coef[0] + shift), float(coef[1]), float(coef[2])
+
+
+def fit(records: list[dict], threshold: float) -> dict:
+    x = inputs_of(records)
+    y = np.array([r["horizon"] < threshold for r in records], dtype=np.float64)
+    mean, scale = x.mean(0), x.std(0)
+    scale = np.where(scale > 1e-6, scale, 1.0)  # a constant input (no information) is left unscaled
+    w, b = fit_logistic((x - mean) / scale, y)
+    conf = 1.0 / (1.0 + np.exp(-(((x - mean) / scale) @ w + b)))
+    conf = np.clip(conf, 1e-4, 1 - 1e-4)
+    logit_conf = np.log(conf) - np.log1p(-conf)
+    std = {}
+    for name, spread in STD_SPREADS.items():
+        spreads = np.array([r["features"][spread] for r in records])
+        errors = np.array([r.get(f"{name}_signed", r.get(name, math.nan)) for r in records], dtype=np.float64)
+        std[name] = fit_std(spreads, logit_conf, errors)
+    return {
+        "threshold": threshold,
+        "inputs": list(INPUT_NAMES),
+        "weights": [round(float(v), 6) for v in w],
+        "bias": round(b, 6),
+        "mean": [round(float(v), 6) for v in mean],
+        "scale": [round(float(v), 6) for v in scale],
+        "std": {k: [round(v, 6) for v in c] for k, c in std.items()},
+        "fitted_on": f"{len(records)} rendered images; {int(y.sum())} below the threshold",
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    p_col = sub.add_parser("collect", help="run calibrate() and record features and errors")
+    p_col.add_argument("dataset", choices=["rendered", "yud", "manifest"])
+    p_col.add_argument("path", type=Path)
+    p_col.add_argument("--out", type=Path, required=True)
+    p_col.add_argument("--seed", type=int, default=0)
+    p_col.add_argument("--weights", default=None, help="weight set and overrides, as in benchmarks/calibration.py")
+    p_col.add_argument("--prior", choices=["none", "true"], default="none", help="give the true focal length")
+    p_col.add_argument("--limit", type=int, default=None)
+    p_fit = sub.add_parser("fit", help="fit the trust model on collected render records")
+    p_fit.add_argument("records", type=Path, nargs="+")
+    p_fit.add_argument("--out", type=Path, required=True)
+    p_fit.add_argument("--threshold", type=float, default=THRESHOLD)
+    args = parser.parse_args(argv)
+
+    if args.command == "collect":
+        samples = load_samples(args.dataset, args.path)[: args.limit]
+        records = collect(samples, args.weights, args.seed, args.prior)
+        args.out.write_text(json.dumps({"command": " ".join(sys.argv), "records": records}, indent=0))
+        print(f"wrote {len(records)} records to {args.out}")
+    else:
+        records = [r for path in args.records for r in json.loads(path.read_text())["records"]]
+        if any(r["kind"] in ("yud", "manifest") for r in records):
+            parser.error("fit on renders only: these records include real photos")
+        model = fit(records, args.threshold)
+        args.out.write_text(json.dumps(model, indent=1) + "\n")
+        print(json.dumps(model, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

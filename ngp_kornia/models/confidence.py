@@ -1,0 +1,318 @@
+"""How far to trust a calibration: a calibrated confidence and per-parameter standard deviations.
+
+The parser already knows more than its best score: whether a clearly different horizon scored almost as well (an
+ambiguous image), how far its top-k frames disagree, how many lines it saw and how many of them support the chosen
+frame. :func:`trust_features` gathers these per image; :class:`TrustModel` maps them to
+
+* ``confidence``: the predicted probability that the horizon error is below ``threshold`` image heights (0.02), a
+  logistic model of the features;
+* ``pitch_std``, ``roll_std``, ``fov_v_std``: standard deviations in degrees, each
+  ``exp(a + b * log(spread) + c * logit(confidence))`` with ``spread`` the score-weighted spread of that parameter
+  over the top-k frames.
+
+The coefficients are fitted on rendered scenes only (``benchmarks/fit_confidence.py`` writes
+``ngp_kornia/weights/trust.json``), for the shipped default weight set; other weight sets get the same model.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, fields, replace
+from functools import lru_cache
+from pathlib import Path
+
+import torch
+from torch import Tensor
+
+from ngp_kornia.geometry import (
+    fov_from_focal,
+    pitch_roll_from_up,
+    pseudo_focal,
+    segment_lengths,
+    segments_to_lines,
+    sharp_closeness,
+    to_pseudo_camera,
+    topk_weighted_average,
+)
+from ngp_kornia.models.result import Calibration
+from ngp_kornia.sampling import FrameCandidates
+
+__all__ = ["TRUST_FILE", "TrustFeatures", "TrustModel", "attach_trust", "trust_features"]
+
+#: the shipped coefficients (written by benchmarks/fit_confidence.py)
+TRUST_FILE = Path(__file__).resolve().parent.parent / "weights" / "trust.json"
+
+#: two frames whose horizons differ by more than this (image heights, at either border) count as different answers
+DIFFERENT_HORIZON = 0.03
+
+
+@dataclass
+class TrustFeatures:
+    """What the parser knows about one answer, per image (every field (B,), float).
+
+    Attributes:
+        score: final score of the best frame (``s_vh * m`` with FSNet, ``m`` without).
+        manhattan: Manhattan score ``m`` (Eq. 21) of the best frame.
+        ambiguity: best score among frames whose horizon differs from the answer's by more than
+            :data:`DIFFERENT_HORIZON` image heights, divided by the best score (0: no rival, 1: a rival as good).
+        horizon_spread: score-weighted RMS distance (image heights, worse border) of the top-k frames' horizons from
+            the answer's.
+        pitch_spread: score-weighted standard deviation of the top-k frames' pitch, degrees.
+        roll_spread: the same for roll, degrees.
+        fov_spread: the same for the vertical field of view, degrees.
+        lines: number of line segments.
+        vertical_share: share of the segments' length that points at the answer's vertical VP.
+        horizontal_share: the smaller share of the two horizontal VPs.
+        valid_share: share of the scored frame candidates that are valid.
+    """
+
+    score: Tensor
+    manhattan: Tensor
+    ambiguity: Tensor
+    horizon_spread: Tensor
+    pitch_spread: Tensor
+    roll_spread: Tensor
+    fov_spread: Tensor
+    lines: Tensor
+    vertical_share: Tensor
+    horizontal_share: Tensor
+    valid_share: Tensor
+
+    def as_dict(self) -> dict[str, Tensor]:
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+def _border_heights(lines: Tensor, height: int, width: int) -> Tensor:
+    """(..., 3) pixel lines -> (..., 2) their y at the left and right borders, in image heights (finite)."""
+    ab = lines[..., :2].norm(dim=-1).clamp_min(1e-12)
+    sign = torch.where(lines[..., 1] < 0, -1.0, 1.0).to(lines) / ab
+    a, b, c = lines[..., 0] * sign, lines[..., 1] * sign, lines[..., 2] * sign
+    b = b.clamp_min(1e-6)
+    xs = torch.tensor([-0.5, width - 0.5]).to(lines)
+    y = -(a[..., None] * xs + c[..., None]) / b[..., None]
+    return (y / height).clamp(-100.0, 100.0)
+
+
+def _frame_horizons(frames: FrameCandidates, height: int, width: int) -> Tensor:
+    """Pixel horizon lines (B, F, 3) of pseudo-camera frames: ``K_p^-T diag(1/f^2, 1/f^2, 1) z``."""
+    f = frames.focal.clamp_min(1e-6)
+    z = frames.zenith
+    line = torch.stack([z[..., 0] / f**2, z[..., 1] / f**2, z[..., 2]], -1)
+    pf = pseudo_focal(height, width)
+    cx, cy = (width - 1) / 2.0, (height - 1) / 2.0
+    a, b, c = line.unbind(-1)
+    return torch.stack([a / pf, b / pf, c - (cx * a + cy * b) / pf], -1)
+
+
+def _weighted_std(values: Tensor, weights: Tensor) -> Tensor:
+    mean = (weights * values).sum(-1, keepdim=True)
+    return ((weights * (values - mean).square()).sum(-1)).clamp_min(0.0).sqrt()
+
+
+def trust_features(
+    result: Calibration,
+    frames: FrameCandidates,
+    scores: Tensor,
+    segments: Tensor,
+    mask: Tensor,
+    top_k: int = 8,
+    kernel_angle: float = 89.0,
+) -> TrustFeatures:
+    """The features of :class:`TrustFeatures` for a batch.
+
+    Args:
+        result: the batched answer (its horizon is compared with the frames').
+        frames: the scored frame candidates (pseudo camera), F per image.
+        scores: (B, F) their final scores, zero where invalid.
+        segments: (B, N, 2, 2) the segments in input pixels.
+        mask: (B, N) bool.
+        top_k: k of the top-k average.
+        kernel_angle: width of the Manhattan score's kernel, degrees.
+
+    Returns:
+        :class:`TrustFeatures`, every field (B,), finite.
+    """
+    height, width = (int(v) for v in result.image_size[0])
+    valid = frames.valid
+    scores = torch.where(valid, scores, torch.zeros_like(scores))
+    best_score, best = scores.max(-1)
+    rows = torch.arange(len(best), device=best.device)
+    # horizons: every frame's against the answer's, worse border, image heights
+    mine = _border_heights(result.horizon, height, width)  # (B, 2)
+    theirs = _border_heights(_frame_horizons(frames, height, width), height, width)  # (B, F, 2)
+    gap = (theirs - mine[:, None]).abs().amax(-1)  # (B, F)
+    rival = torch.where(valid & (gap > DIFFERENT_HORIZON), scores, torch.zeros_like(scores)).amax(-1)
+    ambiguity = rival / best_score.clamp_min(1e-9)
+    _, w = topk_weighted_average(scores, frames.focal, top_k, valid)
+    horizon_spread = (w * gap.square()).sum(-1).sqrt()
+    # per-frame pitch, roll and field of view
+    f = frames.focal.clamp_min(1e-6)
+    z = frames.zenith
+    up = torch.stack([z[..., 0] / f, z[..., 1] / f, z[..., 2]], -1)
+    up = up * torch.where(up[..., 1:2] > 0, -1.0, 1.0).to(up)
+    pitch, roll = pitch_roll_from_up(up)
+    fov = fov_from_focal(f * pseudo_focal(height, width), height)
+    # line support of the best frame's three VPs
+    lines = segments_to_lines(to_pseudo_camera(segments, height, width))
+    lengths = segment_lengths(segments) * mask.to(segments)
+    vps = frames.vps[rows, best]  # (B, 3, 3)
+    close = sharp_closeness(lines, vps, kernel_angle)  # (B, 3, N)
+    total = lengths.sum(-1).clamp_min(1e-9)
+    shares = (close * lengths[:, None]).sum(-1) / total[:, None]  # (B, 3)
+    manhattan = (close.amax(1) * lengths).sum(-1) / total
+    any_valid = valid.any(-1)
+
+    def clean(t: Tensor) -> Tensor:
+        t = torch.nan_to_num(t.to(result.focal), nan=0.0, posinf=0.0, neginf=0.0)
+        return torch.where(any_valid, t, torch.zeros_like(t))
+
+    return TrustFeatures(
+        score=clean(best_score),
+        manhattan=clean(manhattan),
+        ambiguity=clean(ambiguity),
+        horizon_spread=clean(horizon_spread),
+        pitch_spread=clean(_weighted_std(pitch, w)),
+        roll_spread=clean(_weighted_std(roll, w)),
+        fov_spread=clean(_weighted_std(fov, w)),
+        lines=mask.sum(-1).to(result.focal),
+        vertical_share=clean(shares[:, 1]),
+        horizontal_share=clean(torch.minimum(shares[:, 0], shares[:, 2])),
+        valid_share=valid.to(result.focal).mean(-1),
+    )
+
+
+def confidence_inputs(features: TrustFeatures) -> Tensor:
+    """The logistic model's inputs (B, D) from the features (transformed to roughly linear effects)."""
+    return torch.stack(
+        [
+            torch.log(features.score + 1e-3),
+            torch.log(features.manhattan + 1e-3),
+            features.ambiguity,
+            torch.log(features.horizon_spread + 1e-3),
+            torch.log1p(features.lines),
+            features.vertical_share,
+            features.horizontal_share,
+            features.valid_share,
+        ],
+        -1,
+    )
+
+
+#: names of the columns of :func:`confidence_inputs`, as stored in the coefficients file
+INPUT_NAMES = (
+    "log_score",
+    "log_manhattan",
+    "ambiguity",
+    "log_horizon_spread",
+    "log_lines",
+    "vertical_share",
+    "horizontal_share",
+    "valid_share",
+)
+#: the parameters with a standard deviation, and the feature their spread comes from
+STD_SPREADS = {"pitch": "pitch_spread", "roll": "roll_spread", "fov_v": "fov_spread"}
+
+
+@dataclass(frozen=True)
+class TrustModel:
+    """Coefficients of the confidence and of the standard deviations.
+
+    Attributes:
+        threshold: horizon error (image heights) the confidence is the probability of staying under.
+        weights: (D,) logistic weights on the standardised :func:`confidence_inputs`.
+        bias: logistic bias.
+        mean: (D,) input means used to standardise.
+        scale: (D,) input standard deviations used to standardise.
+        std: per parameter (``pitch``, ``roll``, ``fov_v``) ``(a, b, c)`` of
+            ``log(std) = a + b * log(spread + 0.01) + c * logit(confidence)``.
+    """
+
+    threshold: float
+    weights: tuple[float, ...]
+    bias: float
+    mean: tuple[float, ...]
+    scale: tuple[float, ...]
+    std: dict[str, tuple[float, float, float]]
+
+    @classmethod
+    def load(cls, path: str | Path = TRUST_FILE) -> TrustModel:
+        """Read a coefficients file written by ``benchmarks/fit_confidence.py``."""
+        data = json.loads(Path(path).read_text())
+        if tuple(data["inputs"]) != INPUT_NAMES:
+            raise ValueError(f"{path}: its inputs {data['inputs']} are not this version's {list(INPUT_NAMES)}")
+        return cls(
+            threshold=float(data["threshold"]),
+            weights=tuple(data["weights"]),
+            bias=float(data["bias"]),
+            mean=tuple(data["mean"]),
+            scale=tuple(data["scale"]),
+            std={k: tuple(v) for k, v in data["std"].items()},
+        )
+
+    def confidence(self, features: TrustFeatures) -> Tensor:
+        """(B,) probability that the horizon error is below :attr:`threshold`."""
+        x = confidence_inputs(features)
+        mean, scale, weights = (torch.tensor(v).to(x) for v in (self.mean, self.scale, self.weights))
+        return torch.sigmoid(((x - mean) / scale) @ weights + self.bias)
+
+    def stds(self, features: TrustFeatures, confidence: Tensor) -> dict[str, Tensor]:
+        """Standard deviations (B,) in degrees of ``pitch``, ``roll`` and ``fov_v``."""
+        p = confidence.clamp(1e-4, 1 - 1e-4)
+        logit = torch.log(p) - torch.log1p(-p)
+        out = {}
+        for name, spread in STD_SPREADS.items():
+            a, b, c = self.std[name]
+            out[name] = torch.exp(a + b * torch.log(getattr(features, spread) + 0.01) + c * logit)
+        return out
+
+
+@lru_cache(maxsize=1)
+def _shipped() -> TrustModel:
+    return TrustModel.load(TRUST_FILE)
+
+
+def attach_trust(
+    result: Calibration,
+    frames: FrameCandidates,
+    scores: Tensor,
+    segments: Tensor,
+    mask: Tensor,
+    top_k: int = 8,
+    kernel_angle: float = 89.0,
+    known_focal: bool = False,
+    model: TrustModel | None = None,
+) -> Calibration:
+    """The answer with ``confidence``, ``pitch_std``, ``roll_std`` and ``fov_v_std`` filled in.
+
+    An image without a valid frame gets confidence 0 and standard deviations of 90 degrees (pitch, roll) and 180
+    (field of view): nothing is known. With a known focal length the field of view's standard deviation is 0.
+    Computed without gradients: these are diagnostics, not part of the differentiable answer.
+
+    Args:
+        result: the batched answer of the parser.
+        frames: its scored frame candidates.
+        scores: (B, F) their scores.
+        segments: (B, N, 2, 2) segments, input pixels.
+        mask: (B, N) bool.
+        top_k: k of the top-k average.
+        kernel_angle: the Manhattan score's kernel width, degrees.
+        known_focal: the focal length was given as a prior.
+        model: coefficients; None uses the shipped ones.
+
+    Returns:
+        a new :class:`Calibration`.
+    """
+    model = model or _shipped()
+    with torch.no_grad():
+        frames = FrameCandidates(**{k: v.detach() for k, v in frames.__dict__.items()})
+        features = trust_features(result, frames, scores.detach(), segments.detach(), mask, top_k, kernel_angle)
+        conf = model.confidence(features)
+        stds = model.stds(features, conf)
+    valid = result.valid
+    conf = torch.where(valid, conf, torch.zeros_like(conf))
+    pitch_std = torch.where(valid, stds["pitch"], torch.full_like(conf, 90.0))
+    roll_std = torch.where(valid, stds["roll"], torch.full_like(conf, 90.0))
+    fov_std = torch.where(valid, stds["fov_v"], torch.full_like(conf, 180.0))
+    if known_focal:
+        fov_std = torch.zeros_like(fov_std)
+    return replace(result, confidence=conf, pitch_std=pitch_std, roll_std=roll_std, fov_v_std=fov_std)

@@ -1,0 +1,114 @@
+"""The confidence and standard deviations every answer carries, and the focal-length prior."""
+
+import json
+import math
+from dataclasses import replace
+
+import pytest
+import torch
+
+from ngp_kornia import calibrate
+from ngp_kornia.data.synth.render import render_scene
+from ngp_kornia.models import NeuralGeometricParser, ParserConfig
+from ngp_kornia.models.confidence import TRUST_FILE, TrustModel
+from ngp_kornia.models.parser import prior_focal
+from ngp_kornia.sampling import frames_from_vps
+
+TRUST_FIELDS = ("confidence", "pitch_std", "roll_std", "fov_v_std")
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return render_scene(3, size=(320, 240))
+
+
+def test_noise_and_blank_images_have_low_confidence():
+    g = torch.Generator().manual_seed(0)
+    noise = torch.rand(2, 3, 240, 320, generator=g)
+    blobs = torch.nn.functional.interpolate(torch.rand(1, 3, 12, 16, generator=g), size=(240, 320), mode="bicubic")
+    for image in (noise, blobs.clamp(0, 1), torch.zeros(1, 3, 240, 320), torch.ones(1, 3, 240, 320)):
+        out = calibrate(image)
+        assert bool((out.confidence < 0.1).all()), out.confidence
+
+
+def test_a_clean_scene_is_trusted_more_than_noise():
+    clean = calibrate(render_scene(0, size=(320, 240)).image)  # horizon error 0.004 image heights
+    noise = calibrate(torch.rand(3, 240, 320, generator=torch.Generator().manual_seed(1)))
+    assert float(clean.confidence) > 0.5 > float(noise.confidence)
+
+
+def test_trust_fields_shapes_ranges_and_json(scene):
+    image = torch.from_numpy(scene.image).permute(2, 0, 1).float().div(255)
+    batch = calibrate(torch.stack([image, torch.zeros_like(image)]))
+    for name in TRUST_FIELDS:
+        value = getattr(batch, name)
+        assert value.shape == (2,) and bool(torch.isfinite(value).all()) and bool((value >= 0).all())
+    assert bool((batch.confidence <= 1).all())
+    assert not bool(batch.valid[1]) and float(batch.confidence[1]) == 0.0 and float(batch.pitch_std[1]) == 90.0
+    row = json.loads(json.dumps(batch[0].to_dict()))
+    assert all(isinstance(row[name], float) for name in TRUST_FIELDS)
+    assert batch.to(torch.float64).confidence.dtype == torch.float64
+
+
+def test_standard_deviations_follow_the_spread_of_the_top_frames():
+    model = TrustModel.load()
+    for name in ("pitch", "roll", "fov_v"):
+        assert model.std[name][1] > 0  # a wider spread of the top frames gives a wider standard deviation
+
+
+def test_coefficients_file_must_match_the_inputs(tmp_path):
+    data = json.loads(TRUST_FILE.read_text())
+    data["inputs"] = data["inputs"][:-1]
+    bad = tmp_path / "trust.json"
+    bad.write_text(json.dumps(data))
+    with pytest.raises(ValueError, match="inputs"):
+        TrustModel.load(bad)
+
+
+def test_known_focal_is_kept_exactly_and_fov_std_is_zero(scene):
+    out = calibrate(scene.image, focal=scene.focal)
+    assert float(out.focal) == pytest.approx(float(scene.focal), rel=1e-5)
+    assert float(out.fov_v_std) == 0.0
+    by_fov = calibrate(scene.image, fov_v=scene.fov_v)
+    assert float(by_fov.focal) == pytest.approx(float(scene.focal), rel=1e-4)
+    assert float(calibrate(torch.zeros(3, 64, 64), focal=50.0).focal) == pytest.approx(50.0)  # no frame: the prior
+
+
+@pytest.mark.parametrize("kwargs", [{"focal": -3.0}, {"focal": math.nan}, {"fov_v": 0.0}, {"fov_v": 190.0}])
+def test_bad_prior_is_a_clear_error(kwargs):
+    with pytest.raises(ValueError, match="focal|fov_v"):
+        calibrate(torch.rand(3, 64, 64), **kwargs)
+
+
+def test_convention_prior_focal_in_pseudo_camera_units():
+    assert prior_focal(ParserConfig(), 480, 640) is None
+    assert prior_focal(ParserConfig(focal=640.0), 480, 640) == pytest.approx(2.0)
+    assert prior_focal(ParserConfig(focal=640.0, fov_v=10.0), 480, 640) == pytest.approx(2.0)  # focal wins
+
+
+def test_known_focal_builds_frames_from_pairs_that_disagree_with_it():
+    # zenith and horizontal VP of a camera with f = 2 (pseudo units), pitch 20 deg; the horizontal VP is nudged off
+    # the horizon, so the pair alone gives a wrong focal length, or none
+    f, pitch = 2.0, math.radians(20.0)
+    up = torch.tensor([0.0, -math.cos(pitch), math.sin(pitch)])
+    side = torch.tensor([math.cos(0.3), 0.0, math.sin(0.3)])
+    side = side - (side @ up) * up
+    K = torch.diag(torch.tensor([f, f, 1.0]))
+    zenith, horizontal = K @ up, K @ side + torch.tensor([0.0, 0.3, 0.0])
+    free = frames_from_vps(zenith[None, None], horizontal[None, None], torch.ones(1, 1, dtype=torch.bool))
+    known = frames_from_vps(zenith[None, None], horizontal[None, None], torch.ones(1, 1, dtype=torch.bool), focal=f)
+    assert bool(known.valid.all()) and float(known.focal) == f
+    assert not bool(free.valid.all()) or abs(float(free.focal) - f) > 0.05
+    # the zenith is kept; the frame's rotation is orthonormal with the true up vector as its down axis (negated)
+    R = known.R[0, 0]
+    assert torch.allclose(R.T @ R, torch.eye(3), atol=1e-5)
+    assert torch.allclose(-R[:, 1], up / up.norm(), atol=1e-5)
+
+
+def test_prior_changes_how_frames_are_built_not_only_which_survive(scene):
+    image = torch.from_numpy(scene.image).permute(2, 0, 1).float().div(255)[None]
+    narrow = NeuralGeometricParser(ParserConfig(focal_range=(1.0, 1.0 + 1e-6)))  # filtering alone: almost nothing
+    cfg = ParserConfig()
+    known = NeuralGeometricParser(replace(cfg, focal=scene.focal))
+    assert not bool(narrow(image).valid[0])
+    assert bool(known(image).valid[0])

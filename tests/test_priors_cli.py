@@ -1,0 +1,89 @@
+"""Priors and trust on the command line, in ngp predict, in calibrate() for files and in the overlay."""
+
+import json
+import math
+from dataclasses import replace
+
+import cv2
+import numpy as np
+import pytest
+
+from ngp_kornia import calibrate
+from ngp_kornia.cli import main
+from ngp_kornia.data.synth.render import render_scene
+from ngp_kornia.exif import FILM_DIAGONAL_MM
+from ngp_kornia.predict import predict_folder
+from ngp_kornia.viz import draw_calibration
+from tests.test_exif import SHORT, tiff_block
+
+TRUST = ("confidence", "pitch_std", "roll_std", "fov_v_std")
+
+
+def _scene_jpeg(path, exif_35mm: int | None) -> np.ndarray:
+    rgb = render_scene(2, size=(160, 120)).image
+    data = cv2.imencode(".jpg", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 95])[1].tobytes()
+    if exif_35mm is not None:
+        segment = b"Exif\x00\x00" + tiff_block("II", [(0xA405, SHORT, exif_35mm)])
+        data = data[:2] + b"\xff\xe1" + (len(segment) + 2).to_bytes(2, "big") + segment + data[2:]
+    path.write_bytes(data)
+    return rgb
+
+
+@pytest.fixture(scope="module")
+def photos(tmp_path_factory):
+    root = tmp_path_factory.mktemp("priors")
+    _scene_jpeg(root / "with_exif.jpg", 30)
+    _scene_jpeg(root / "plain.jpg", None)
+    return root
+
+
+EXIF_FOCAL = 30 * math.hypot(160, 120) / FILM_DIAGONAL_MM
+
+
+def _rows(capsys):
+    return [json.loads(line) for line in capsys.readouterr().out.strip().splitlines()]
+
+
+def test_cli_focal_and_fov_priors_and_trust_fields(photos, capsys):
+    image = str(photos / "plain.jpg")
+    assert main(["calibrate", image, "--focal", "150"]) == 0
+    row = _rows(capsys)[0]
+    assert row["focal"] == pytest.approx(150.0, rel=1e-5) and row["fov_v_std"] == 0.0
+    assert all(0.0 <= row[k] for k in TRUST) and row["confidence"] <= 1.0
+    assert main(["calibrate", image, "--fov", "50"]) == 0
+    assert _rows(capsys)[0]["fov_v"] == pytest.approx(50.0, abs=1e-3)
+
+
+def test_cli_exif_prior_and_silent_fall_back(photos, capsys):
+    assert main(["calibrate", str(photos / "with_exif.jpg"), str(photos / "plain.jpg"), "--exif"]) == 0
+    with_exif, plain = _rows(capsys)
+    assert with_exif["focal"] == pytest.approx(EXIF_FOCAL, rel=1e-5)
+    assert plain == {**json.loads(json.dumps(calibrate(str(photos / "plain.jpg")).to_dict())), "image": plain["image"]}
+
+
+def test_calibrate_reads_exif_only_when_asked(photos):
+    path = str(photos / "with_exif.jpg")
+    assert float(calibrate(path, exif=True).focal) == pytest.approx(EXIF_FOCAL, rel=1e-5)
+    assert float(calibrate(path).focal) != pytest.approx(EXIF_FOCAL, rel=1e-5)
+    assert float(calibrate(path, exif=True, focal=200.0).focal) == pytest.approx(200.0, rel=1e-5)  # given wins
+
+
+def test_predict_uses_each_files_exif(photos, tmp_path):
+    out = tmp_path / "rows.jsonl"
+    from ngp_kornia.models import ParserConfig
+
+    predict_folder(photos, out, config=ParserConfig(exif=True))
+    rows = {r["image"]: r for r in map(json.loads, out.read_text().splitlines())}
+    assert rows["with_exif.jpg"]["focal"] == pytest.approx(EXIF_FOCAL, rel=1e-5)
+    assert rows["plain.jpg"]["focal"] == pytest.approx(float(calibrate(str(photos / "plain.jpg")).focal), rel=1e-6)
+    assert all(k in rows["plain.jpg"] for k in TRUST)
+
+
+def test_overlay_writes_the_confidence_line():
+    rgb = render_scene(2, size=(320, 240)).image
+    cal = calibrate(rgb)
+    with_trust = draw_calibration(rgb, cal)
+    without = draw_calibration(rgb, replace(cal, confidence=None))
+    band = slice(int(46 * 0.4 / 0.5) - 12, int(46 * 0.4 / 0.5) + 4)  # where the second line of text sits
+    assert (with_trust[band] != without[band]).any()
+    assert (with_trust[-60:] == without[-60:]).all()

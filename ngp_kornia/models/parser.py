@@ -37,6 +37,7 @@ from ngp_kornia.geometry import (
     weighted_structure_tensor,
     zenith_from_up,
 )
+from ngp_kornia.models.refine import refine_horizon
 from ngp_kornia.models.result import Calibration
 from ngp_kornia.sampling import (
     FrameCandidates,
@@ -81,6 +82,8 @@ class ParserConfig:
         use_manhattan: with FSNet, the final score is ``s_vh * m_i`` (Eq. 22); False uses ``s_vh`` alone.
         fallback_fov: long-side field of view (degrees) reported when an image has no valid frame.
         seed: seed of the candidate sampling; every call with the same input gives the same result.
+        refine_horizon: after the frame search, move the horizon to the one that the segments support best,
+            searching horizontal VPs of every building block along it (:mod:`ngp_kornia.models.refine`).
     """
 
     working_size: int = 640
@@ -102,6 +105,7 @@ class ParserConfig:
     use_manhattan: bool = True
     fallback_fov: float = 60.0
     seed: int = 0
+    refine_horizon: bool = False
 
 
 class NeuralGeometricParser(nn.Module):
@@ -153,7 +157,8 @@ class NeuralGeometricParser(nn.Module):
         frames, scores = self.score_frames(segments, mask, height, width, generator)
         if self.fsnet is not None:
             frames, scores = self.rescore_frames(images, segments, mask, frames, scores)
-        return self.calibrate_from_frames(frames, scores, height, width)
+        out = self.calibrate_from_frames(frames, scores, height, width)
+        return refine_horizon(out, segments, mask) if cfg.refine_horizon else out
 
     def score_frames(
         self, segments: Tensor, mask: Tensor, height: int, width: int, generator: torch.Generator

@@ -1,0 +1,298 @@
+"""Horizon refinement in image space for Atlanta worlds: after the frame search, find every horizontal VP along
+the horizon (one or two per building block, not only the frame's two) and move the horizon where the lines
+support it best.
+
+Method (all batched over B with the segment mask; no loop over images):
+
+1. **Zenith.** The up vector is refined by least squares on its inlier segments (those pointing at the zenith
+   within ``zenith_tol`` degrees), weighted by length: the smallest eigenvector of ``sum_i L_i l_i l_i^T`` with
+   ``l_i`` the unit normal of segment ``i``'s interpretation plane (Gaussian sphere), twice.
+2. **Hypotheses.** A horizon with a centred principal point and the frame's focal length ``f`` is fixed by the up
+   vector ``u`` (the line ``K^-T u``, the polar of the zenith ``K u`` with respect to the image of the absolute
+   conic): roll gives its angle, pitch its offset. The hypotheses are the frame's and the refined roll, each with
+   the frame's pitch plus a coarse grid of offsets, then a fine grid around the best.
+3. **Horizontal VPs along each horizon.** Every non-vertical segment's line meets the hypothesised horizon at one
+   point, the horizontal direction ``l_i x u``; a weighted histogram of those directions (by their angle ``psi``
+   on the horizontal great circle, length-weighted, down-weighted for segments that point at the zenith) peaks
+   where many segments share a VP on that horizon (each building block's VPs). The ``num_peaks`` highest
+   separated peaks are that horizon's horizontal VPs.
+4. **Line support.** The score of a hypothesis is the fraction of the total segment length explained by its
+   zenith or one of its horizontal VPs, ``sum_i L_i max_v k(theta_i(v)) / sum_i L_i`` with ``theta_i(v)`` the
+   image angle between segment ``i`` and the ray from its midpoint to ``v`` and ``k`` a Gaussian of width
+   ``kernel_deg`` (the same measure for every hypothesis, the frame's included). The refined horizon replaces the
+   frame's only where its support is higher by more than ``margin`` (relative).
+
+Consistency of the reported camera: the focal length and ``K`` stay the frame's; the chosen hypothesis is an up
+vector ``u``, so the zenith is ``K u``, the horizon ``K^-T u``, pitch and roll those of ``u``, and ``R`` is rebuilt
+from ``u`` and the strongest horizontal VP of the chosen horizon (made orthogonal to ``u``, then the canonical
+yaw); the three VPs are ``K R``. Where the frame's horizon is kept, the calibration is returned unchanged.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from ngp_kornia.geometry import (
+    angles_from_rotation,
+    canonical_manhattan_rotation,
+    horizon_from_zenith,
+    pitch_roll_from_up,
+    vanishing_points_from_rotation,
+    zenith_from_up,
+)
+from ngp_kornia.models.result import Calibration
+
+__all__ = ["horizon_support", "refine_horizon", "refine_up", "up_from_pitch_roll"]
+
+
+def _normalize(v: Tensor) -> Tensor:
+    return v / v.norm(dim=-1, keepdim=True).clamp_min(torch.finfo(v.dtype).tiny ** 0.5)
+
+
+def up_from_pitch_roll(pitch: Tensor, roll: Tensor) -> Tensor:
+    """Unit up vector in camera coordinates from pitch and roll in degrees; inverse of
+    :func:`ngp_kornia.geometry.pitch_roll_from_up`.
+
+    Args:
+        pitch: (...) degrees, > 0 looking up.
+        roll: (...) degrees.
+
+    Returns:
+        (..., 3) unit up vectors.
+
+    Example:
+        >>> up_from_pitch_roll(torch.tensor([0.0]), torch.tensor([0.0]))
+        tensor([[ 0., -1.,  0.]])
+    """
+    p, r = torch.deg2rad(pitch), torch.deg2rad(roll)
+    return torch.stack([torch.cos(p) * torch.sin(r), -torch.cos(p) * torch.cos(r), torch.sin(p)], -1)
+
+
+def _camera_segments(segments: Tensor, K: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """Segments in normalised camera coordinates ``K^-1 p``: midpoints (B, N, 2), directions (B, N, 2) and unit
+    interpretation-plane normals (B, N, 3). ``K^-1`` is a similarity for square pixels, so image angles are kept."""
+    ones = segments.new_ones(*segments.shape[:-1], 1)
+    pts = torch.cat([segments, ones], -1)  # (B, N, 2, 3)
+    cam = torch.einsum("bij,bnkj->bnki", torch.linalg.inv(K), pts)
+    cam = cam[..., :2] / cam[..., 2:]
+    mid, direction = cam.mean(-2), cam[..., 1, :] - cam[..., 0, :]
+    p0 = torch.cat([cam[..., 0, :], ones[..., 0, :]], -1)
+    p1 = torch.cat([cam[..., 1, :], ones[..., 0, :]], -1)
+    return mid, direction, _normalize(torch.linalg.cross(p0, p1))
+
+
+def _kernel(mid: Tensor, direction: Tensor, vps: Tensor, kernel_deg: float) -> Tensor:
+    """Gaussian closeness ``exp(-sin^2 theta / (2 sin^2 sigma))`` of every segment to every VP, with ``theta`` the
+    image angle between a segment and the ray from its midpoint to the VP (normalised camera coordinates).
+
+    Args:
+        mid: (B, N, 2) midpoints; direction: (B, N, 2); vps: (B, ..., 3) directions (VPs at infinity allowed).
+
+    Returns:
+        (B, ..., N) in [0, 1]; a degenerate pair (zero segment, VP at the midpoint) gives 0.
+    """
+    shape = vps.shape[:-1]
+    v = vps.reshape(vps.shape[0], -1, 1, 3)
+    d = v[..., :2] - mid[:, None] * v[..., 2:]
+    s = direction[:, None]
+    cross = s[..., 0] * d[..., 1] - s[..., 1] * d[..., 0]
+    norm2 = (s * s).sum(-1) * (d * d).sum(-1)
+    tiny = torch.finfo(mid.dtype).tiny ** 0.5
+    sin2 = torch.where(norm2 > tiny, cross * cross / norm2.clamp_min(tiny), torch.ones_like(norm2))
+    k = torch.exp(-sin2 / (2.0 * math.sin(math.radians(kernel_deg)) ** 2))
+    return k.reshape(*shape, mid.shape[1])
+
+
+def refine_up(
+    up: Tensor, segments: Tensor, mask: Tensor, K: Tensor, zenith_tol: float = 2.0, iterations: int = 2
+) -> tuple[Tensor, Tensor]:
+    """Least-squares up vector from the segments that point at the zenith ``K up`` within ``zenith_tol`` degrees.
+
+    Args:
+        up: (B, 3) initial unit up vectors (camera coordinates).
+        segments: (B, N, 2, 2) pixels; mask: (B, N) bool; K: (B, 3, 3) intrinsics.
+        zenith_tol: inlier angle in degrees.
+        iterations: inlier selection and fit rounds.
+
+    Returns:
+        (B, 3) refined unit up vectors (the input where fewer than 3 inliers or the fit turned by more than 10
+        degrees) and (B,) bool, True where refined.
+
+    Example:
+        >>> seg = torch.tensor([[[[0.0, 0.0], [0.0, 9.0]], [[5.0, 0.0], [5.0, 9.0]], [[9.0, 1.0], [9.0, 8.0]]]])
+        >>> K = torch.tensor([[[10.0, 0.0, 5.0], [0.0, 10.0, 5.0], [0.0, 0.0, 1.0]]])
+        >>> up, ok = refine_up(torch.tensor([[0.02, -1.0, 0.0]]), seg, torch.ones(1, 3, dtype=torch.bool), K)
+        >>> up.round(decimals=4).tolist(), ok.tolist()
+        [[[0.0, -1.0, 0.0]], [True]]
+    """
+    mid, direction, normals = _camera_segments(segments, K)
+    lengths = (segments[..., 1, :] - segments[..., 0, :]).norm(dim=-1) * mask.to(segments)
+    cos_tol = math.cos(math.radians(10.0))
+    cur, ok = up, torch.zeros(len(up), dtype=torch.bool, device=up.device)
+    for _ in range(iterations):
+        k_in = _kernel(mid, direction, cur[:, None], 1.0)[:, 0]  # (B, N)
+        sin2_tol = math.sin(math.radians(zenith_tol)) ** 2
+        inlier = (k_in >= math.exp(-sin2_tol / (2.0 * math.sin(math.radians(1.0)) ** 2))) & mask
+        w = lengths * inlier
+        M = torch.einsum("bn,bni,bnj->bij", w, normals, normals)
+        _, vecs = torch.linalg.eigh(M)
+        fit = vecs[..., 0]
+        fit = fit * torch.where((fit * up).sum(-1, keepdim=True) < 0, -1.0, 1.0).to(fit)
+        good = (inlier.sum(-1) >= 3) & ((fit * up).sum(-1) > cos_tol) & torch.isfinite(fit).all(-1)
+        cur = torch.where(good[:, None], fit, cur)
+        ok = ok | good
+    return _normalize(cur), ok
+
+
+def horizon_support(
+    ups: Tensor,
+    segments: Tensor,
+    mask: Tensor,
+    K: Tensor,
+    num_peaks: int = 4,
+    kernel_deg: float = 1.0,
+    bins: int = 360,
+    separation_deg: float = 3.0,
+) -> tuple[Tensor, Tensor, Tensor]:
+    """Line support of horizon hypotheses and the horizontal VPs found along each.
+
+    Args:
+        ups: (B, H, 3) unit up vectors, one per hypothesis (the horizon is ``K^-T up``).
+        segments: (B, N, 2, 2) pixels; mask: (B, N) bool; K: (B, 3, 3) intrinsics.
+        num_peaks: horizontal VPs kept per horizon.
+        kernel_deg: width of the closeness kernel, degrees.
+        bins: histogram bins over the horizontal directions (180 degrees).
+        separation_deg: least angle between two kept horizontal directions.
+
+    Returns:
+        support (B, H) in [0, 1] (0 without segments), the horizontal VP directions (B, H, P, 3) in camera
+        coordinates (unit, orthogonal to the hypothesis' up) and their histogram weights (B, H, P), strongest first
+        (0 for an empty peak).
+    """
+    B, H, _ = ups.shape
+    mid, direction, normals = _camera_segments(segments, K)
+    lengths = (segments[..., 1, :] - segments[..., 0, :]).norm(dim=-1) * mask.to(segments)  # (B, N)
+    kz = _kernel(mid, direction, ups, kernel_deg) * mask[:, None]  # (B, H, N)
+    # a basis of each horizontal plane; psi is the angle of a horizontal direction in it
+    ref = torch.tensor([0.0, 0.0, 1.0]).to(ups).expand_as(ups)
+    alt = torch.tensor([1.0, 0.0, 0.0]).to(ups).expand_as(ups)
+    e1 = torch.linalg.cross(ups, ref)
+    e1 = _normalize(torch.where(e1.norm(dim=-1, keepdim=True) > 1e-6, e1, torch.linalg.cross(ups, alt)))
+    e2 = torch.linalg.cross(ups, e1)
+    nrm = normals[:, None].expand(B, H, -1, 3)
+    cross = torch.linalg.cross(nrm, ups[:, :, None].expand_as(nrm))  # where each segment's line meets the horizon
+    psi = torch.atan2((cross * e2[:, :, None]).sum(-1), (cross * e1[:, :, None]).sum(-1)).remainder(math.pi)
+    weight = lengths[:, None] * (1.0 - kz) * (cross.norm(dim=-1) > 1e-6)
+    index = (psi / math.pi * bins).long().clamp(0, bins - 1)
+    hist = torch.zeros(B, H, bins, dtype=ups.dtype, device=ups.device).scatter_add_(-1, index, weight)
+    # smooth (circular) and keep separated local maxima
+    smooth = torch.tensor([1.0, 2.0, 3.0, 2.0, 1.0]).to(hist) / 9.0
+    flat = F.pad(hist.reshape(B * H, 1, bins), (2, 2), mode="circular")
+    hist = F.conv1d(flat, smooth.view(1, 1, -1)).reshape(B, H, bins)
+    half = max(1, round(separation_deg / 180.0 * bins))
+    padded = F.pad(hist.reshape(B * H, 1, bins), (half, half), mode="circular")
+    local_max = F.max_pool1d(padded, 2 * half + 1, stride=1).reshape(B, H, bins)
+    peaks = torch.where(hist >= local_max, hist, torch.zeros_like(hist))
+    p = min(num_peaks, bins)
+    value, idx = peaks.topk(p, dim=-1)
+    angle = (idx.to(ups) + 0.5) * (math.pi / bins)
+    dirs = torch.cos(angle)[..., None] * e1[:, :, None] + torch.sin(angle)[..., None] * e2[:, :, None]  # (B,H,P,3)
+    kh = _kernel(mid, direction, dirs, kernel_deg) * (value > 0)[..., None] * mask[:, None, None]  # (B, H, P, N)
+    explained = torch.maximum(kz, kh.amax(2))
+    total = lengths.sum(-1, keepdim=True)
+    support = (explained * lengths[:, None]).sum(-1) / total.clamp_min(torch.finfo(total.dtype).tiny ** 0.5)
+    return support, dirs, value
+
+
+def refine_horizon(
+    cal: Calibration,
+    segments: Tensor,
+    mask: Tensor,
+    pitch_range: float = 8.0,
+    pitch_step: float = 1.0,
+    fine_step: float = 0.25,
+    num_peaks: int = 4,
+    kernel_deg: float = 1.0,
+    zenith_tol: float = 2.0,
+    margin: float = 0.0,
+) -> Calibration:
+    """The calibration with the horizon that the segments support best (module docstring: method, consistency).
+
+    Args:
+        cal: a batched :class:`Calibration` from the frame search.
+        segments: (B, N, 2, 2) segments in the same pixels; mask: (B, N) bool.
+        pitch_range: the coarse hypotheses span the frame's pitch +- this, degrees.
+        pitch_step: coarse step, degrees.
+        fine_step: step of the fine grid around the best coarse hypothesis, degrees.
+        num_peaks: horizontal VPs per horizon.
+        kernel_deg: width of the closeness kernel, degrees.
+        zenith_tol: inlier angle of the zenith refinement, degrees.
+        margin: the refined horizon must beat the frame's support by this fraction.
+
+    Returns:
+        a :class:`Calibration` of the same shapes: unchanged where the frame's horizon is kept or the frame was
+        invalid; otherwise ``R``, ``up``, ``zenith``, ``horizon``, ``vps``, ``pitch``, ``roll``, ``yaw`` follow
+        the refined up vector (``K``, focal and FoV are the frame's).
+    """
+    K = cal.K
+    dtype = K.dtype
+    seg = segments.to(dtype)
+    up_frame = cal.up
+    up_ref, _ = refine_up(up_frame, seg, mask, K, zenith_tol)
+    pitch0, roll0 = pitch_roll_from_up(up_frame)
+    _, roll1 = pitch_roll_from_up(up_ref)
+    n = int(round(pitch_range / pitch_step))
+    offsets = torch.arange(-n, n + 1, dtype=dtype, device=K.device) * pitch_step
+    offsets = torch.cat([offsets.new_zeros(1), offsets[offsets != 0]])  # the frame's pitch first
+    pitches = (pitch0[:, None] + offsets).repeat(1, 2)
+    rolls = torch.cat([roll0[:, None].expand(-1, len(offsets)), roll1[:, None].expand(-1, len(offsets))], 1)
+    support, dirs, _ = horizon_support(
+        up_from_pitch_roll(pitches, rolls), seg, mask, K, num_peaks=num_peaks, kernel_deg=kernel_deg
+    )
+    frame_support = support[:, 0]
+    best = support.argmax(-1)
+    rows = torch.arange(len(best), device=K.device)
+    m = max(1, int(round(pitch_step / fine_step)))
+    fine = torch.arange(-m + 1, m, dtype=dtype, device=K.device) * fine_step
+    fine = fine[fine != 0]
+    fine_p = pitches[rows, best][:, None] + fine
+    fine_r = rolls[rows, best][:, None].expand_as(fine_p)
+    all_p = torch.cat([pitches[rows, best][:, None], fine_p], 1)
+    all_r = torch.cat([rolls[rows, best][:, None], fine_r], 1)
+    if len(fine):
+        fine_support, fine_dirs, _ = horizon_support(
+            up_from_pitch_roll(fine_p, fine_r), seg, mask, K, num_peaks=num_peaks, kernel_deg=kernel_deg
+        )
+        cand_support = torch.cat([support[rows, best][:, None], fine_support], 1)
+        cand_dirs = torch.cat([dirs[rows, best][:, None], fine_dirs], 1)
+    else:
+        cand_support, cand_dirs = support[rows, best][:, None], dirs[rows, best][:, None]
+    pick = cand_support.argmax(-1)
+    new_support = cand_support[rows, pick]
+    up = up_from_pitch_roll(all_p[rows, pick], all_r[rows, pick])
+    horizontal = cand_dirs[rows, pick, 0]  # the strongest horizontal VP of the chosen horizon
+    use = cal.valid & (new_support > frame_support * (1.0 + margin)) & torch.isfinite(up).all(-1)
+    down = -up
+    h = _normalize(horizontal - (horizontal * up).sum(-1, keepdim=True) * up)
+    R = canonical_manhattan_rotation(torch.stack([h, down, torch.linalg.cross(h, down)], -1))
+    R = torch.where(use[:, None, None], R, cal.R)
+    up = -R[..., :, 1]
+    zenith = _normalize(zenith_from_up(K, up))
+    pitch, roll = pitch_roll_from_up(up)
+    _, _, yaw = angles_from_rotation(R)
+    return replace(
+        cal,
+        R=R,
+        up=up,
+        zenith=torch.where(use[:, None], zenith, cal.zenith),
+        horizon=torch.where(use[:, None], horizon_from_zenith(K, zenith), cal.horizon),
+        vps=torch.where(use[:, None, None], vanishing_points_from_rotation(K, R), cal.vps),
+        pitch=torch.where(use, pitch, cal.pitch),
+        roll=torch.where(use, roll, cal.roll),
+        yaw=torch.where(use, yaw, cal.yaw),
+    )

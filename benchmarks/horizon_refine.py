@@ -78,8 +78,18 @@ def rendered_samples(root: Path) -> list[dict]:
     ]
 
 
-def run_set(samples: list[dict], weights: str, seeds: list[int]) -> dict:
-    """Per seed and variant (off / on): per-image horizon errors for each ground truth, up and FoV errors."""
+def parse_variant(spec: str) -> dict:
+    """``key=value,...`` -> keyword arguments of :func:`refine_horizon` (numbers)."""
+    out = {}
+    for item in filter(None, spec.split(",")):
+        key, _, value = item.partition("=")
+        out[key] = int(value) if value.lstrip("-").isdigit() else float(value)
+    return out
+
+
+def run_set(samples: list[dict], weights: str, seeds: list[int], variants: dict[str, dict]) -> dict:
+    """Per seed and variant (off, then each refinement variant): per-image horizon errors for each ground truth,
+    up and FoV errors."""
     cfg = ParserConfig()
     parser = load_parser(weights, cfg)
     res: dict = {}
@@ -92,10 +102,12 @@ def run_set(samples: list[dict], weights: str, seeds: list[int]) -> dict:
             parser.config = replace(cfg, seed=seed, refine_horizon=False)
             with torch.no_grad():
                 off = parser(image, segments, mask)
-                t0 = time.perf_counter()
-                on = refine_horizon(off, segments, mask)
-                refine_seconds += time.perf_counter() - t0
-            for variant, cal in (("off", off), ("on", on)):
+                cals = {"off": off}
+                for name, kwargs in variants.items():
+                    t0 = time.perf_counter()
+                    cals[name] = refine_horizon(off, segments, mask, **kwargs)
+                    refine_seconds += time.perf_counter() - t0
+            for variant, cal in cals.items():
                 r = res.setdefault(seed, {}).setdefault(variant, {})
                 for gt, line in s["horizons"].items():
                     e = horizon_error(cal.horizon.double(), line[None], s["h"], s["w"])
@@ -106,14 +118,14 @@ def run_set(samples: list[dict], weights: str, seeds: list[int]) -> dict:
                     r.setdefault("fov", []).append(float(fov_error(cal.fov_v.double(), fov)[0]))
         print(f"\r{i + 1}/{len(samples)} {s['name']}", end="", file=sys.stderr, flush=True)
     print(file=sys.stderr)
-    res["refine_seconds_per_call"] = refine_seconds / max(1, len(samples) * len(seeds))
+    res["refine_seconds_per_call"] = refine_seconds / max(1, len(samples) * len(seeds) * len(variants))
     return res
 
 
 def summary(res: dict, seeds: list[int]) -> dict:
     """Mean and range over seeds of the horizon AUC (%) per ground truth, median up / FoV errors (degrees)."""
     out = {}
-    for variant in ("off", "on"):
+    for variant in res[seeds[0]]:
         keys = res[seeds[0]][variant].keys()
         for key in keys:
             if key in ("up", "fov"):
@@ -151,8 +163,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--weights", default="default")
     ap.add_argument("--timing", type=int, default=0, help="time calibrate() on the first N images of each real set")
     ap.add_argument("--out", type=Path)
+    ap.add_argument(
+        "--refine", action="append", default=None,
+        help="a refinement variant as refine_horizon keyword arguments, e.g. margin=0.02,num_peaks=6; repeatable "
+        "(default: one variant 'on' with the defaults)",
+    )
     args = ap.parse_args(argv)
     seeds = [int(s) for s in args.seeds.split(",")]
+    variants = {spec: parse_variant(spec) for spec in args.refine} if args.refine else {"on": {}}
     sets = {}
     if args.yud:
         sets["York Urban"] = yud_samples(args.yud)
@@ -165,15 +183,15 @@ def main(argv: list[str] | None = None) -> int:
     payload: dict = {"command": " ".join(sys.argv), "weights": args.weights, "seeds": seeds, "sets": {}}
     for name, samples in sets.items():
         samples = samples[: args.limit]
-        res = run_set(samples, args.weights, seeds)
+        res = run_set(samples, args.weights, seeds, variants)
         summ = summary(res, seeds)
         payload["sets"][name] = {"images": len(samples), "summary": summ, "refine_seconds_per_call":
                                  res["refine_seconds_per_call"], "per_seed": {str(k): v for k, v in res.items()
                                                                                 if k in seeds}}
         print(f"\n{name}: {len(samples)} images, seeds {args.seeds}, weights {args.weights} "
               f"(refinement {1000 * res['refine_seconds_per_call']:.1f} ms per call)")
-        print("| metric | off: mean [min, max] | on: mean [min, max] |")
-        print("|---|---|---|")
+        print("| metric | off: mean [min, max] | " + " | ".join(f"{v}: mean [min, max]" for v in variants) + " |")
+        print("|---|---|" + "---|" * len(variants))
         for label, v in summ.items():
             print(f"| {label} | " + " | ".join(f"{m:.2f} [{lo:.2f}, {hi:.2f}]" for m, lo, hi in v.values()) + " |")
         if args.timing and name != "renders":

@@ -79,10 +79,13 @@ def rendered_samples(root: Path) -> list[dict]:
 
 
 def parse_variant(spec: str) -> dict:
-    """``key=value,...`` -> keyword arguments of :func:`refine_horizon` (numbers)."""
+    """``key=value,...`` -> keyword arguments of :func:`refine_horizon` (numbers; true / false)."""
     out = {}
     for item in filter(None, spec.split(",")):
         key, _, value = item.partition("=")
+        if value.lower() in ("true", "false"):
+            out[key] = value.lower() == "true"
+            continue
         out[key] = int(value) if value.lstrip("-").isdigit() else float(value)
     return out
 

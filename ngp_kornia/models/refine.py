@@ -86,15 +86,15 @@ def _camera_segments(segments: Tensor, K: Tensor) -> tuple[Tensor, Tensor, Tenso
     return mid, direction, _normalize(torch.linalg.cross(p0, p1))
 
 
-def _kernel(mid: Tensor, direction: Tensor, vps: Tensor, kernel_deg: float) -> Tensor:
-    """Gaussian closeness ``exp(-sin^2 theta / (2 sin^2 sigma))`` of every segment to every VP, with ``theta`` the
-    image angle between a segment and the ray from its midpoint to the VP (normalised camera coordinates).
+def _sin2(mid: Tensor, direction: Tensor, vps: Tensor) -> Tensor:
+    """Squared sine of the image angle between every segment and the ray from its midpoint to every VP
+    (normalised camera coordinates).
 
     Args:
         mid: (B, N, 2) midpoints; direction: (B, N, 2); vps: (B, ..., 3) directions (VPs at infinity allowed).
 
     Returns:
-        (B, ..., N) in [0, 1]; a degenerate pair (zero segment, VP at the midpoint) gives 0.
+        (B, ..., N) in [0, 1]; a degenerate pair (zero segment, VP at the midpoint) gives 1.
     """
     shape = vps.shape[:-1]
     v = vps.reshape(vps.shape[0], -1, 1, 3)
@@ -104,8 +104,14 @@ def _kernel(mid: Tensor, direction: Tensor, vps: Tensor, kernel_deg: float) -> T
     norm2 = (s * s).sum(-1) * (d * d).sum(-1)
     tiny = torch.finfo(mid.dtype).tiny ** 0.5
     sin2 = torch.where(norm2 > tiny, cross * cross / norm2.clamp_min(tiny), torch.ones_like(norm2))
-    k = torch.exp(-sin2 / (2.0 * math.sin(math.radians(kernel_deg)) ** 2))
-    return k.reshape(*shape, mid.shape[1])
+    return sin2.reshape(*shape, mid.shape[1])
+
+
+def _kernel(mid: Tensor, direction: Tensor, vps: Tensor, kernel_deg: float) -> Tensor:
+    """Closeness ``max(0, 1 - sin^2 theta / (4 sin^2 sigma))`` of every segment to every VP (``theta`` as in
+    :func:`_sin2`, ``sigma`` = ``kernel_deg``): 1 on the VP, 3/4 at ``sigma``, 0 beyond ``2 sigma`` (a cheap
+    stand-in for a Gaussian of width ``sigma``). Shapes as :func:`_sin2`."""
+    return (1.0 - _sin2(mid, direction, vps) / (4.0 * math.sin(math.radians(kernel_deg)) ** 2)).clamp_min(0.0)
 
 
 def refine_up(
@@ -130,14 +136,22 @@ def refine_up(
         >>> up.round(decimals=4).tolist(), ok.tolist()
         [[[0.0, -1.0, 0.0]], [True]]
     """
-    mid, direction, normals = _camera_segments(segments, K)
-    lengths = (segments[..., 1, :] - segments[..., 0, :]).norm(dim=-1) * mask.to(segments)
+    return _refine_up(up, _camera_segments(segments, K), _lengths(segments, mask), mask, zenith_tol, iterations)
+
+
+def _lengths(segments: Tensor, mask: Tensor) -> Tensor:
+    return (segments[..., 1, :] - segments[..., 0, :]).norm(dim=-1) * mask.to(segments)
+
+
+def _refine_up(
+    up: Tensor, cam: tuple[Tensor, Tensor, Tensor], lengths: Tensor, mask: Tensor, zenith_tol: float, iterations: int
+) -> tuple[Tensor, Tensor]:
+    """:func:`refine_up` on segments already in camera coordinates."""
+    mid, direction, normals = cam
     cos_tol = math.cos(math.radians(10.0))
     cur, ok = up, torch.zeros(len(up), dtype=torch.bool, device=up.device)
     for _ in range(iterations):
-        k_in = _kernel(mid, direction, cur[:, None], 1.0)[:, 0]  # (B, N)
-        sin2_tol = math.sin(math.radians(zenith_tol)) ** 2
-        inlier = (k_in >= math.exp(-sin2_tol / (2.0 * math.sin(math.radians(1.0)) ** 2))) & mask
+        inlier = (_sin2(mid, direction, cur[:, None])[:, 0] <= math.sin(math.radians(zenith_tol)) ** 2) & mask
         w = lengths * inlier
         M = torch.einsum("bn,bni,bnj->bij", w, normals, normals)
         _, vecs = torch.linalg.eigh(M)
@@ -158,6 +172,7 @@ def horizon_support(
     kernel_deg: float = 1.0,
     bins: int = 360,
     separation_deg: float = 3.0,
+    zenith_ups: Tensor | None = None,
 ) -> tuple[Tensor, Tensor, Tensor]:
     """Line support of horizon hypotheses and the horizontal VPs found along each.
 
@@ -168,16 +183,36 @@ def horizon_support(
         kernel_deg: width of the closeness kernel, degrees.
         bins: histogram bins over the horizontal directions (180 degrees).
         separation_deg: least angle between two kept horizontal directions.
+        zenith_ups: (B, H, 3) up vectors whose zenith ``K u`` explains the vertical segments of each hypothesis;
+            ``ups`` when omitted. With a fixed focal length the zenith's distance and the horizon's offset are tied
+            (``f^2 = s d``); separating them lets the horizontal VPs alone place the horizon when ``f`` is off.
 
     Returns:
         support (B, H) in [0, 1] (0 without segments), the horizontal VP directions (B, H, P, 3) in camera
         coordinates (unit, orthogonal to the hypothesis' up) and their histogram weights (B, H, P), strongest first
         (0 for an empty peak).
     """
+    return _support(
+        ups, _camera_segments(segments, K), _lengths(segments, mask), mask, num_peaks, kernel_deg, bins,
+        separation_deg, zenith_ups,
+    )
+
+
+def _support(
+    ups: Tensor,
+    cam: tuple[Tensor, Tensor, Tensor],
+    lengths: Tensor,
+    mask: Tensor,
+    num_peaks: int,
+    kernel_deg: float,
+    bins: int,
+    separation_deg: float,
+    zenith_ups: Tensor | None,
+) -> tuple[Tensor, Tensor, Tensor]:
+    """:func:`horizon_support` on segments already in camera coordinates (:func:`_camera_segments`)."""
     B, H, _ = ups.shape
-    mid, direction, normals = _camera_segments(segments, K)
-    lengths = (segments[..., 1, :] - segments[..., 0, :]).norm(dim=-1) * mask.to(segments)  # (B, N)
-    kz = _kernel(mid, direction, ups, kernel_deg) * mask[:, None]  # (B, H, N)
+    mid, direction, normals = cam
+    kz = _kernel(mid, direction, ups if zenith_ups is None else zenith_ups, kernel_deg) * mask[:, None]  # (B, H, N)
     # a basis of each horizontal plane; psi is the angle of a horizontal direction in it
     ref = torch.tensor([0.0, 0.0, 1.0]).to(ups).expand_as(ups)
     alt = torch.tensor([1.0, 0.0, 0.0]).to(ups).expand_as(ups)
@@ -187,13 +222,12 @@ def horizon_support(
     nrm = normals[:, None].expand(B, H, -1, 3)
     cross = torch.linalg.cross(nrm, ups[:, :, None].expand_as(nrm))  # where each segment's line meets the horizon
     psi = torch.atan2((cross * e2[:, :, None]).sum(-1), (cross * e1[:, :, None]).sum(-1)).remainder(math.pi)
-    weight = lengths[:, None] * (1.0 - kz) * (cross.norm(dim=-1) > 1e-6)
+    weight = lengths[:, None] * (1.0 - kz) * (cross.pow(2).sum(-1) > 1e-12)
     index = (psi / math.pi * bins).long().clamp(0, bins - 1)
     hist = torch.zeros(B, H, bins, dtype=ups.dtype, device=ups.device).scatter_add_(-1, index, weight)
     # smooth (circular) and keep separated local maxima
-    smooth = torch.tensor([1.0, 2.0, 3.0, 2.0, 1.0]).to(hist) / 9.0
-    flat = F.pad(hist.reshape(B * H, 1, bins), (2, 2), mode="circular")
-    hist = F.conv1d(flat, smooth.view(1, 1, -1)).reshape(B, H, bins)
+    near = hist.roll(1, -1) + hist.roll(-1, -1)
+    hist = (3.0 * hist + 2.0 * near + hist.roll(2, -1) + hist.roll(-2, -1)) / 9.0
     half = max(1, round(separation_deg / 180.0 * bins))
     padded = F.pad(hist.reshape(B * H, 1, bins), (half, half), mode="circular")
     local_max = F.max_pool1d(padded, 2 * half + 1, stride=1).reshape(B, H, bins)
@@ -219,7 +253,8 @@ def refine_horizon(
     num_peaks: int = 4,
     kernel_deg: float = 1.0,
     zenith_tol: float = 2.0,
-    margin: float = 0.0,
+    margin: float = 0.02,
+    tie_zenith: bool = True,
 ) -> Calibration:
     """The calibration with the horizon that the segments support best (module docstring: method, consistency).
 
@@ -233,6 +268,10 @@ def refine_horizon(
         kernel_deg: width of the closeness kernel, degrees.
         zenith_tol: inlier angle of the zenith refinement, degrees.
         margin: the refined horizon must beat the frame's support by this fraction.
+        tie_zenith: score each hypothesis' vertical segments against its own zenith ``K u``, so pitch moves the
+            zenith and the horizon together and the verticals' convergence weighs in; False scores them against the
+            frame's or the refined zenith, whichever gave the hypothesis its roll, so the horizontal VPs alone place
+            the horizon (measured worse on every set: the horizontal VPs of clutter then go unchecked).
 
     Returns:
         a :class:`Calibration` of the same shapes: unchanged where the frame's horizon is kept or the frame was
@@ -243,7 +282,8 @@ def refine_horizon(
     dtype = K.dtype
     seg = segments.to(dtype)
     up_frame = cal.up
-    up_ref, _ = refine_up(up_frame, seg, mask, K, zenith_tol)
+    cam, lengths = _camera_segments(seg, K), _lengths(seg, mask)
+    up_ref, _ = _refine_up(up_frame, cam, lengths, mask, zenith_tol, 2)
     pitch0, roll0 = pitch_roll_from_up(up_frame)
     _, roll1 = pitch_roll_from_up(up_ref)
     n = int(round(pitch_range / pitch_step))
@@ -251,8 +291,10 @@ def refine_horizon(
     offsets = torch.cat([offsets.new_zeros(1), offsets[offsets != 0]])  # the frame's pitch first
     pitches = (pitch0[:, None] + offsets).repeat(1, 2)
     rolls = torch.cat([roll0[:, None].expand(-1, len(offsets)), roll1[:, None].expand(-1, len(offsets))], 1)
-    support, dirs, _ = horizon_support(
-        up_from_pitch_roll(pitches, rolls), seg, mask, K, num_peaks=num_peaks, kernel_deg=kernel_deg
+    zen = torch.cat([up_frame[:, None].expand(-1, len(offsets), 3), up_ref[:, None].expand(-1, len(offsets), 3)], 1)
+    support, dirs, _ = _support(
+        up_from_pitch_roll(pitches, rolls), cam, lengths, mask, num_peaks, kernel_deg, 360, 3.0,
+        None if tie_zenith else zen,
     )
     frame_support = support[:, 0]
     best = support.argmax(-1)
@@ -265,8 +307,10 @@ def refine_horizon(
     all_p = torch.cat([pitches[rows, best][:, None], fine_p], 1)
     all_r = torch.cat([rolls[rows, best][:, None], fine_r], 1)
     if len(fine):
-        fine_support, fine_dirs, _ = horizon_support(
-            up_from_pitch_roll(fine_p, fine_r), seg, mask, K, num_peaks=num_peaks, kernel_deg=kernel_deg
+        fine_zen = zen[rows, best][:, None].expand(-1, len(fine), 3)
+        fine_support, fine_dirs, _ = _support(
+            up_from_pitch_roll(fine_p, fine_r), cam, lengths, mask, num_peaks, kernel_deg, 360, 3.0,
+            None if tie_zenith else fine_zen,
         )
         cand_support = torch.cat([support[rows, best][:, None], fine_support], 1)
         cand_dirs = torch.cat([dirs[rows, best][:, None], fine_dirs], 1)

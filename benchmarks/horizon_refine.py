@@ -79,10 +79,13 @@ def rendered_samples(root: Path) -> list[dict]:
 
 
 def parse_variant(spec: str) -> dict:
-    """``key=value,...`` -> keyword arguments of :func:`refine_horizon` (numbers; true / false)."""
+    """``key=value,...`` -> keyword arguments of :func:`refine_horizon` (numbers; true / false; tuples as a/b)."""
     out = {}
     for item in filter(None, spec.split(",")):
         key, _, value = item.partition("=")
+        if "/" in value:  # a tuple, e.g. focal_scales=0.9/1.1
+            out[key] = tuple(float(x) for x in value.split("/"))
+            continue
         if value.lower() in ("true", "false"):
             out[key] = value.lower() == "true"
             continue

@@ -40,6 +40,7 @@ from torch import Tensor
 from ngp_kornia.geometry import (
     angles_from_rotation,
     canonical_manhattan_rotation,
+    fov_from_focal,
     horizon_from_zenith,
     pitch_roll_from_up,
     vanishing_points_from_rotation,
@@ -139,6 +140,14 @@ def refine_up(
     return _refine_up(up, _camera_segments(segments, K), _lengths(segments, mask), mask, zenith_tol, iterations)
 
 
+def _scaled_focal(K: Tensor, scale: Tensor) -> Tensor:
+    """``K`` (B, 3, 3) with its focal length times ``scale`` (B,), the principal point kept."""
+    out = K.clone()
+    out[:, 0, 0] = K[:, 0, 0] * scale
+    out[:, 1, 1] = K[:, 1, 1] * scale
+    return out
+
+
 def _lengths(segments: Tensor, mask: Tensor) -> Tensor:
     return (segments[..., 1, :] - segments[..., 0, :]).norm(dim=-1) * mask.to(segments)
 
@@ -155,7 +164,7 @@ def _refine_up(
         w = lengths * inlier
         M = torch.einsum("bn,bni,bnj->bij", w, normals, normals)
         _, vecs = torch.linalg.eigh(M)
-        fit = vecs[..., 0]
+        fit = vecs[..., 0].detach()  # no gradient through eigh (unstable for close eigenvalues)
         fit = fit * torch.where((fit * up).sum(-1, keepdim=True) < 0, -1.0, 1.0).to(fit)
         good = (inlier.sum(-1) >= 3) & ((fit * up).sum(-1) > cos_tol) & torch.isfinite(fit).all(-1)
         cur = torch.where(good[:, None], fit, cur)
@@ -253,8 +262,9 @@ def refine_horizon(
     num_peaks: int = 4,
     kernel_deg: float = 1.0,
     zenith_tol: float = 2.0,
-    margin: float = 0.02,
+    margin: float = 0.05,
     tie_zenith: bool = True,
+    focal_scales: tuple[float, ...] = (1.0,),
 ) -> Calibration:
     """The calibration with the horizon that the segments support best (module docstring: method, consistency).
 
@@ -272,6 +282,8 @@ def refine_horizon(
             zenith and the horizon together and the verticals' convergence weighs in; False scores them against the
             frame's or the refined zenith, whichever gave the hypothesis its roll, so the horizontal VPs alone place
             the horizon (measured worse on every set: the horizontal VPs of clutter then go unchecked).
+        focal_scales: the hypotheses are repeated with the frame's focal length times each of these (1 is always
+            included and first); where another scale wins, ``K``, focal and FoV follow it.
 
     Returns:
         a :class:`Calibration` of the same shapes: unchanged where the frame's horizon is kept or the frame was
@@ -292,25 +304,34 @@ def refine_horizon(
     pitches = (pitch0[:, None] + offsets).repeat(1, 2)
     rolls = torch.cat([roll0[:, None].expand(-1, len(offsets)), roll1[:, None].expand(-1, len(offsets))], 1)
     zen = torch.cat([up_frame[:, None].expand(-1, len(offsets), 3), up_ref[:, None].expand(-1, len(offsets), 3)], 1)
-    support, dirs, _ = _support(
-        up_from_pitch_roll(pitches, rolls), cam, lengths, mask, num_peaks, kernel_deg, 360, 3.0,
-        None if tie_zenith else zen,
-    )
+    ups = up_from_pitch_roll(pitches, rolls)
+    scales = [1.0] + [float(x) for x in focal_scales if float(x) != 1.0]  # the frame's focal length first
+    supports, dirs = [], []
+    for scale in scales:
+        Ks = _scaled_focal(K, torch.full_like(K[:, 0, 0], scale))
+        cam_s = cam if scale == 1.0 else _camera_segments(seg, Ks)
+        sup, d, _ = _support(ups, cam_s, lengths, mask, num_peaks, kernel_deg, 360, 3.0, None if tie_zenith else zen)
+        supports.append(sup)
+        dirs.append(d)
+    support, dirs = torch.cat(supports, 1), torch.cat(dirs, 1)
     frame_support = support[:, 0]
     best = support.argmax(-1)
     rows = torch.arange(len(best), device=K.device)
+    hyp = best % ups.shape[1]
+    scale = torch.tensor(scales, dtype=dtype, device=K.device)[best // ups.shape[1]]
+    K_best = _scaled_focal(K, scale)
     m = max(1, int(round(pitch_step / fine_step)))
     fine = torch.arange(-m + 1, m, dtype=dtype, device=K.device) * fine_step
     fine = fine[fine != 0]
-    fine_p = pitches[rows, best][:, None] + fine
-    fine_r = rolls[rows, best][:, None].expand_as(fine_p)
-    all_p = torch.cat([pitches[rows, best][:, None], fine_p], 1)
-    all_r = torch.cat([rolls[rows, best][:, None], fine_r], 1)
+    fine_p = pitches[rows, hyp][:, None] + fine
+    fine_r = rolls[rows, hyp][:, None].expand_as(fine_p)
+    all_p = torch.cat([pitches[rows, hyp][:, None], fine_p], 1)
+    all_r = torch.cat([rolls[rows, hyp][:, None], fine_r], 1)
     if len(fine):
-        fine_zen = zen[rows, best][:, None].expand(-1, len(fine), 3)
+        fine_zen = zen[rows, hyp][:, None].expand(-1, len(fine), 3)
         fine_support, fine_dirs, _ = _support(
-            up_from_pitch_roll(fine_p, fine_r), cam, lengths, mask, num_peaks, kernel_deg, 360, 3.0,
-            None if tie_zenith else fine_zen,
+            up_from_pitch_roll(fine_p, fine_r), _camera_segments(seg, K_best), lengths, mask, num_peaks, kernel_deg,
+            360, 3.0, None if tie_zenith else fine_zen,
         )
         cand_support = torch.cat([support[rows, best][:, None], fine_support], 1)
         cand_dirs = torch.cat([dirs[rows, best][:, None], fine_dirs], 1)
@@ -321,6 +342,7 @@ def refine_horizon(
     up = up_from_pitch_roll(all_p[rows, pick], all_r[rows, pick])
     horizontal = cand_dirs[rows, pick, 0]  # the strongest horizontal VP of the chosen horizon
     use = cal.valid & (new_support > frame_support * (1.0 + margin)) & torch.isfinite(up).all(-1)
+    K = torch.where(use[:, None, None], K_best, K)
     down = -up
     h = _normalize(horizontal - (horizontal * up).sum(-1, keepdim=True) * up)
     R = canonical_manhattan_rotation(torch.stack([h, down, torch.linalg.cross(h, down)], -1))
@@ -329,8 +351,14 @@ def refine_horizon(
     zenith = _normalize(zenith_from_up(K, up))
     pitch, roll = pitch_roll_from_up(up)
     _, _, yaw = angles_from_rotation(R)
+    focal = K[:, 0, 0]
+    height, width = cal.image_size[:, 0].to(K), cal.image_size[:, 1].to(K)
     return replace(
         cal,
+        K=K,
+        focal=focal,
+        fov_v=torch.where(use, fov_from_focal(focal, height), cal.fov_v),
+        fov_h=torch.where(use, fov_from_focal(focal, width), cal.fov_h),
         R=R,
         up=up,
         zenith=torch.where(use[:, None], zenith, cal.zenith),

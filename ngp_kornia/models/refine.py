@@ -2,7 +2,8 @@
 the horizon (one or two per building block, not only the frame's two) and move the horizon where the lines
 support it best.
 
-Method (all batched over B with the segment mask; no loop over images):
+Method (all batched over B with the segment mask; no loop over images; about 6 ms of one CPU core per image with
+512 segments):
 
 1. **Zenith.** The up vector is refined by least squares on its inlier segments (those pointing at the zenith
    within ``zenith_tol`` degrees), weighted by length: the smallest eigenvector of ``sum_i L_i l_i l_i^T`` with
@@ -18,14 +19,17 @@ Method (all batched over B with the segment mask; no loop over images):
    separated peaks are that horizon's horizontal VPs.
 4. **Line support.** The score of a hypothesis is the fraction of the total segment length explained by its
    zenith or one of its horizontal VPs, ``sum_i L_i max_v k(theta_i(v)) / sum_i L_i`` with ``theta_i(v)`` the
-   image angle between segment ``i`` and the ray from its midpoint to ``v`` and ``k`` a Gaussian of width
-   ``kernel_deg`` (the same measure for every hypothesis, the frame's included). The refined horizon replaces the
-   frame's only where its support is higher by more than ``margin`` (relative).
+   image angle between segment ``i`` and the ray from its midpoint to ``v`` and ``k(t) = max(0, 1 - sin^2 t /
+   (4 sin^2 kernel_deg))`` (the same measure for every hypothesis, the frame's included). The refined horizon
+   replaces the frame's only where its support is higher by more than ``margin`` (relative); the margin was chosen
+   on renders.
 
-Consistency of the reported camera: the focal length and ``K`` stay the frame's; the chosen hypothesis is an up
-vector ``u``, so the zenith is ``K u``, the horizon ``K^-T u``, pitch and roll those of ``u``, and ``R`` is rebuilt
-from ``u`` and the strongest horizontal VP of the chosen horizon (made orthogonal to ``u``, then the canonical
-yaw); the three VPs are ``K R``. Where the frame's horizon is kept, the calibration is returned unchanged.
+Consistency of the reported camera: the focal length and ``K`` stay the frame's (or, with ``focal_scales``, the
+chosen hypothesis' scaled focal length); the chosen hypothesis is an up vector ``u``, so the zenith is ``K u``, the
+horizon ``K^-T u`` (the polar of the zenith, so ``f^2 = -(z . h)`` holds for every horizontal VP ``h`` on it in
+centred pixels), pitch and roll those of ``u``, and ``R`` is rebuilt from ``u`` and the strongest horizontal VP of
+the chosen horizon (made orthogonal to ``u``, then the canonical yaw); the three VPs are ``K R``. Where the frame's
+horizon is kept, the calibration is returned unchanged.
 """
 
 from __future__ import annotations
@@ -98,13 +102,18 @@ def _sin2(mid: Tensor, direction: Tensor, vps: Tensor) -> Tensor:
         (B, ..., N) in [0, 1]; a degenerate pair (zero segment, VP at the midpoint) gives 1.
     """
     shape = vps.shape[:-1]
-    v = vps.reshape(vps.shape[0], -1, 1, 3)
-    d = v[..., :2] - mid[:, None] * v[..., 2:]
-    s = direction[:, None]
-    cross = s[..., 0] * d[..., 1] - s[..., 1] * d[..., 0]
-    norm2 = (s * s).sum(-1) * (d * d).sum(-1)
+    v = vps.reshape(vps.shape[0], -1, 3)  # (B, V, 3)
     tiny = torch.finfo(mid.dtype).tiny ** 0.5
-    sin2 = torch.where(norm2 > tiny, cross * cross / norm2.clamp_min(tiny), torch.ones_like(norm2))
+    # the segment's line through its midpoint, unit normal: (-s_y, s_x, s_y m_x - s_x m_y) / |s|
+    sx, sy = direction[..., 0], direction[..., 1]
+    line = torch.stack([-sy, sx, sy * mid[..., 0] - sx * mid[..., 1]], -1)
+    line = line / direction.norm(dim=-1, keepdim=True).clamp_min(tiny)
+    num = (v @ line.transpose(-1, -2)).square()  # (B, V, N): (|s x d| / |s|)^2 with d = v_xy - mid v_z
+    vz = v[..., 2:]
+    den = v[..., :2].square().sum(-1, keepdim=True) - 2.0 * vz * (v[..., :2] @ mid.transpose(-1, -2))
+    den = den + vz.square() * mid.square().sum(-1)[:, None]  # |d|^2
+    sin2 = torch.where(den > tiny, num / den.clamp_min(tiny), torch.ones_like(den)).clamp(0.0, 1.0)
+    sin2 = torch.where(direction.square().sum(-1)[:, None] > tiny, sin2, torch.ones_like(sin2))
     return sin2.reshape(*shape, mid.shape[1])
 
 
@@ -228,10 +237,12 @@ def _support(
     e1 = torch.linalg.cross(ups, ref)
     e1 = _normalize(torch.where(e1.norm(dim=-1, keepdim=True) > 1e-6, e1, torch.linalg.cross(ups, alt)))
     e2 = torch.linalg.cross(ups, e1)
-    nrm = normals[:, None].expand(B, H, -1, 3)
-    cross = torch.linalg.cross(nrm, ups[:, :, None].expand_as(nrm))  # where each segment's line meets the horizon
-    psi = torch.atan2((cross * e2[:, :, None]).sum(-1), (cross * e1[:, :, None]).sum(-1)).remainder(math.pi)
-    weight = lengths[:, None] * (1.0 - kz) * (cross.pow(2).sum(-1) > 1e-12)
+    # each segment's line meets the horizon in the horizontal direction n x u; with (e1, e2, u) right-handed its
+    # coordinates are (n . e2, -n . e1), and |n x u|^2 = 1 - (n . u)^2
+    nt = normals.transpose(-1, -2)
+    psi = torch.atan2(-(e1 @ nt), e2 @ nt).remainder(math.pi)  # (B, H, N)
+    meets = 1.0 - (ups @ nt).square() > 1e-12
+    weight = lengths[:, None] * (1.0 - kz) * meets
     index = (psi / math.pi * bins).long().clamp(0, bins - 1)
     hist = torch.zeros(B, H, bins, dtype=ups.dtype, device=ups.device).scatter_add_(-1, index, weight)
     # smooth (circular) and keep separated local maxima
@@ -265,6 +276,7 @@ def refine_horizon(
     margin: float = 0.05,
     tie_zenith: bool = True,
     focal_scales: tuple[float, ...] = (1.0,),
+    frame_roll: bool = True,
 ) -> Calibration:
     """The calibration with the horizon that the segments support best (module docstring: method, consistency).
 
@@ -284,11 +296,14 @@ def refine_horizon(
             the horizon (measured worse on every set: the horizontal VPs of clutter then go unchecked).
         focal_scales: the hypotheses are repeated with the frame's focal length times each of these (1 is always
             included and first); where another scale wins, ``K``, focal and FoV follow it.
+        frame_roll: the pitch grid is searched with the frame's roll as well as with the refined zenith's; False
+            keeps only the frame's own hypothesis at the frame's roll (half the hypotheses).
 
     Returns:
         a :class:`Calibration` of the same shapes: unchanged where the frame's horizon is kept or the frame was
         invalid; otherwise ``R``, ``up``, ``zenith``, ``horizon``, ``vps``, ``pitch``, ``roll``, ``yaw`` follow
-        the refined up vector (``K``, focal and FoV are the frame's).
+        the refined up vector, and ``K``, focal and FoV the chosen focal scale (the frame's with the default
+        ``focal_scales``).
     """
     K = cal.K
     dtype = K.dtype
@@ -301,24 +316,31 @@ def refine_horizon(
     n = int(round(pitch_range / pitch_step))
     offsets = torch.arange(-n, n + 1, dtype=dtype, device=K.device) * pitch_step
     offsets = torch.cat([offsets.new_zeros(1), offsets[offsets != 0]])  # the frame's pitch first
-    pitches = (pitch0[:, None] + offsets).repeat(1, 2)
-    rolls = torch.cat([roll0[:, None].expand(-1, len(offsets)), roll1[:, None].expand(-1, len(offsets))], 1)
-    zen = torch.cat([up_frame[:, None].expand(-1, len(offsets), 3), up_ref[:, None].expand(-1, len(offsets), 3)], 1)
+    if frame_roll:  # the frame's and the refined roll, each with every pitch
+        pitches = (pitch0[:, None] + offsets).repeat(1, 2)
+        rolls = torch.cat([roll0[:, None].expand(-1, len(offsets)), roll1[:, None].expand(-1, len(offsets))], 1)
+        zen = torch.cat([up_frame[:, None].expand(-1, len(offsets), 3), up_ref[:, None].expand(-1, len(offsets), 3)], 1)
+    else:  # the frame's hypothesis, then the refined roll with every pitch
+        pitches = torch.cat([pitch0[:, None], pitch0[:, None] + offsets], 1)
+        rolls = torch.cat([roll0[:, None], roll1[:, None].expand(-1, len(offsets))], 1)
+        zen = torch.cat([up_frame[:, None], up_ref[:, None].expand(-1, len(offsets), 3)], 1)
     ups = up_from_pitch_roll(pitches, rolls)
     scales = [1.0] + [float(x) for x in focal_scales if float(x) != 1.0]  # the frame's focal length first
-    supports, dirs = [], []
-    for scale in scales:
-        Ks = _scaled_focal(K, torch.full_like(K[:, 0, 0], scale))
-        cam_s = cam if scale == 1.0 else _camera_segments(seg, Ks)
-        sup, d, _ = _support(ups, cam_s, lengths, mask, num_peaks, kernel_deg, 360, 3.0, None if tie_zenith else zen)
-        supports.append(sup)
-        dirs.append(d)
-    support, dirs = torch.cat(supports, 1), torch.cat(dirs, 1)
+    S, B, Hn = len(scales), len(K), ups.shape[1]
+    # every focal scale as its own batch row (scale-major), one pass over all hypotheses
+    Ks = torch.cat([_scaled_focal(K, torch.full_like(K[:, 0, 0], x)) for x in scales])
+    cam_s = cam if S == 1 else _camera_segments(seg.repeat(S, 1, 1, 1), Ks)
+    sup, d, _ = _support(
+        ups.repeat(S, 1, 1), cam_s, lengths.repeat(S, 1), mask.repeat(S, 1), num_peaks, kernel_deg, 360, 3.0,
+        None if tie_zenith else zen.repeat(S, 1, 1),
+    )
+    support = sup.view(S, B, Hn).transpose(0, 1).reshape(B, S * Hn)
+    dirs = d.view(S, B, Hn, -1, 3).transpose(0, 1).reshape(B, S * Hn, -1, 3)
     frame_support = support[:, 0]
     best = support.argmax(-1)
     rows = torch.arange(len(best), device=K.device)
-    hyp = best % ups.shape[1]
-    scale = torch.tensor(scales, dtype=dtype, device=K.device)[best // ups.shape[1]]
+    hyp = best % Hn
+    scale = torch.tensor(scales, dtype=dtype, device=K.device)[best // Hn]
     K_best = _scaled_focal(K, scale)
     m = max(1, int(round(pitch_step / fine_step)))
     fine = torch.arange(-m + 1, m, dtype=dtype, device=K.device) * fine_step

@@ -171,3 +171,22 @@ def test_parser_switch_recovers_the_camera():
     assert bool(out.valid[0])
     assert float(horizon_error(out.horizon.double(), calibration(K, R).horizon.double(), H, W)) < 0.01
     assert bool(torch.isfinite(out.R).all())
+
+
+def test_focal_scales_fix_a_wrong_focal_length_and_stay_consistent():
+    K, R = camera(12.0, -2.0)
+    seg, mask = atlanta_segments(K, R, clutter=10, seed=6)
+    truth = calibration(K, R)
+    K_off = K.clone()
+    K_off[:, 0, 0] *= 0.8
+    K_off[:, 1, 1] *= 0.8
+    start = calibration(K_off, camera(14.0, -2.0)[1])
+    plain = refine_horizon(start, seg, mask)
+    scaled = refine_horizon(start, seg, mask, focal_scales=(0.8, 0.9, 1.1, 1.25))
+    err_plain = float(horizon_error(plain.horizon.double(), truth.horizon.double(), H, W))
+    err_scaled = float(horizon_error(scaled.horizon.double(), truth.horizon.double(), H, W))
+    assert err_scaled < 0.005 and err_scaled <= err_plain
+    assert float(scaled.focal) == pytest.approx(float(K[0, 0, 0]), rel=0.02)  # 0.8 f times 1.25
+    assert torch.allclose(scaled.K[:, 0, 0], scaled.focal)
+    assert torch.allclose(horizon_from_zenith(scaled.K, scaled.zenith), scaled.horizon, atol=1e-5)
+    assert float(scaled.fov_v) == pytest.approx(float(truth.fov_v), abs=1.0)

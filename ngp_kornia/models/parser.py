@@ -40,6 +40,7 @@ from ngp_kornia.geometry import (
 )
 from ngp_kornia.models.confidence import attach_trust
 from ngp_kornia.models.fsnet import frame_scores
+from ngp_kornia.models.refine import refine_horizon
 from ngp_kornia.models.result import Calibration
 from ngp_kornia.models.trace import ParserTrace
 from ngp_kornia.models.zsnet import zenith_estimate, zenith_weights_from_scores
@@ -102,6 +103,8 @@ class ParserConfig:
         exif: when calibrating a file (:func:`ngp_kornia.calibrate`, ``ngp predict``), take ``focal`` from its EXIF
             focal length where it has one and neither prior is set (:mod:`ngp_kornia.exif`); the parser itself
             only sees tensors and ignores it.
+        refine_horizon: after the frame search, move the horizon to the one that the segments support best,
+            searching horizontal VPs of every building block along it (:mod:`ngp_kornia.models.refine`).
     """
 
     working_size: int = 640
@@ -128,6 +131,7 @@ class ParserConfig:
     focal: float | None = None
     fov_v: float | None = None
     exif: bool = False
+    refine_horizon: bool = False
 
     def __post_init__(self) -> None:
         check_config(self)
@@ -229,6 +233,8 @@ def check_config(config: ParserConfig) -> None:
         raise ConfigError(f"ParserConfig.focal must be a positive number of pixels or None, got {config.focal!r}")
     if config.fov_v is not None and not 0 < _number(config.fov_v) < 180:
         raise ConfigError(f"ParserConfig.fov_v must be an angle in (0, 180) degrees or None, got {config.fov_v!r}")
+    if not isinstance(config.refine_horizon, bool):
+        raise ConfigError(f"ParserConfig.refine_horizon must be True or False, got {config.refine_horizon!r}")
     if not isinstance(config.exif, bool):
         raise ConfigError(f"ParserConfig.exif must be True or False, got {config.exif!r}")
 
@@ -301,6 +307,8 @@ class NeuralGeometricParser(nn.Module):
         if self.fsnet is not None:
             frames, scores = self.rescore_frames(images, segments, mask, frames, scores, stages)
         result = self.calibrate_from_frames(frames, scores, height, width, stages)
+        if cfg.refine_horizon:
+            result = refine_horizon(result, segments, mask)
         known_focal = cfg.focal is not None or cfg.fov_v is not None
         result = attach_trust(result, frames, scores, segments, mask, cfg.top_k, cfg.kernel_angle, known_focal)
         return (result, ParserTrace(**stages)) if return_trace else result

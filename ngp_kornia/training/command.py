@@ -13,7 +13,12 @@ import sys
 from pathlib import Path
 
 import torch
-from lightning.pytorch.cli import LightningCLI
+
+try:  # optional dependencies of the package: training needs them, calibrate() does not
+    import jsonargparse  # noqa: F401  (LightningCLI's parser; imported here for a clear message)
+    from lightning.pytorch.cli import LightningCLI
+except ImportError as err:
+    raise ImportError(f"training needs Lightning and jsonargparse ({err}); pip install 'ngp-kornia[train]'") from err
 
 from ngp_kornia.models.weights import save_network
 

@@ -72,6 +72,9 @@ CASES = {
         G.line_map(x["segments"], x["mask"], H // 8, W // 8),
         G.closeness_maps(x["segments"] / 8, x["mask"], G.sharp_closeness(_lines(x), x["vps"][:, 0]), H // 8, W // 8),
     ),
+    "pooled_maps": lambda x: G.line_map_and_pooled_maps(
+        x["segments"] / 8, x["mask"], x["weights"][..., None], H // 8, W // 8, 4
+    )[1],
 }
 
 

@@ -3,14 +3,14 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 PYTHON ?= python3
 
-.PHONY: setup demo test bench clean
+.PHONY: setup demo test test-fast bench clean
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	# the CPU wheel of torch first, so the range in pyproject.toml never pulls a CUDA build
 	$(PY) -m pip install -q torch==2.13.0
-	$(PY) -m pip install -q -e '.[test]'
+	$(PY) -m pip install -q -e '.[train,test]'
 	touch $@
 
 setup: $(VENV)/.installed
@@ -22,8 +22,13 @@ test: setup
 	$(VENV)/bin/ruff check ngp_kornia tests benchmarks
 	$(PY) -m pytest
 
+# the same without the slow tests (training runs, multi-process runs, notebooks)
+test-fast: setup
+	$(VENV)/bin/ruff check ngp_kornia tests benchmarks
+	$(PY) -m pytest -m "not slow"
+
 $(VENV)/.bench: $(VENV)/.installed
-	$(PY) -m pip install -q -e '.[test,bench]'
+	$(PY) -m pip install -q -e '.[train,test,bench]'
 	touch $@
 
 # the development suite on whichever sets are given: make bench YUD=... MANIFEST=labels.csv RENDERS=folder

@@ -1,4 +1,5 @@
-"""Shared pytest setup: doctests can use ``torch`` and ``np`` without importing them."""
+"""Shared pytest setup: doctests can use ``torch`` and ``np`` without importing them; the notebooks count as slow
+tests (``pytest -m "not slow"`` skips them with the training and multi-process runs)."""
 
 import numpy as np
 import pytest
@@ -8,3 +9,9 @@ import torch
 @pytest.fixture(autouse=True)
 def _doctest_names(doctest_namespace):
     doctest_namespace.update(torch=torch, np=np)
+
+
+def pytest_collection_modifyitems(items):
+    for item in items:
+        if item.path.suffix == ".ipynb":
+            item.add_marker(pytest.mark.slow)

@@ -29,11 +29,17 @@ from dataclasses import replace
 from pathlib import Path
 from typing import IO, NamedTuple
 
-import lightning as L
 import torch
-from lightning.pytorch.callbacks import BasePredictionWriter
 from torch import Tensor
 from torch.utils.data import DataLoader, Dataset
+
+try:  # an optional dependency: calibrate() and the rest of the core run without it
+    import lightning as L
+    from lightning.pytorch.callbacks import BasePredictionWriter
+except ImportError as err:
+    raise ImportError(
+        f"folder prediction needs Lightning ({err}); install it with: pip install 'ngp-kornia[train]'"
+    ) from err
 
 from ngp_kornia.api import load_parser, with_orientation
 from ngp_kornia.data.folder import IMAGE_EXTENSIONS, ImageFolder

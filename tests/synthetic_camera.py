@@ -1,11 +1,8 @@
 """Synthetic pinhole cameras and test grids shared by the geometry and sampling tests."""
 
-import torch
-
 from ngp_kornia.geometry.camera import image_center, intrinsics_matrix, rotation_from_angles
 
 BATCHES = [1, 2, 5]
-DTYPES = [torch.float32, torch.float64]
 H, W = 480, 640
 
 

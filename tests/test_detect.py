@@ -43,7 +43,6 @@ def _check_rectangle(seg, mask, x_lo, x_hi, y_lo, y_hi, tol):
     assert ((ver[:, 1, 1] - ver[:, 0, 1]).abs() > 0.8 * (y_hi - y_lo)).all()
 
 
-@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
 def test_detect_segments_rectangle_pixel_centres(dtype):
     # filled pixels 20..43: the edges lie between pixel centres, at 19.5 and 43.5
     img = _rectangle(64, 64, 20, 43, 20, 43, dtype=dtype)

@@ -96,6 +96,7 @@ def test_cli_bad_input_is_one_line_naming_the_problem(tmp_path, capsys, args, me
     assert not (tmp_path / "r.jsonl").exists()
 
 
+@pytest.mark.slow
 def test_two_processes_write_every_image_exactly_once(tmp_path):
     folder = tmp_path / "photos"
     _write_scenes(folder, range(10))

@@ -32,7 +32,7 @@ from ngp_kornia.sampling import (
     sample_zenith_candidates,
     split_by_pseudo_horizon,
 )
-from tests.synthetic_camera import BATCHES, DTYPES, H, W, camera_from_angles
+from tests.synthetic_camera import BATCHES, H, W, camera_from_angles
 
 FP = pseudo_focal(H, W)
 
@@ -153,7 +153,6 @@ def test_sample_pairs_exception():
 # sample_zenith_candidates
 
 
-@pytest.mark.parametrize("dtype", DTYPES)
 def test_sample_zenith_candidates_synthetic_scene(dtype):
     cam = _Camera([12.0, -8.0], [6.0, -4.0], [25.0, -40.0], [450.0, 700.0], dtype=dtype)
     vertical = cam.segments(1, 24, length=2.0, seed=0, noise_px=0.1)
@@ -315,7 +314,6 @@ def test_horizontal_line_mask_cardinality_and_empty(b):
 
 
 @pytest.mark.parametrize("yaw", [25.0, -35.0])
-@pytest.mark.parametrize("dtype", DTYPES)
 def test_split_by_pseudo_horizon_left_and_right_vps(yaw, dtype):
     # focal FP: the pseudo camera is the true camera, so the pseudo-horizon is the horizon and every line through a
     # horizontal VP crosses it at that VP
@@ -393,7 +391,6 @@ def _assert_frame_matches(fc, cam, f, k=0, tol=1e-6):
 
 
 @pytest.mark.parametrize("b", BATCHES)
-@pytest.mark.parametrize("dtype", DTYPES)
 def test_frames_from_vps_recovers_camera(b, dtype):
     g = _gen(b)
     pitch = (5 + 20 * torch.rand(b, generator=g)) * torch.where(torch.rand(b, generator=g) < 0.5, -1, 1)

@@ -16,7 +16,11 @@ import sys
 from importlib import resources
 from pathlib import Path
 
-from lightning.pytorch.cli import LightningCLI
+try:  # optional dependencies of the package: training needs them, calibrate() does not
+    import jsonargparse  # noqa: F401  (LightningCLI's parser; imported here for a clear message)
+    from lightning.pytorch.cli import LightningCLI
+except ImportError as err:
+    raise ImportError(f"training needs Lightning and jsonargparse ({err}); pip install 'ngp-kornia[train]'") from err
 
 from ngp_kornia.errors import CheckpointError, NGPError
 from ngp_kornia.models.weights import NETWORKS, build_network, load_tensors_safely, save_network

@@ -17,7 +17,7 @@ from ngp_kornia.geometry.line_algebra import (
     segments_to_lines,
     to_pseudo_camera,
 )
-from tests.synthetic_camera import BATCHES, DTYPES, camera_from_angles
+from tests.synthetic_camera import BATCHES, camera_from_angles
 
 COUNTS = [1, 3, 17]
 
@@ -41,7 +41,6 @@ def _segment_at_angle(deg, length=10.0, x0=5.0, y0=7.0):
 
 @pytest.mark.parametrize("b", BATCHES)
 @pytest.mark.parametrize("n", COUNTS)
-@pytest.mark.parametrize("dtype", DTYPES)
 def test_segment_lengths(b, n, dtype):
     seg = _segments(b, n, dtype=dtype)
     out = segment_lengths(seg)
@@ -65,7 +64,6 @@ def test_segment_lengths_exception():
 
 @pytest.mark.parametrize("b", BATCHES)
 @pytest.mark.parametrize("n", COUNTS)
-@pytest.mark.parametrize("dtype", DTYPES)
 def test_segments_to_lines_passes_through_endpoints(b, n, dtype):
     seg = _segments(b, n, seed=b * n, dtype=dtype)
     lines = segments_to_lines(seg)
@@ -85,7 +83,6 @@ def test_segments_to_lines_known_answers():
 
 
 @pytest.mark.parametrize("point", [(4.0, 4.0), (0.1, 0.7), (123.456, 78.91)])
-@pytest.mark.parametrize("dtype", DTYPES)
 def test_segments_to_lines_zero_length(point, dtype):
     # documented: a zero-length segment has no line and gives (0, 0, 0), wherever it lies
     seg = torch.tensor([[[point, point], [[0.0, 0.0], [1.0, 0.0]]]], dtype=dtype)
@@ -129,7 +126,6 @@ def test_intersect_lines_parallel_at_infinity():
 
 
 @pytest.mark.parametrize("scale", [1.0, -2.0])
-@pytest.mark.parametrize("dtype", DTYPES)
 def test_intersect_lines_identical_gives_zero(scale, dtype):
     # documented: identical lines give (0, 0, 0); both a small line and a pixel-scale line from a segment
     small = torch.tensor([0.3, 0.7, -2.0], dtype=dtype)
@@ -141,7 +137,6 @@ def test_intersect_lines_identical_gives_zero(scale, dtype):
 
 
 @pytest.mark.parametrize("b", BATCHES)
-@pytest.mark.parametrize("dtype", DTYPES)
 def test_intersect_lines_recovers_vp_of_parallel_3d_lines(b, dtype):
     # synthetic camera; project parallel 3D lines along each world axis: their images meet at K @ R[:, i]
     g = torch.Generator().manual_seed(b)
@@ -228,7 +223,6 @@ def test_is_near_vertical_cardinality(b, n):
 # cossim (Eq. 8)
 
 
-@pytest.mark.parametrize("dtype", DTYPES)
 def test_cossim_sign_and_scale_invariance(dtype):
     g = torch.Generator().manual_seed(0)
     x = torch.randn(5, 7, 3, generator=g).to(dtype)
@@ -271,7 +265,6 @@ def test_pseudo_focal():
     assert pseudo_focal(100, 100) == 50.0
 
 
-@pytest.mark.parametrize("dtype", DTYPES)
 def test_to_pseudo_camera(dtype):
     pts = torch.tensor([[319.5, 239.5], [639.5, 239.5], [-0.5, 239.5], [319.5, -0.5]], dtype=dtype)
     out = to_pseudo_camera(pts, 480, 640)

@@ -18,7 +18,6 @@ from ngp_kornia.geometry.line_maps import (
 from ngp_kornia.geometry.vp import closeness, manhattan_score
 
 BATCHES = [1, 2, 5]
-DTYPES = [torch.float32, torch.float64]
 
 
 def _seg(*xyxy, dtype=torch.float32):
@@ -86,7 +85,6 @@ def test_rasterize_segments_zero_length_segment():
 
 
 @pytest.mark.parametrize("b", BATCHES)
-@pytest.mark.parametrize("dtype", DTYPES)
 def test_rasterize_segments_cardinality(b, dtype):
     g = torch.Generator().manual_seed(b)
     n = 6
@@ -130,7 +128,6 @@ def test_rasterize_segments_gradcheck_values():
 
 
 @pytest.mark.parametrize("b", BATCHES)
-@pytest.mark.parametrize("dtype", DTYPES)
 @pytest.mark.parametrize("cell", [1, 4, 8])
 def test_pooled_maps_equal_drawn_maps_averaged(b, dtype, cell):
     g = torch.Generator().manual_seed(b + cell)
@@ -226,7 +223,6 @@ def _scene(b, dtype):
 
 
 @pytest.mark.parametrize("b", BATCHES)
-@pytest.mark.parametrize("dtype", DTYPES)
 def test_manhattan_score_maps_agrees_with_line_level_score(b, dtype):
     seg, mask, vps = _scene(b, dtype)
     lines = segments_to_lines(seg)

@@ -22,7 +22,7 @@ from ngp_kornia.geometry.vp import (
     topk_weighted_average,
     weighted_structure_tensor,
 )
-from tests.synthetic_camera import BATCHES, DTYPES, camera_from_angles
+from tests.synthetic_camera import BATCHES, camera_from_angles
 
 COUNTS = [1, 4, 16]
 
@@ -35,7 +35,6 @@ def _randn(*shape, seed=0, dtype=torch.float64):
 # structure tensors
 
 
-@pytest.mark.parametrize("dtype", DTYPES)
 def test_structure_tensor_trace_symmetry_sign(dtype):
     v = _randn(3, 7, 3, dtype=dtype)
     st = structure_tensor(v)
@@ -66,7 +65,6 @@ def test_structure_tensor_exception_and_gradcheck():
 
 @pytest.mark.parametrize("b", BATCHES)
 @pytest.mark.parametrize("n", COUNTS)
-@pytest.mark.parametrize("dtype", DTYPES)
 def test_weighted_structure_tensor_cardinality(b, n, dtype):
     v = _randn(b, n, 3, dtype=dtype)
     w = torch.rand(b, n, generator=torch.Generator().manual_seed(1)).to(dtype) + 0.1
@@ -112,7 +110,6 @@ def test_weighted_structure_tensor_gradcheck():
 
 
 @pytest.mark.parametrize("b", BATCHES)
-@pytest.mark.parametrize("dtype", DTYPES)
 def test_dominant_eigenvector_known(b, dtype):
     Q = torch.linalg.qr(_randn(b, 3, 3, seed=b)).Q.to(dtype)
     lam = torch.tensor([0.1, 0.3, 0.6], dtype=dtype)
@@ -141,7 +138,6 @@ def test_dominant_eigenvector_diag_and_fallback():
     )
 
 
-@pytest.mark.parametrize("dtype", DTYPES)
 def test_weighted_structure_tensor_recovers_point_from_noisy_samples(dtype):
     g = torch.Generator().manual_seed(7)
     true = normalize(torch.tensor([[0.3, -2.0, 0.8], [1.0, 0.2, 0.05]], dtype=torch.float64))
@@ -194,7 +190,6 @@ def _lines_through(vp_xy, angles_deg, dtype=torch.float64):
 
 @pytest.mark.parametrize("b", BATCHES)
 @pytest.mark.parametrize("n", COUNTS)
-@pytest.mark.parametrize("dtype", DTYPES)
 def test_line_vp_cosine_and_closeness_shapes(b, n, dtype):
     lines = _randn(b, n, 3, seed=1, dtype=dtype)
     vps = _randn(b, 2, 3, 3, seed=2, dtype=dtype)
@@ -303,7 +298,6 @@ def test_segment_vp_angle_known():
 
 @pytest.mark.parametrize("b", BATCHES)
 @pytest.mark.parametrize("n", COUNTS)
-@pytest.mark.parametrize("dtype", DTYPES)
 def test_segment_vp_angle_cardinality(b, n, dtype):
     g = torch.Generator().manual_seed(n)
     seg = (torch.rand(b, n, 2, 2, generator=g) * 100).to(dtype)
@@ -359,7 +353,6 @@ def test_manhattan_score_known():
 
 @pytest.mark.parametrize("b", BATCHES)
 @pytest.mark.parametrize("n", COUNTS)
-@pytest.mark.parametrize("dtype", DTYPES)
 def test_manhattan_score_cardinality(b, n, dtype):
     g = torch.Generator().manual_seed(b * n)
     c = torch.rand(b, 7, 3, n, generator=g).to(dtype)
@@ -473,7 +466,6 @@ def test_topk_weighted_average_all_zero_scores_and_no_valid_candidate():
 
 @pytest.mark.parametrize("b", BATCHES)
 @pytest.mark.parametrize("k", [1, 3, 8])
-@pytest.mark.parametrize("dtype", DTYPES)
 def test_topk_weighted_average_cardinality(b, k, dtype):
     g = torch.Generator().manual_seed(k)
     f = 10

@@ -106,6 +106,7 @@ def test_missing_images_raise_a_clear_error():
         module._step(batch, "train", 0)
 
 
+@pytest.mark.slow
 def test_fast_dev_run(tmp_path):
     dm = RenderedDataModule(
         cache_dir=str(tmp_path / "cache"),

@@ -65,6 +65,7 @@ def datamodule(tmp_path_factory):
     )
 
 
+@pytest.mark.slow
 def test_fast_dev_run_trains_and_exports(datamodule, tmp_path):
     module = ZSNetModule(ZSNet(width=8))
     before = [p.detach().clone() for p in module.parameters()]
@@ -94,6 +95,7 @@ def test_cache_is_written_once_and_reused(datamodule):
     assert (first.segments == again.segments).all()
 
 
+@pytest.mark.slow
 def test_worker_processes_give_the_same_batches_as_the_main_process(tmp_path):
     def first_val_batch(workers):
         dm = RenderedDataModule(

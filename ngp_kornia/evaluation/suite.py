@@ -124,17 +124,18 @@ def run_suite(
     return records
 
 
-def _variant_rows(title: str, result: dict, first: bool) -> dict[str, float]:
-    """The figures of one (set, ground truth) run; ``first`` adds the up and FoV errors (the same for every
-    ground truth of York Urban, whose horizons differ but whose up and FoV do not)."""
+def _variant_rows(title: str, set_name: str, result: dict, first: bool) -> dict[str, float]:
+    """The figures of one (set, ground truth) run, labelled with ``title``; ``first`` adds the up and FoV errors,
+    labelled with the set's name (the same for every ground truth of York Urban, whose horizons differ but whose up
+    and FoV do not)."""
     rows = {f"{title}: horizon AUC (%)": 100 * result["horizon_auc"]}
     summary = result["summary"]
     if summary.get("horizon", {}).get("count"):
         rows[f"{title}: median horizon error (% of height)"] = 100 * summary["horizon"]["median"]
     for key, what in (("up", "up error (deg)"), ("fov_v", "FoV_v error (deg)")):
         if first and summary.get(key, {}).get("count"):
-            rows[f"{title}: {what} mean"] = summary[key]["mean"]
-            rows[f"{title}: {what} median"] = summary[key]["median"]
+            rows[f"{set_name}: {what} mean"] = summary[key]["mean"]
+            rows[f"{set_name}: {what} median"] = summary[key]["median"]
     return rows
 
 
@@ -151,7 +152,8 @@ def suite_rows(records: list[dict], sets: Sequence[SuiteSet]) -> dict[str, dict[
     per_seed: dict[tuple[str, int], dict[str, list[float]]] = {}
     for rec in records:
         first = rec["truth"] == first_truth[rec["set"]]
-        for label, value in _variant_rows(titles[rec["set"], rec["truth"]], rec["result"], first).items():
+        title = titles[rec["set"], rec["truth"]]
+        for label, value in _variant_rows(title, rec["set"], rec["result"], first).items():
             rows.setdefault(label, {}).setdefault(rec["weights"], []).append(value)
         acc = per_seed.setdefault((rec["weights"], rec["seed"]), {"seconds": [], "images": [], "real": []})
         if first:
@@ -205,14 +207,25 @@ def machine() -> dict:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    usage = __doc__.split("Usage::")[1].split("Weight specs")[0]
     p = argparse.ArgumentParser(
-        prog="python -m ngp_kornia.evaluation", description=__doc__.split("\n\n")[0], epilog=__doc__.split("::")[0]
+        prog="python -m ngp_kornia.evaluation",
+        description=__doc__.split("\n\n")[0],
+        epilog="examples:"
+        + usage
+        + "Every figure is the mean (min-max) over the seeds; see ngp_kornia.evaluation.suite.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("--yud", type=Path, help="York Urban DB folder (official layout): scored against both horizons")
     p.add_argument("--yud-split", default="all", choices=["all", "train", "test"], help="York Urban images to use")
     p.add_argument("--manifest", action="append", default=[], metavar="[NAME=]PATH", help="CSV manifest (repeatable)")
     p.add_argument("--renders", type=Path, help="folder written by `ngp render`")
-    p.add_argument("--weights", action="append", default=None, help=f"weight spec, repeatable ({DEFAULT_WEIGHTS})")
+    p.add_argument(
+        "--weights",
+        action="append",
+        default=None,
+        help=f"weight spec, repeatable (default: {', '.join(DEFAULT_WEIGHTS)})",
+    )
     p.add_argument("--seeds", default=",".join(map(str, DEFAULT_SEEDS)), help="comma-separated sampling seeds")
     p.add_argument("--limit", type=int, default=None, help="only the first N images of each set (quick checks)")
     p.add_argument("--json", type=Path, default=None, help="also write every figure and per-image error here")

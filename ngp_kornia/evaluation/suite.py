@@ -42,7 +42,16 @@ from ngp_kornia.evaluation.datasets import YUD_HORIZONS, LabelledImage, load_man
 from ngp_kornia.evaluation.methods import calibrate_method, run_interleaved
 from ngp_kornia.evaluation.scoring import evaluate
 
-__all__ = ["DEFAULT_SEEDS", "DEFAULT_WEIGHTS", "SuiteSet", "main", "run_suite", "suite_rows", "suite_table"]
+__all__ = [
+    "DEFAULT_SEEDS",
+    "DEFAULT_WEIGHTS",
+    "SuiteSet",
+    "load_sets",
+    "main",
+    "run_suite",
+    "suite_rows",
+    "suite_table",
+]
 
 #: sampling seeds of the development suite
 DEFAULT_SEEDS = (0, 1, 2, 3, 4)
@@ -78,7 +87,14 @@ def _label(path: Path) -> str:
 def load_sets(
     yud: Path | None, manifests: Sequence[str], renders: Path | None, split: str = "all", limit: int | None = None
 ) -> list[SuiteSet]:
-    """The suite's datasets from their paths; ``manifests`` entries are ``PATH`` or ``NAME=PATH``."""
+    """The suite's datasets from their paths; ``manifests`` entries are ``PATH`` or ``NAME=PATH``.
+
+    A manifest's name defaults to its file's stem, or its folder's name for a file called ``manifest.csv``.
+
+    Raises:
+        FileNotFoundError: a missing folder or file.
+        ValueError: a set without images, two sets of the same name, or a malformed file.
+    """
     sets = []
     if yud is not None:
         sets.append(SuiteSet("York Urban", {h: load_yud(yud, split, h)[:limit] for h in YUD_HORIZONS}))
@@ -88,6 +104,12 @@ def load_sets(
         sets.append(SuiteSet(name if sep else _label(path), {"horizon": load_manifest(path)[:limit]}))
     if renders is not None:
         sets.append(SuiteSet("renders", {"renders": load_renders(renders)[:limit]}, real=False))
+    names = [s.name for s in sets]
+    for s in sets:
+        if names.count(s.name) > 1:
+            raise ValueError(f"two sets are named {s.name!r}; name the manifests with --manifest NAME=PATH")
+        if not s.images:
+            raise ValueError(f"the set {s.name!r} has no images")
     return sets
 
 
@@ -244,7 +266,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ValueError:
         parser.error(f"--seeds must be comma-separated integers, got {args.seeds!r}")
     specs = args.weights or list(DEFAULT_WEIGHTS)
-    sets = load_sets(args.yud, args.manifest, args.renders, args.yud_split, args.limit)
+    try:
+        sets = load_sets(args.yud, args.manifest, args.renders, args.yud_split, args.limit)
+    except (FileNotFoundError, ValueError) as e:
+        parser.error(str(e))
     started = datetime.datetime.now(datetime.timezone.utc)
     load_before = os.getloadavg()
     records = run_suite(specs, sets, seeds, None if args.quiet else sys.stderr)

@@ -172,10 +172,17 @@ def test_suite_command(renders, manifest, tmp_path, capsys):
     assert figures["renders: horizon AUC (%)"]["none"]["per_seed"] == pytest.approx(mine["per_seed"])
 
 
-def test_suite_needs_a_dataset(capsys):
-    with pytest.raises(SystemExit):
-        suite_main(["--weights", "none"])
-    assert "give --yud, --manifest or --renders" in capsys.readouterr().err
+def test_suite_bad_input_is_one_clear_line(manifest, tmp_path, capsys):
+    for argv, message in (
+        (["--weights", "none"], "give --yud, --manifest or --renders"),
+        (["--manifest", str(tmp_path / "no.csv")], "manifest not found"),
+        (["--manifest", str(manifest), "--manifest", str(manifest)], "name the manifests with --manifest NAME=PATH"),
+        (["--manifest", str(manifest), "--limit", "0"], "has no images"),
+        (["--manifest", str(manifest), "--seeds", "0,x"], "--seeds must be comma-separated integers"),
+    ):
+        with pytest.raises(SystemExit):
+            suite_main(argv)
+        assert message in capsys.readouterr().err
 
 
 @pytest.mark.skipif(not (SHARED_YUD / "cameraParameters.mat").is_file(), reason="York Urban DB copy not present")

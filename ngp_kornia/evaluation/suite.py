@@ -42,7 +42,16 @@ from ngp_kornia.evaluation.datasets import YUD_HORIZONS, LabelledImage, load_man
 from ngp_kornia.evaluation.methods import calibrate_method, run_interleaved
 from ngp_kornia.evaluation.scoring import evaluate
 
-__all__ = ["DEFAULT_SEEDS", "DEFAULT_WEIGHTS", "SuiteSet", "main", "run_suite", "suite_rows", "suite_table"]
+__all__ = [
+    "DEFAULT_SEEDS",
+    "DEFAULT_WEIGHTS",
+    "SuiteSet",
+    "load_sets",
+    "main",
+    "run_suite",
+    "suite_rows",
+    "suite_table",
+]
 
 #: sampling seeds of the development suite
 DEFAULT_SEEDS = (0, 1, 2, 3, 4)
@@ -78,7 +87,14 @@ def _label(path: Path) -> str:
 def load_sets(
     yud: Path | None, manifests: Sequence[str], renders: Path | None, split: str = "all", limit: int | None = None
 ) -> list[SuiteSet]:
-    """The suite's datasets from their paths; ``manifests`` entries are ``PATH`` or ``NAME=PATH``."""
+    """The suite's datasets from their paths; ``manifests`` entries are ``PATH`` or ``NAME=PATH``.
+
+    A manifest's name defaults to its file's stem, or its folder's name for a file called ``manifest.csv``.
+
+    Raises:
+        FileNotFoundError: a missing folder or file.
+        ValueError: a set without images, two sets of the same name, or a malformed file.
+    """
     sets = []
     if yud is not None:
         sets.append(SuiteSet("York Urban", {h: load_yud(yud, split, h)[:limit] for h in YUD_HORIZONS}))
@@ -88,6 +104,12 @@ def load_sets(
         sets.append(SuiteSet(name if sep else _label(path), {"horizon": load_manifest(path)[:limit]}))
     if renders is not None:
         sets.append(SuiteSet("renders", {"renders": load_renders(renders)[:limit]}, real=False))
+    names = [s.name for s in sets]
+    for s in sets:
+        if names.count(s.name) > 1:
+            raise ValueError(f"two sets are named {s.name!r}; name the manifests with --manifest NAME=PATH")
+        if not s.images:
+            raise ValueError(f"the set {s.name!r} has no images")
     return sets
 
 
@@ -124,17 +146,18 @@ def run_suite(
     return records
 
 
-def _variant_rows(title: str, result: dict, first: bool) -> dict[str, float]:
-    """The figures of one (set, ground truth) run; ``first`` adds the up and FoV errors (the same for every
-    ground truth of York Urban, whose horizons differ but whose up and FoV do not)."""
+def _variant_rows(title: str, set_name: str, result: dict, first: bool) -> dict[str, float]:
+    """The figures of one (set, ground truth) run, labelled with ``title``; ``first`` adds the up and FoV errors,
+    labelled with the set's name (the same for every ground truth of York Urban, whose horizons differ but whose up
+    and FoV do not)."""
     rows = {f"{title}: horizon AUC (%)": 100 * result["horizon_auc"]}
     summary = result["summary"]
     if summary.get("horizon", {}).get("count"):
         rows[f"{title}: median horizon error (% of height)"] = 100 * summary["horizon"]["median"]
     for key, what in (("up", "up error (deg)"), ("fov_v", "FoV_v error (deg)")):
         if first and summary.get(key, {}).get("count"):
-            rows[f"{title}: {what} mean"] = summary[key]["mean"]
-            rows[f"{title}: {what} median"] = summary[key]["median"]
+            rows[f"{set_name}: {what} mean"] = summary[key]["mean"]
+            rows[f"{set_name}: {what} median"] = summary[key]["median"]
     return rows
 
 
@@ -151,7 +174,8 @@ def suite_rows(records: list[dict], sets: Sequence[SuiteSet]) -> dict[str, dict[
     per_seed: dict[tuple[str, int], dict[str, list[float]]] = {}
     for rec in records:
         first = rec["truth"] == first_truth[rec["set"]]
-        for label, value in _variant_rows(titles[rec["set"], rec["truth"]], rec["result"], first).items():
+        title = titles[rec["set"], rec["truth"]]
+        for label, value in _variant_rows(title, rec["set"], rec["result"], first).items():
             rows.setdefault(label, {}).setdefault(rec["weights"], []).append(value)
         acc = per_seed.setdefault((rec["weights"], rec["seed"]), {"seconds": [], "images": [], "real": []})
         if first:
@@ -205,14 +229,25 @@ def machine() -> dict:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    usage = __doc__.split("Usage::")[1].split("Weight specs")[0]
     p = argparse.ArgumentParser(
-        prog="python -m ngp_kornia.evaluation", description=__doc__.split("\n\n")[0], epilog=__doc__.split("::")[0]
+        prog="python -m ngp_kornia.evaluation",
+        description=__doc__.split("\n\n")[0],
+        epilog="examples:"
+        + usage
+        + "Every figure is the mean (min-max) over the seeds; see ngp_kornia.evaluation.suite.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("--yud", type=Path, help="York Urban DB folder (official layout): scored against both horizons")
     p.add_argument("--yud-split", default="all", choices=["all", "train", "test"], help="York Urban images to use")
     p.add_argument("--manifest", action="append", default=[], metavar="[NAME=]PATH", help="CSV manifest (repeatable)")
     p.add_argument("--renders", type=Path, help="folder written by `ngp render`")
-    p.add_argument("--weights", action="append", default=None, help=f"weight spec, repeatable ({DEFAULT_WEIGHTS})")
+    p.add_argument(
+        "--weights",
+        action="append",
+        default=None,
+        help=f"weight spec, repeatable (default: {', '.join(DEFAULT_WEIGHTS)})",
+    )
     p.add_argument("--seeds", default=",".join(map(str, DEFAULT_SEEDS)), help="comma-separated sampling seeds")
     p.add_argument("--limit", type=int, default=None, help="only the first N images of each set (quick checks)")
     p.add_argument("--json", type=Path, default=None, help="also write every figure and per-image error here")
@@ -231,7 +266,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ValueError:
         parser.error(f"--seeds must be comma-separated integers, got {args.seeds!r}")
     specs = args.weights or list(DEFAULT_WEIGHTS)
-    sets = load_sets(args.yud, args.manifest, args.renders, args.yud_split, args.limit)
+    try:
+        sets = load_sets(args.yud, args.manifest, args.renders, args.yud_split, args.limit)
+    except (FileNotFoundError, ValueError) as e:
+        parser.error(str(e))
     started = datetime.datetime.now(datetime.timezone.utc)
     load_before = os.getloadavg()
     records = run_suite(specs, sets, seeds, None if args.quiet else sys.stderr)

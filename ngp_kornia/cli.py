@@ -134,8 +134,14 @@ def _calibrate(args: argparse.Namespace) -> int:
             except (ValueError, TypeError, OSError) as err:
                 failed += 1
                 print(f"ngp: error: {err}", file=sys.stderr, flush=True)
-        results = calibrate([rgb for _, rgb in loaded], weights=args.weights, seed=args.seed) if loaded else []
+        try:
+            results = calibrate([rgb for _, rgb in loaded], weights=args.weights, seed=args.seed) if loaded else []
+        except (ValueError, TypeError, OSError):  # one image of the chunk failed: find it, keep the others
+            results = [_calibrate_or_none(calibrate, image, rgb, args) for image, rgb in loaded]
         for (image, rgb), result in zip(loaded, results, strict=True):
+            if result is None:
+                failed += 1
+                continue
             print(json.dumps({"image": image, **result.to_dict()}), flush=True)
             try:
                 if args.overlay:
@@ -144,6 +150,15 @@ def _calibrate(args: argparse.Namespace) -> int:
                 failed += 1
                 print(f"ngp: error: {err}", file=sys.stderr, flush=True)
     return 1 if failed else 0
+
+
+def _calibrate_or_none(calibrate, image: str, rgb: np.ndarray, args: argparse.Namespace):
+    """One image alone; None (and a one-line error) when it cannot be calibrated."""
+    try:
+        return calibrate(rgb, weights=args.weights, seed=args.seed)
+    except (ValueError, TypeError, OSError) as err:
+        print(f"ngp: error: {image}: {err}", file=sys.stderr, flush=True)
+        return None
 
 
 def _predict(args: argparse.Namespace) -> int:

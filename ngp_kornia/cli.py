@@ -209,8 +209,14 @@ def _calibrate(args: argparse.Namespace) -> int:
             except USER_ERRORS as err:
                 failed += 1
                 print(f"ngp: error: {_one_line(err)}", file=sys.stderr, flush=True)
-        results = _calibrate_loaded(loaded, args)
+        try:
+            results = _calibrate_loaded(loaded, args)
+        except USER_ERRORS:  # one image of the chunk failed: find it, keep the others
+            results = [_calibrate_or_none(image, rgb, args) for image, rgb, _ in loaded]
         for (image, rgb, orientation), result in zip(loaded, results, strict=True):
+            if result is None:
+                failed += 1
+                continue
             result = with_orientation(result, orientation)
             print(json.dumps({"image": image, **result.to_dict()}), flush=True)
             try:
@@ -220,6 +226,17 @@ def _calibrate(args: argparse.Namespace) -> int:
                 failed += 1
                 print(f"ngp: error: {_one_line(err)}", file=sys.stderr, flush=True)
     return 1 if failed else 0
+
+
+def _calibrate_or_none(image: str, rgb: np.ndarray, args: argparse.Namespace):
+    """One image alone; None (and a one-line error) when it cannot be calibrated."""
+    from ngp_kornia.api import calibrate
+
+    try:
+        return calibrate(rgb, weights=args.weights, seed=args.seed, **_prior(args, image, rgb))
+    except USER_ERRORS as err:
+        print(f"ngp: error: {image}: {_one_line(err)}", file=sys.stderr, flush=True)
+        return None
 
 
 def _one_line(err: BaseException) -> str:

@@ -106,3 +106,23 @@ def test_render_shows_progress_on_a_terminal_only(tmp_path, capsys, monkeypatch)
     assert cli.main(["render", str(tmp_path / "b"), "--count", "2", "--size", "96x64"]) == 0
     err = capsys.readouterr().err
     assert "rendering" in err and "2/2" in err
+
+
+def test_an_image_failing_inside_a_chunk_is_reported_and_the_others_still_print(scenes, capsys, monkeypatch):
+    from ngp_kornia import api
+
+    real = api.calibrate
+    bad_shape = (256, 256, 3)  # scene4 is 256x256: make its calibration fail as a corrupt input would
+
+    def flaky(image, **kwargs):
+        if isinstance(image, list):
+            return [flaky(item, **kwargs) for item in image]
+        if getattr(image, "shape", None) == bad_shape:
+            raise ValueError("cannot calibrate this one")
+        return real(image, **kwargs)
+
+    monkeypatch.setattr(api, "calibrate", flaky)
+    assert cli.main(["calibrate", *map(str, scenes), "--weights", "none"]) == 1
+    out, err = capsys.readouterr()
+    assert [json.loads(line)["image"] for line in out.splitlines()] == [str(scenes[0]), str(scenes[2])]
+    assert err.strip() == f"ngp: error: {scenes[1]}: cannot calibrate this one"

@@ -115,3 +115,15 @@ def test_plot_of_an_empty_folder_is_one_line(tmp_path, capsys):
 def test_metric_labels_name_the_units():
     assert metric_label("val/horizon_error_manhattan") == "horizon error (fraction of image height)"
     assert metric_label("val/loss_cls") == "loss"
+
+
+def test_readme_tensorboard_command_configures_both_loggers(tmp_path, monkeypatch, capsys):
+    readme = (ROOT / "README.md").read_text().replace("\\\n", " ")
+    line = next(x for x in readme.splitlines() if "TensorBoardLogger" in x and x.startswith("ngp-train fit"))
+    args = line.split("#")[0].split()[1:]
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as exit_info:
+        main([*args, "--print_config"])
+    assert exit_info.value.code in (0, None)
+    printed = capsys.readouterr().out
+    assert "lightning.pytorch.loggers.CSVLogger" in printed and "lightning.pytorch.loggers.TensorBoardLogger" in printed

@@ -114,7 +114,7 @@ def _write_overlay(path: Path, rgb: np.ndarray, calibration) -> None:
 
 def _calibrate(args: argparse.Namespace) -> int:
     from ngp_kornia.api import calibrate, with_orientation
-    from ngp_kornia.io import read_image
+    from ngp_kornia.io import read_rgb_oriented
 
     many = len(args.images) > 1
     if args.overlay and many and Path(args.overlay).is_file():
@@ -126,7 +126,7 @@ def _calibrate(args: argparse.Namespace) -> int:
         try:
             if args.overlay and many:
                 check_output(_overlay_path(args.overlay, image, True), args.force, args.images)
-            rgb, orientation = read_image(image)
+            rgb, orientation = read_rgb_oriented(image)
             result = with_orientation(calibrate(rgb, weights=args.weights, seed=args.seed), orientation)
             print(json.dumps({"image": image, **result.to_dict()}), flush=True)
             if args.overlay:

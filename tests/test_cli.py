@@ -206,3 +206,17 @@ def test_libpng_noise_does_not_reach_stderr(tmp_path):
         [sys.executable, "-m", "ngp_kornia.cli", "calibrate", str(path)], capture_output=True, text=True, timeout=120
     )
     assert run.returncode == 1 and _one_error_line(run.stderr) and run.stderr.startswith(f"ngp: error: {path}")
+
+
+def test_kornia_check_errors_are_one_line(photo, monkeypatch, capsys):
+    from kornia.core.check import KORNIA_CHECK
+
+    import ngp_kornia.api
+
+    def failing(*args, **kwargs):
+        KORNIA_CHECK(False, "a check inside kornia failed")  # raises kornia's BaseError, not a ValueError
+
+    monkeypatch.setattr(ngp_kornia.api, "calibrate", failing)
+    assert main(["calibrate", str(photo)]) == 1
+    err = capsys.readouterr().err
+    assert _one_error_line(err) and "a check inside kornia failed" in err

@@ -119,7 +119,7 @@ def calibrate(
     Example:
         >>> cal = calibrate(torch.rand(3, 64, 64))
         >>> sorted(cal.to_dict())[:4]
-        ['K', 'R', 'focal', 'fov_h']
+        ['K', 'R', 'exif_orientation', 'focal']
     """
     cfg = replace(config or ParserConfig(), seed=seed)
     segments = mask = orientation = None

@@ -22,7 +22,7 @@ import os
 import statistics
 import time
 from dataclasses import replace
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 
 import cv2
@@ -95,7 +95,7 @@ def main(argv: list[str] | None = None) -> int:
     if not datasets:
         p.error("give --yud and/or --ecd")
     print(
-        f"{datetime.now(timezone.utc):%Y-%m-%d %H:%M UTC}, {os.cpu_count()} CPUs, torch threads "
+        f"{datetime.now(UTC):%Y-%m-%d %H:%M UTC}, {os.cpu_count()} CPUs, torch threads "
         f"{torch.get_num_threads()}, load {os.getloadavg()[0]:.2f}, weights {args.weights}, seeds {args.seeds}"
     )
     # the two York Urban ground truths share their images: run each image once

@@ -27,7 +27,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 
 _WORKER = """
@@ -83,7 +83,7 @@ def main(argv: list[str] | None = None) -> int:
 
     images = [s.image_path for s in YorkUrbanDB(args.yud, split=args.split)]
     print(
-        f"{datetime.now(timezone.utc):%Y-%m-%d %H:%M UTC}, {os.cpu_count()} CPUs, load {os.getloadavg()[0]:.2f}, "
+        f"{datetime.now(UTC):%Y-%m-%d %H:%M UTC}, {os.cpu_count()} CPUs, load {os.getloadavg()[0]:.2f}, "
         f"{len(images)} images x {args.copies}, weights {args.weights}, OMP_NUM_THREADS="
         f"{os.environ.get('OMP_NUM_THREADS')}"
     )

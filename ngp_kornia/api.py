@@ -92,9 +92,10 @@ def calibrate(
 
     Args:
         image: a file path (decoded as displayed: the EXIF orientation is applied, and reported in the result's
-            ``exif_orientation``; files over the pixel limit of :mod:`ngp_kornia.io` are refused), an HxWx3 uint8
-            RGB array (HxW greyscale, RGBA and uint16 are converted), or a float tensor (3, H, W) or (B, 3, H, W) in
-            [0, 1] on any device; or a list (or tuple) of any of these, of any sizes, mixed freely.
+            ``exif_orientation``, which is 1 for arrays and tensors; files over the pixel limit of :mod:`ngp_kornia.io`
+            are refused), an HxWx3 uint8 RGB array (HxW greyscale, RGBA and uint16 are converted), or a float
+            tensor (3, H, W) or (B, 3, H, W) in [0, 1] on any device; or a list (or tuple) of any of these, of any
+            sizes, mixed freely.
         weights: ``"default"`` (the best path shipped), ``"none"`` (the untrained geometric path), ``"zsnet"`` (zenith
             candidates scored by the shipped ZSNet), ``"fsnet"`` (frames rescored by the shipped FSNet), ``"full"``
             (both), or the path of a weights file (or a list of paths: one ZSNet and one FSNet file).
@@ -124,7 +125,7 @@ def calibrate(
     Example:
         >>> cal = calibrate(torch.rand(3, 64, 64))
         >>> sorted(cal.to_dict())[:4]
-        ['K', 'R', 'focal', 'fov_h']
+        ['K', 'R', 'confidence', 'cx']
         >>> [c.image_size.tolist() for c in calibrate([torch.rand(3, 64, 64), torch.rand(3, 48, 80)])]
         [[64, 64], [48, 80]]
     """

@@ -191,7 +191,7 @@ def _calibrate_loaded(loaded: list, args: argparse.Namespace) -> list:
 
 def _calibrate(args: argparse.Namespace) -> int:
     from ngp_kornia.api import with_orientation
-    from ngp_kornia.io import read_image
+    from ngp_kornia.io import read_rgb_oriented
 
     many = len(args.images) > 1
     if args.overlay and many and Path(args.overlay).is_file():
@@ -205,7 +205,7 @@ def _calibrate(args: argparse.Namespace) -> int:
             try:
                 if args.overlay and many:
                     check_output(_overlay_path(args.overlay, image, True), args.force, args.images)
-                loaded.append((image, *read_image(image)))
+                loaded.append((image, *read_rgb_oriented(image)))
             except USER_ERRORS as err:
                 failed += 1
                 print(f"ngp: error: {_one_line(err)}", file=sys.stderr, flush=True)

@@ -225,3 +225,17 @@ def test_overlay_draws_the_segments_the_calibration_saw(tmp_path, monkeypatch, c
     expected, mask = detect_segments(rgb)
     assert len(drawn) == 1 and drawn[0].shape == (ParserConfig().max_segments, 2, 2)
     np.testing.assert_array_equal(drawn[0], expected[0][mask[0]].numpy())
+
+
+def test_kornia_check_errors_are_one_line(photo, monkeypatch, capsys):
+    from kornia.core.check import KORNIA_CHECK
+
+    import ngp_kornia.api
+
+    def failing(*args, **kwargs):
+        KORNIA_CHECK(False, "a check inside kornia failed")  # raises kornia's BaseError, not a ValueError
+
+    monkeypatch.setattr(ngp_kornia.api, "calibrate", failing)
+    assert main(["calibrate", str(photo)]) == 1
+    err = capsys.readouterr().err
+    assert _one_error_line(err) and "a check inside kornia failed" in err

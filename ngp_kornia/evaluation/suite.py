@@ -270,7 +270,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         sets = load_sets(args.yud, args.manifest, args.renders, args.yud_split, args.limit)
     except (FileNotFoundError, ValueError) as e:
         parser.error(str(e))
-    started = datetime.datetime.now(datetime.timezone.utc)
+    started = datetime.datetime.now(datetime.UTC)
     load_before = os.getloadavg()
     records = run_suite(specs, sets, seeds, None if args.quiet else sys.stderr)
     rows = suite_rows(records, sets)

@@ -431,6 +431,7 @@ class NeuralGeometricParser(nn.Module):
             score=score,
             valid=valid,
             image_size=size,
+            exif_orientation=torch.ones(len(f), dtype=torch.long, device=K.device),  # tensors are taken as they are
         )
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, fields
 
+import torch
 from torch import Tensor
 
 from ngp_kornia.models import cameras
@@ -39,9 +40,10 @@ class Calibration:
         valid: (B,) bool; False when the image offered no valid frame candidate, in which case the result is a
             level camera with a 60 degree field of view on the long side.
         image_size: (B, 2) ``(height, width)`` in pixels.
-        exif_orientation: (B,) long, for images read from files: the EXIF orientation tag (1-8) that was applied
-            before calibrating, so every field is in the pixels of the image as displayed (1: stored upright, 6: a
-            phone photo stored turned, ...); None for arrays and tensors, which are taken as they are.
+        exif_orientation: (B,) long: the EXIF orientation tag (1-8) of the file that was applied before
+            calibrating, so every field is in the pixels of the image as displayed (6 and 8: a phone photo stored
+            turned, ...); 1 when nothing was turned: files stored upright, and arrays and tensors, which are taken
+            as they are.
         confidence: (B,) predicted probability, in [0, 1], that the horizon error is below 0.02 image heights
             (:mod:`ngp_kornia.models.confidence`); 0 where ``valid`` is False. None when not computed.
         pitch_std: (B,) standard deviation of the pitch, degrees (None when not computed).
@@ -69,6 +71,10 @@ class Calibration:
     pitch_std: Tensor | None = None
     roll_std: Tensor | None = None
     fov_v_std: Tensor | None = None
+
+    def __post_init__(self) -> None:
+        if self.exif_orientation is None:  # made without it: nothing was turned
+            self.exif_orientation = torch.ones_like(self.focal, dtype=torch.long)
 
     @property
     def batched(self) -> bool:

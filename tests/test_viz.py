@@ -100,12 +100,8 @@ def test_corners_behind_the_camera_are_clipped_not_drawn():
 
 def test_batched_calibration_is_refused():
     cal = _calibration()
-    batch = Calibration(
-        **{
-            f.name: None if getattr(cal, f.name) is None else torch.stack([getattr(cal, f.name)] * 2)
-            for f in fields(cal)
-        }
-    )
+    given = [f.name for f in fields(cal) if getattr(cal, f.name) is not None]  # trust fields are optional
+    batch = Calibration(**{name: torch.stack([getattr(cal, name)] * 2) for name in given})
     image = np.zeros((SIZE[1], SIZE[0], 3), np.uint8)
     for draw in (draw_frame_box, draw_axes, draw_calibration):
         with pytest.raises(ValueError, match="index the batch"):

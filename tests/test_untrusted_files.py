@@ -85,8 +85,11 @@ def test_random_bytes_as_weights_are_one_line_without_torch_advice(tmp_path):
         text=True,
         timeout=120,
     )
-    assert run.returncode == 1 and run.stderr.startswith(f"ngp: error: {path} is not a readable weights file")
-    assert run.stderr.count("\n") == 1 and "weights_only" not in run.stderr
+    # a usage error (exit 2): argparse's usage line, then one error line naming the file
+    *usage, error = run.stderr.splitlines()
+    assert run.returncode == 2 and usage[0].startswith("usage: ngp calibrate")
+    assert error.startswith(f"ngp calibrate: error: --weights: {path} is not a readable weights file")
+    assert "weights_only" not in run.stderr and "Traceback" not in run.stderr
 
 
 def _weights(tmp_path, net, settings=None, name="w.pt", tamper=None):

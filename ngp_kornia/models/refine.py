@@ -144,7 +144,7 @@ def refine_up(
         >>> K = torch.tensor([[[10.0, 0.0, 5.0], [0.0, 10.0, 5.0], [0.0, 0.0, 1.0]]])
         >>> up, ok = refine_up(torch.tensor([[0.02, -1.0, 0.0]]), seg, torch.ones(1, 3, dtype=torch.bool), K)
         >>> up.round(decimals=4).tolist(), ok.tolist()
-        [[[0.0, -1.0, 0.0]], [True]]
+        ([[0.0, -1.0, 0.0]], [True])
     """
     return _refine_up(up, _camera_segments(segments, K), _lengths(segments, mask), mask, zenith_tol, iterations)
 

@@ -82,7 +82,11 @@ def test_fast_dev_run_trains_and_exports(datamodule, tmp_path):
     assert torch.isfinite(cal.focal)
 
 
-def test_cache_is_written_once_and_reused(datamodule):
+def test_cache_is_written_once_and_reused(tmp_path):
+    # a DataModule of its own: one a Trainer has used prepares only what that Trainer's call reads
+    datamodule = RenderedDataModule(
+        cache_dir=str(tmp_path), train_size=4, val_size=2, test_size=2, size=(320, 240), batch_size=2
+    )
     datamodule.prepare_data()
     datamodule.setup("fit")
     ds = datamodule.datasets["train"]

@@ -308,10 +308,17 @@ class SceneDataModule(L.LightningDataModule):
         """The ``train``, ``val`` and ``test`` datasets."""
         raise NotImplementedError
 
+    def _running_trainer(self) -> L.Trainer | None:
+        """The Trainer calling this DataModule now (None outside a Trainer call, or after one has finished)."""
+        trainer = self.trainer
+        if trainer is None or getattr(trainer.state.status, "value", None) != "running":
+            return None
+        return trainer
+
     def _sized_datasets(self) -> dict[str, CachedScenes]:
         """:meth:`make_datasets`, each cut to what a ``fast_dev_run`` reads when the Trainer runs one."""
         datasets = self.make_datasets()
-        trainer = self.trainer
+        trainer = self._running_trainer()
         if trainer is not None and trainer.fast_dev_run:
             keep = int(trainer.fast_dev_run) * self.batch_size  # True counts as 1 batch
             for dataset in datasets.values():
@@ -320,7 +327,8 @@ class SceneDataModule(L.LightningDataModule):
 
     def prepare_data(self) -> None:
         datasets = self._sized_datasets()
-        fn = None if self.trainer is None else getattr(self.trainer.state.fn, "value", None)
+        trainer = self._running_trainer()
+        fn = None if trainer is None else getattr(trainer.state.fn, "value", None)
         needed = {"fit": ("train", "val"), "validate": ("val",), "test": ("test",)}.get(fn, tuple(datasets))
         for name in needed:  # the sets this Trainer call reads (all of them outside a Trainer)
             datasets[name].prepare(self.num_workers)

@@ -315,22 +315,36 @@ def _flush_c_stdio() -> None:
 
 
 def _decode(data: np.ndarray) -> tuple[np.ndarray | None, str]:
-    """``cv2.imdecode`` with the decoder's messages (written to the C stderr) captured instead of printed."""
-    with _DECODE_LOCK, tempfile.TemporaryFile() as messages:
-        _flush_c_stdio()
-        saved = os.dup(2)
-        os.dup2(messages.fileno(), 2)
+    """``cv2.imdecode`` with the decoder's messages (written to the C stderr) captured instead of printed.
+
+    The process's stderr is redirected for the duration of the decode (one decode at a time, under a lock), so
+    another thread's stderr output during that moment is captured too; without a stderr to redirect, the decode
+    runs as it is.
+    """
+    with _DECODE_LOCK:
         try:
-            image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
-        except cv2.error as err:  # OpenCV's own checks (its pixel limit, allocation failures)
-            image = None
-            os.write(2, str(err).encode())
-        finally:
+            saved = os.dup(2)
+        except OSError:  # no file descriptor 2 (a detached process): nothing would be printed anyway
+            saved = None
+        if saved is None:
+            try:
+                return cv2.imdecode(data, cv2.IMREAD_UNCHANGED), ""
+            except cv2.error as err:
+                return None, str(err)
+        with tempfile.TemporaryFile() as messages:
             _flush_c_stdio()
-            os.dup2(saved, 2)
-            os.close(saved)
-        messages.seek(0)
-        text = messages.read().decode("utf-8", "replace")
+            os.dup2(messages.fileno(), 2)
+            try:
+                image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+            except cv2.error as err:  # OpenCV's own checks (its pixel limit, allocation failures)
+                image = None
+                os.write(2, str(err).encode())
+            finally:
+                _flush_c_stdio()
+                os.dup2(saved, 2)
+                os.close(saved)
+            messages.seek(0)
+            text = messages.read().decode("utf-8", "replace")
     return image, " ".join(line.strip() for line in text.splitlines() if line.strip())
 
 

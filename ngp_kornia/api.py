@@ -115,9 +115,11 @@ def calibrate(
     Example:
         >>> cal = calibrate(torch.rand(3, 64, 64))
         >>> sorted(cal.to_dict())[:4]
-        ['K', 'R', 'focal', 'fov_h']
+        ['K', 'R', 'confidence', 'focal']
     """
-    cfg = replace(config or ParserConfig(), seed=seed, exif=exif or (config is not None and config.exif))
+    cfg = replace(config or ParserConfig(), seed=seed)
+    if exif:
+        cfg = replace(cfg, exif=True)
     if focal is not None or fov_v is not None:
         cfg = replace(cfg, focal=focal, fov_v=fov_v)
     segments = mask = None

@@ -131,7 +131,9 @@ def calibrate(
     """
     if isinstance(image, (list, tuple)):
         return _calibrate_list(image, weights, seed, config, focal=focal, fov_v=fov_v, exif=exif)
-    cfg = replace(config or ParserConfig(), seed=seed, exif=exif or (config is not None and config.exif))
+    cfg = replace(config or ParserConfig(), seed=seed)
+    if exif:
+        cfg = replace(cfg, exif=True)
     if focal is not None or fov_v is not None:
         cfg = replace(cfg, focal=focal, fov_v=fov_v)
     segments = mask = orientation = None

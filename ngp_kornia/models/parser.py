@@ -82,8 +82,9 @@ class ParserConfig:
         use_manhattan: with FSNet, the final score is ``s_vh * m_i`` (Eq. 22); False uses ``s_vh`` alone.
         fallback_fov: long-side field of view (degrees) reported when an image has no valid frame.
         seed: seed of the candidate sampling; every call with the same input gives the same result.
-        refine_horizon: after the frame search, move the horizon to the one that the segments support best,
-            searching horizontal VPs of every building block along it (:mod:`ngp_kornia.models.refine`).
+        refine_horizon: after the frame search, move the horizon (and the focal length) to the one that the
+            segments support best, searching horizontal VPs of every building block along it
+            (:mod:`ngp_kornia.models.refine`); measured better on real photos, see BENCHMARKS.md.
     """
 
     working_size: int = 640
@@ -105,7 +106,7 @@ class ParserConfig:
     use_manhattan: bool = True
     fallback_fov: float = 60.0
     seed: int = 0
-    refine_horizon: bool = False
+    refine_horizon: bool = True
 
 
 class NeuralGeometricParser(nn.Module):

@@ -103,8 +103,9 @@ class ParserConfig:
         exif: when calibrating a file (:func:`ngp_kornia.calibrate`, ``ngp predict``), take ``focal`` from its EXIF
             focal length where it has one and neither prior is set (:mod:`ngp_kornia.exif`); the parser itself
             only sees tensors and ignores it.
-        refine_horizon: after the frame search, move the horizon to the one that the segments support best,
-            searching horizontal VPs of every building block along it (:mod:`ngp_kornia.models.refine`).
+        refine_horizon: after the frame search, move the horizon (and the focal length) to the one that the
+            segments support best, searching horizontal VPs of every building block along it
+            (:mod:`ngp_kornia.models.refine`); measured better on real photos, see BENCHMARKS.md.
     """
 
     working_size: int = 640
@@ -131,7 +132,7 @@ class ParserConfig:
     focal: float | None = None
     fov_v: float | None = None
     exif: bool = False
-    refine_horizon: bool = False
+    refine_horizon: bool = True
 
     def __post_init__(self) -> None:
         check_config(self)

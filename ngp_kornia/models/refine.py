@@ -99,7 +99,7 @@ def _sin2(mid: Tensor, direction: Tensor, vps: Tensor) -> Tensor:
         mid: (B, N, 2) midpoints; direction: (B, N, 2); vps: (B, ..., 3) directions (VPs at infinity allowed).
 
     Returns:
-        (B, ..., N) in [0, 1]; a degenerate pair (zero segment, VP at the midpoint) gives 1.
+        (B, ..., N) in [0, 1]; a VP at the midpoint gives 1, a zero-length segment 0 (padding: mask it).
     """
     shape = vps.shape[:-1]
     v = vps.reshape(vps.shape[0], -1, 3)  # (B, V, 3)
@@ -112,8 +112,7 @@ def _sin2(mid: Tensor, direction: Tensor, vps: Tensor) -> Tensor:
     vz = v[..., 2:]
     den = v[..., :2].square().sum(-1, keepdim=True) - 2.0 * vz * (v[..., :2] @ mid.transpose(-1, -2))
     den = den + vz.square() * mid.square().sum(-1)[:, None]  # |d|^2
-    sin2 = torch.where(den > tiny, num / den.clamp_min(tiny), torch.ones_like(den)).clamp(0.0, 1.0)
-    sin2 = torch.where(direction.square().sum(-1)[:, None] > tiny, sin2, torch.ones_like(sin2))
+    sin2 = torch.where(den > tiny, num / den.clamp_min(tiny), torch.ones_like(den)).clamp_max(1.0)
     return sin2.reshape(*shape, mid.shape[1])
 
 
@@ -275,8 +274,8 @@ def refine_horizon(
     zenith_tol: float = 2.0,
     margin: float = 0.05,
     tie_zenith: bool = True,
-    focal_scales: tuple[float, ...] = (1.0,),
-    frame_roll: bool = True,
+    focal_scales: tuple[float, ...] = (0.8, 0.9, 1.1, 1.25),
+    frame_roll: bool = False,
 ) -> Calibration:
     """The calibration with the horizon that the segments support best (module docstring: method, consistency).
 
@@ -296,14 +295,13 @@ def refine_horizon(
             the horizon (measured worse on every set: the horizontal VPs of clutter then go unchecked).
         focal_scales: the hypotheses are repeated with the frame's focal length times each of these (1 is always
             included and first); where another scale wins, ``K``, focal and FoV follow it.
-        frame_roll: the pitch grid is searched with the frame's roll as well as with the refined zenith's; False
-            keeps only the frame's own hypothesis at the frame's roll (half the hypotheses).
+        frame_roll: search the pitch grid with the frame's roll as well as with the refined zenith's (twice the
+            hypotheses and about 1.5x the time); by default only the frame's own hypothesis keeps the frame's roll.
 
     Returns:
         a :class:`Calibration` of the same shapes: unchanged where the frame's horizon is kept or the frame was
         invalid; otherwise ``R``, ``up``, ``zenith``, ``horizon``, ``vps``, ``pitch``, ``roll``, ``yaw`` follow
-        the refined up vector, and ``K``, focal and FoV the chosen focal scale (the frame's with the default
-        ``focal_scales``).
+        the refined up vector, and ``K``, focal and FoV the chosen focal scale.
     """
     K = cal.K
     dtype = K.dtype
@@ -328,8 +326,12 @@ def refine_horizon(
     scales = [1.0] + [float(x) for x in focal_scales if float(x) != 1.0]  # the frame's focal length first
     S, B, Hn = len(scales), len(K), ups.shape[1]
     # every focal scale as its own batch row (scale-major), one pass over all hypotheses
-    Ks = torch.cat([_scaled_focal(K, torch.full_like(K[:, 0, 0], x)) for x in scales])
-    cam_s = cam if S == 1 else _camera_segments(seg.repeat(S, 1, 1, 1), Ks)
+    # K^-1 with f times x maps the centred points to p / x: midpoints and directions scale by 1 / x, and the plane
+    # normal (n_x, n_y, n_z) becomes (x n_x, x n_y, n_z) up to its length
+    inv = torch.tensor([1.0 / x for x in scales]).to(K).repeat_interleave(B)[:, None, None]
+    mid, direction, normals = (t.repeat(S, 1, 1) for t in cam)
+    stretch = torch.cat([1.0 / inv, 1.0 / inv, torch.ones_like(inv)], -1)
+    cam_s = (mid * inv, direction * inv, _normalize(normals * stretch))
     sup, d, _ = _support(
         ups.repeat(S, 1, 1), cam_s, lengths.repeat(S, 1), mask.repeat(S, 1), num_peaks, kernel_deg, 360, 3.0,
         None if tie_zenith else zen.repeat(S, 1, 1),
@@ -351,9 +353,11 @@ def refine_horizon(
     all_r = torch.cat([rolls[rows, hyp][:, None], fine_r], 1)
     if len(fine):
         fine_zen = zen[rows, hyp][:, None].expand(-1, len(fine), 3)
+        row = (best // Hn) * B + rows  # the chosen scale's rows of the scale-major batch
+        cam_best = cam if S == 1 else tuple(t[row] for t in cam_s)
         fine_support, fine_dirs, _ = _support(
-            up_from_pitch_roll(fine_p, fine_r), _camera_segments(seg, K_best), lengths, mask, num_peaks, kernel_deg,
-            360, 3.0, None if tie_zenith else fine_zen,
+            up_from_pitch_roll(fine_p, fine_r), cam_best, lengths, mask, num_peaks, kernel_deg, 360, 3.0,
+            None if tie_zenith else fine_zen,
         )
         cand_support = torch.cat([support[rows, best][:, None], fine_support], 1)
         cand_dirs = torch.cat([dirs[rows, best][:, None], fine_dirs], 1)

@@ -131,26 +131,40 @@ def calibrate(
     """
     if isinstance(image, (list, tuple)):
         return _calibrate_list(image, weights, seed, config, focal=focal, fov_v=fov_v, exif=exif)
+    cfg = _call_config(config, seed, focal, fov_v, exif)
+    with pipeline_threads(cfg.num_threads):  # one thread unless configured; the caller's count is restored
+        batch, segments, mask, orientation, cfg = _inputs(image, cfg)
+        parser = _on_device(_parser(weights, cfg, copy=False), batch.device)  # the cached networks, read only
+        with torch.no_grad():
+            result = parser(batch, segments, mask)
+    if isinstance(image, Tensor) and image.dim() == 4:
+        return result
+    result = result[0]
+    return result if orientation is None else with_orientation(result, orientation)
+
+
+def _call_config(config: ParserConfig | None, seed: int, focal, fov_v, exif: bool) -> ParserConfig:
+    """The settings of one call: the caller's config with the call's seed and priors."""
     cfg = replace(config or ParserConfig(), seed=seed)
     if exif:
         cfg = replace(cfg, exif=True)
     if focal is not None or fov_v is not None:
         cfg = replace(cfg, focal=focal, fov_v=fov_v)
-    segments = mask = orientation = None
-    with pipeline_threads(cfg.num_threads):  # one thread unless configured; the caller's count is restored
-        if isinstance(image, Tensor):
-            batch, batched = as_batch(image)
-        else:  # detect lines on the 8-bit image we already have instead of converting back from float
-            (rgb, orientation), batched = read_rgb_oriented(image), False
-            batch = torch.from_numpy(rgb).permute(2, 0, 1)[None].float().div(255.0)
-            segments, mask = detect_segments(rgb, cfg)
-            if cfg.exif and cfg.focal is None and cfg.fov_v is None and isinstance(image, (str, Path)):
-                cfg = replace(cfg, focal=exif_focal(image, *rgb.shape[:2]))
-        parser = _on_device(_parser(weights, cfg, copy=False), batch.device)  # the cached networks, read only
-        with torch.no_grad():
-            result = parser(batch, segments, mask)
-    result = result if batched else result[0]
-    return result if orientation is None else with_orientation(result, orientation)
+    return cfg
+
+
+def _inputs(image, cfg: ParserConfig) -> tuple:
+    """(batch, segments, mask, EXIF orientation, config) of one input: tensors as they are (the parser detects
+    their lines), files and arrays read once with their lines detected on the 8-bit pixels (and, with ``exif``,
+    the file's focal length as the prior)."""
+    if isinstance(image, Tensor):
+        return as_batch(image)[0], None, None, None, cfg
+    rgb, orientation = read_rgb_oriented(image)
+    batch = torch.from_numpy(rgb).permute(2, 0, 1)[None].float().div(255.0)
+    segments, mask = detect_segments(rgb, cfg)
+    if cfg.exif and cfg.focal is None and cfg.fov_v is None and isinstance(image, (str, Path)):
+        cfg = replace(cfg, focal=exif_focal(image, *rgb.shape[:2]))
+    return batch, segments, mask, orientation, cfg
 
 
 def _on_device(parser: NeuralGeometricParser, device: torch.device) -> NeuralGeometricParser:

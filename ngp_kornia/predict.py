@@ -371,6 +371,14 @@ def predict_folder(
     loader = DataLoader(FolderImages(images), batch_size=batch_size, num_workers=num_workers, collate_fn=collate_items)
     writer = JsonlWriter(out)
     trainer = _trainer(devices, writer, progress_bar)
+    _run(trainer, module, loader, writer)
+    if not trainer.is_global_zero:
+        return None
+    return {"images": writer.images, "errors": writer.errors, "interrupted": writer.interrupted}
+
+
+def _run(trainer: L.Trainer, module: FolderPredictor, loader: DataLoader, writer: JsonlWriter) -> None:
+    """``trainer.predict`` with Lightning's noise filtered, and Ctrl+C ending the run with the finished rows kept."""
     with warnings.catch_warnings():
         # the parser, not the loader, is the bottleneck; and the pytree notice is between Lightning and torch
         warnings.filterwarnings("ignore", message=".*does not have many workers.*")
@@ -383,6 +391,3 @@ def predict_folder(
                 raise
         finally:
             signal.signal(signal.SIGINT, handler)  # Lightning ignores further Ctrl+C once it has seen one
-    if not trainer.is_global_zero:
-        return None
-    return {"images": writer.images, "errors": writer.errors, "interrupted": writer.interrupted}

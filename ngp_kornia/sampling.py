@@ -169,8 +169,11 @@ def horizontal_line_mask(
     vert_ends = _gather(segments.flatten(2), order).reshape(len(order), 2 * count, 2)  # (B, 2V, 2)
     vert_ok = _gather(vertical[..., None], order)[..., 0].repeat_interleave(2, 1)  # (B, 2V)
     dist = torch.cdist(segments.flatten(1, 2), vert_ends)  # (B, 2N, 2V)
-    near_vertical_end = (dist < junction_radius) & vert_ok[:, None, :]
-    at_junction = near_vertical_end.any(-1).reshape(*mask.shape, 2).any(-1)
+    if not bool(vert_ok.all()):  # padding of images with fewer vertical lines than the batch's most
+        dist = dist.masked_fill(~vert_ok[:, None, :], float("inf"))
+    # the nearest vertical endpoint decides (one pass over the distances instead of a compare and an any)
+    nearest = dist.amin(-1) if count > 0 else dist.new_full(dist.shape[:2], float("inf"))
+    at_junction = (nearest < junction_radius).reshape(*mask.shape, 2).any(-1)
     selected = other & at_junction
     enough = selected.sum(-1, keepdim=True) >= min_lines
     return torch.where(enough, selected, other)

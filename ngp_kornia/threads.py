@@ -1,8 +1,8 @@
 """The pipeline's thread policy: its small tensors run on one CPU thread unless asked otherwise.
 
 The parser's tensors are small (a few thousand candidates, a 224x224 FSNet input), so torch's intra-op threads
-gain nothing on an idle machine and spin against every other process on a busy one: with two busy processes
-beside it on two cores, the default call took about 4x as long with two threads as with one. :func:`calibrate`,
+gain nothing on an idle machine and spin against every other process on a busy one: on two loaded cores the
+default call took 8-10x lu-vp-detect's time with two threads and 1.0-1.14x with one (BENCHMARKS.md). :func:`calibrate`,
 :class:`~ngp_kornia.models.NeuralGeometricParser` and ``ngp predict`` therefore run inside :func:`pipeline_threads`,
 which sets torch's (and OpenCV's) thread count for the duration of the call and restores the caller's afterwards,
 also when the call raises.

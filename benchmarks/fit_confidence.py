@@ -6,7 +6,8 @@ Two steps, so the expensive one runs once per data set and seed::
     python benchmarks/fit_confidence.py collect rendered /tmp/renders_fit --out fit.json          # renders only
     python benchmarks/fit_confidence.py collect yud /path/to/YorkUrbanDB --out yud.json           # for checking
     python benchmarks/fit_confidence.py collect manifest /path/to/manifest.csv --out ecd.json     # for checking
-        options: --seed S, --weights SPEC (as benchmarks/calibration.py), --prior {none,true}, --limit N
+        options: --seed S, --weights SPEC (as benchmarks/calibration.py), --prior {none,true,exif}, --limit N
+        (--prior true gives the sample's focal length: York Urban's, a render's, or a manifest's focal_px column)
     # 2. fit the coefficients on the renders' records and write them
     python benchmarks/fit_confidence.py fit fit.json --out ngp_kornia/weights/trust.json
 
@@ -126,6 +127,8 @@ def collect(samples: list[Sample], spec: str | None, seed: int, prior: str) -> l
                 if not math.isfinite(float(s.K[0, 0])):
                     raise SystemExit(f"{s.name}: --prior true needs a known focal length")
                 cfg = replace(config, focal=float(s.K[0, 0]))
+            elif prior == "exif":
+                cfg = replace(config, exif=True)
             cal = calibrate(str(s.image_path), weights=weights, seed=seed, config=cfg)
             feats = {k: float(v[0]) for k, v in captured.pop().as_dict().items()}
             h_err = float(horizon_error(cal.horizon[None].double(), s.horizon[None], s.height, s.width)[0])
@@ -240,7 +243,9 @@ def main(argv: list[str] | None = None) -> int:
     p_col.add_argument("--out", type=Path, required=True)
     p_col.add_argument("--seed", type=int, default=0)
     p_col.add_argument("--weights", default=None, help="weight set and overrides, as in benchmarks/calibration.py")
-    p_col.add_argument("--prior", choices=["none", "true"], default="none", help="give the true focal length")
+    p_col.add_argument(
+        "--prior", choices=["none", "true", "exif"], default="none", help="give the true (or the EXIF) focal length"
+    )
     p_col.add_argument("--limit", type=int, default=None)
     p_fit = sub.add_parser("fit", help="fit the trust model on collected render records")
     p_fit.add_argument("records", type=Path, nargs="+")

@@ -108,13 +108,9 @@ def calibrate(
             (``FocalLengthIn35mmFilm``, or ``FocalLength`` with the sensor resolution); no prior when it has none.
 
     Returns:
-        a :class:`Calibration` in the input's pixels: ``K``, ``R``, ``focal``, ``fov_v``, ``fov_h``, ``pitch``,
-        ``roll``, ``yaw``, ``up``, ``zenith``, ``horizon``, ``vps``, ``score``, ``valid``, ``confidence`` (the
-        probability that the horizon is within 0.02 image heights), ``pitch_std``, ``roll_std``, ``fov_v_std``
-        (degrees); batched (leading dim B) for
-        batched tensor input. Pixels: x right, y down, origin at the centre of the top-left pixel. Camera: x right,
-        y down, z forward. Pitch > 0 looks up; roll > 0 when the scene's up leans right in the image. Degrees.
-        For a list: a list of results, one per item, each exactly what that item gives alone (same seed).
+        a :class:`Calibration` in the input's pixels (its fields, conventions and the trust fields ``confidence``,
+        ``pitch_std``, ``roll_std``, ``fov_v_std`` are documented there), batched for batched tensor input; for a
+        list, a list of results, one per item, each exactly what that item gives alone (same seed).
 
     Raises:
         ImageReadError: unreadable, truncated, corrupt, too small (< 32 px), too large or NaN input; the message

@@ -145,21 +145,8 @@ def trust_features(
     ambiguity = rival / best_score.clamp_min(1e-9)
     _, w = topk_weighted_average(scores, frames.focal, top_k, valid)
     horizon_spread = (w * gap.square()).sum(-1).sqrt()
-    # per-frame pitch, roll and field of view
-    f = frames.focal.clamp_min(1e-6)
-    z = frames.zenith
-    up = torch.stack([z[..., 0] / f, z[..., 1] / f, z[..., 2]], -1)
-    up = up * torch.where(up[..., 1:2] > 0, -1.0, 1.0).to(up)
-    pitch, roll = pitch_roll_from_up(up)
-    fov = fov_from_focal(f * pseudo_focal(height, width), height)
-    # line support of the best frame's three VPs
-    lines = segments_to_lines(to_pseudo_camera(segments, height, width))
-    lengths = segment_lengths(segments) * mask.to(segments)
-    vps = frames.vps[rows, best]  # (B, 3, 3)
-    close = sharp_closeness(lines, vps, kernel_angle)  # (B, 3, N)
-    total = lengths.sum(-1).clamp_min(1e-9)
-    shares = (close * lengths[:, None]).sum(-1) / total[:, None]  # (B, 3)
-    manhattan = (close.amax(1) * lengths).sum(-1) / total
+    pitch, roll, fov = _frame_angles(frames, height, width)
+    shares, manhattan = _line_support(frames.vps[rows, best], segments, mask, height, width, kernel_angle)
     any_valid = valid.any(-1)
 
     def clean(t: Tensor) -> Tensor:
@@ -179,6 +166,28 @@ def trust_features(
         horizontal_share=clean(torch.minimum(shares[:, 0], shares[:, 2])),
         valid_share=valid.to(result.focal).mean(-1),
     )
+
+
+def _frame_angles(frames: FrameCandidates, height: int, width: int) -> tuple[Tensor, Tensor, Tensor]:
+    """(B, F) pitch, roll and vertical field of view of every frame, degrees."""
+    f = frames.focal.clamp_min(1e-6)
+    z = frames.zenith
+    up = torch.stack([z[..., 0] / f, z[..., 1] / f, z[..., 2]], -1)
+    up = up * torch.where(up[..., 1:2] > 0, -1.0, 1.0).to(up)
+    pitch, roll = pitch_roll_from_up(up)
+    return pitch, roll, fov_from_focal(f * pseudo_focal(height, width), height)
+
+
+def _line_support(
+    vps: Tensor, segments: Tensor, mask: Tensor, height: int, width: int, kernel_angle: float
+) -> tuple[Tensor, Tensor]:
+    """Line-length shares (B, 3) of each of the (B, 3, 3) VPs, and (B,) the Manhattan share of all three."""
+    lines = segments_to_lines(to_pseudo_camera(segments, height, width))
+    lengths = segment_lengths(segments) * mask.to(segments)
+    close = sharp_closeness(lines, vps, kernel_angle)  # (B, 3, N)
+    total = lengths.sum(-1).clamp_min(1e-9)
+    shares = (close * lengths[:, None]).sum(-1) / total[:, None]
+    return shares, (close.amax(1) * lengths).sum(-1) / total
 
 
 def confidence_inputs(features: TrustFeatures) -> Tensor:

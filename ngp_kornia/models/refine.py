@@ -272,7 +272,7 @@ def refine_horizon(
     num_peaks: int = 4,
     kernel_deg: float = 1.0,
     zenith_tol: float = 2.0,
-    margin: float = 0.05,
+    margin: float = 0.08,
     tie_zenith: bool = True,
     focal_scales: tuple[float, ...] = (0.8, 0.9, 1.1, 1.25),
     frame_roll: bool = False,

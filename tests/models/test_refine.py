@@ -190,3 +190,15 @@ def test_focal_scales_fix_a_wrong_focal_length_and_stay_consistent():
     assert torch.allclose(scaled.K[:, 0, 0], scaled.focal)
     assert torch.allclose(horizon_from_zenith(scaled.K, scaled.zenith), scaled.horizon, atol=1e-5)
     assert float(scaled.fov_v) == pytest.approx(float(truth.fov_v), abs=1.0)
+
+
+def test_float64_inputs_give_a_finite_float64_result():
+    K, R = camera(7.0, 3.0)
+    seg, mask = atlanta_segments(K, R, clutter=5, seed=7)
+    out = NeuralGeometricParser(ParserConfig(refine_horizon=True))(
+        torch.zeros(1, 3, H, W, dtype=torch.float64), seg.double(), mask
+    )
+    assert out.horizon.dtype == torch.float64 and out.K.dtype == torch.float64
+    for name in ("K", "R", "horizon", "zenith", "vps", "pitch", "roll", "focal"):
+        assert bool(torch.isfinite(getattr(out, name)).all()), name
+    assert float(horizon_error(out.horizon, calibration(K, R).horizon.double(), H, W)) < 0.01

@@ -30,13 +30,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from calibration import Sample, load_rendered, load_yud, weights_and_config  # noqa: E402
-
-import ngp_kornia.models.parser as parser_module  # noqa: E402
-from ngp_kornia import calibrate  # noqa: E402
-from ngp_kornia.metrics import fov_error, horizon_error, pitch_error, roll_error, up_vector_error  # noqa: E402
-from ngp_kornia.models.confidence import (  # noqa: E402
+import ngp_kornia.models.parser as parser_module
+from ngp_kornia import calibrate
+from ngp_kornia.evaluation import LabelledImage as Sample
+from ngp_kornia.evaluation import load_renders as load_rendered
+from ngp_kornia.evaluation import load_yud, weights_and_config
+from ngp_kornia.metrics import fov_error, horizon_error, pitch_error, roll_error, up_vector_error
+from ngp_kornia.models.confidence import (
     INPUT_NAMES,
     STD_SPREADS,
     TrustFeatures,

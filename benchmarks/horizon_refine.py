@@ -32,16 +32,15 @@ from pathlib import Path
 import numpy as np
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from ngp_kornia import calibrate  # noqa: E402
-from ngp_kornia.api import load_parser, segments_of_rgb  # noqa: E402
-from ngp_kornia.data.manifest import CSVManifest  # noqa: E402
-from ngp_kornia.data.yud import YorkUrbanDB, _loadmat  # noqa: E402
-from ngp_kornia.io import read_rgb  # noqa: E402
-from ngp_kornia.metrics import fov_error, horizon_auc, horizon_error, up_vector_error  # noqa: E402
-from ngp_kornia.models import ParserConfig  # noqa: E402
-from ngp_kornia.models.refine import refine_horizon  # noqa: E402
+from ngp_kornia import calibrate
+from ngp_kornia.api import load_parser
+from ngp_kornia.data.manifest import CSVManifest
+from ngp_kornia.data.yud import YorkUrbanDB, _loadmat
+from ngp_kornia.detect import detect_segments
+from ngp_kornia.io import read_rgb
+from ngp_kornia.metrics import fov_error, horizon_auc, horizon_error, up_vector_error
+from ngp_kornia.models import ParserConfig
+from ngp_kornia.models.refine import refine_horizon
 
 
 def yud_samples(root: Path) -> list[dict]:
@@ -103,7 +102,7 @@ def run_set(samples: list[dict], weights: str, seeds: list[int], variants: dict[
     for i, s in enumerate(samples):
         rgb = read_rgb(s["path"])
         image = torch.from_numpy(rgb).permute(2, 0, 1)[None].float().div(255.0)
-        segments, mask = segments_of_rgb(rgb, cfg)
+        segments, mask = detect_segments(rgb, cfg)
         for seed in seeds:
             parser.config = replace(cfg, seed=seed, refine_horizon=False)
             with torch.no_grad():

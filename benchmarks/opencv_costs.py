@@ -14,8 +14,8 @@ import time
 
 import cv2
 
-from ngp_kornia.api import segments_of_rgb
 from ngp_kornia.data.yud import YorkUrbanDB
+from ngp_kornia.detect import detect_segments
 from ngp_kornia.io import read_rgb
 from ngp_kornia.models import ParserConfig
 
@@ -37,13 +37,13 @@ cfg = ParserConfig()
 print(f"{len(paths)} images, load {os.getloadavg()[0]:.1f}")
 detect = {"1 thread": [], "2 threads": []}
 read = {"read_rgb": [], "cv2.imread": []}
-segments_of_rgb(rgbs[0], cfg)
+detect_segments(rgbs[0], cfg)
 for p in range(2):
     for i, (path, rgb) in enumerate(zip(paths, rgbs, strict=True)):
         for n in (1, 2) if (i + p) % 2 else (2, 1):
             cv2.setNumThreads(n)
             start = time.perf_counter()
-            segments_of_rgb(rgb, cfg)
+            detect_segments(rgb, cfg)
             detect["1 thread" if n == 1 else "2 threads"].append(time.perf_counter() - start)
         cv2.setNumThreads(1)
         for name, fn in (("read_rgb", read_rgb), ("cv2.imread", _imread))[:: 1 if (i + p) % 2 else -1]:

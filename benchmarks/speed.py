@@ -35,12 +35,10 @@ from pathlib import Path
 
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from calibration import load_yud, make_lu  # noqa: E402
-
-import ngp_kornia.api as api  # noqa: E402
-from ngp_kornia import calibrate  # noqa: E402
+import ngp_kornia.api as api
+from ngp_kornia import calibrate
+from ngp_kornia.evaluation import load_yud
+from ngp_kornia.evaluation import lu_vp_detect_method as make_lu
 
 _BUSY = "import time\nend = time.time() + {seconds}\nwhile time.time() < end:\n    pass\n"
 

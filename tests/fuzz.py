@@ -5,8 +5,8 @@ Every command runs in a child process under a memory limit this script sets (``r
 ``--memory-gb``, 3 GB by default), so a decompression bomb that got through would fail its case instead of taking
 the machine down. Nothing is downloaded; the files are written into a temporary folder.
 
-    OMP_NUM_THREADS=1 python benchmarks/fuzz.py            # the whole battery (about 5 minutes on 2 CPU cores)
-    OMP_NUM_THREADS=1 python benchmarks/fuzz.py --quick    # without the Ctrl+C and two-process cases
+    OMP_NUM_THREADS=1 python tests/fuzz.py            # the whole battery (about 5 minutes on 2 CPU cores)
+    OMP_NUM_THREADS=1 python tests/fuzz.py --quick    # without the Ctrl+C and two-process cases
 
 The exit status is 0 when every case passes.
 """

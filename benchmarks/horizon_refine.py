@@ -12,7 +12,11 @@ is then applied to that very calibration, so "off" and "on" differ only by the r
 Usage::
 
     python benchmarks/horizon_refine.py --yud YorkUrbanDB --manifest EurasianCities/manifest.csv \\
-        --rendered render_dir --limit-rendered 300 --seeds 0,1,2,3,4 [--weights default] [--out r.json]
+        --rendered render_dir --limit-rendered 300 --seeds 0,1,2,3,4 [--weights default] [--out r.json] \
+        [--refine margin=0.05 --refine focal_scales=1.0/1.1,frame_roll=true] [--timing N]
+
+Each ``--refine`` is one variant, keyword arguments of :func:`ngp_kornia.models.refine.refine_horizon`
+(default: one variant "on" with the shipped settings).
 
 Seconds per image (``--timing N``): ``ngp_kornia.calibrate`` on the first N images of each real set, with the
 refinement off and on interleaved image by image, in the same process (the ratio is what counts: other jobs share

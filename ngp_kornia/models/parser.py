@@ -40,7 +40,7 @@ from ngp_kornia.geometry import (
 )
 from ngp_kornia.models.confidence import attach_trust
 from ngp_kornia.models.fsnet import frame_scores
-from ngp_kornia.models.refine import refine_horizon
+from ngp_kornia.models.refine import FOCAL_SCALES, refine_horizon
 from ngp_kornia.models.result import Calibration
 from ngp_kornia.models.trace import ParserTrace
 from ngp_kornia.models.zsnet import zenith_estimate, zenith_weights_from_scores
@@ -308,9 +308,9 @@ class NeuralGeometricParser(nn.Module):
         if self.fsnet is not None:
             frames, scores = self.rescore_frames(images, segments, mask, frames, scores, stages)
         result = self.calibrate_from_frames(frames, scores, height, width, stages)
-        if cfg.refine_horizon:
-            result = refine_horizon(result, segments, mask)
         known_focal = cfg.focal is not None or cfg.fov_v is not None
+        if cfg.refine_horizon:  # with a known focal length only the horizon moves, never the focal length
+            result = refine_horizon(result, segments, mask, focal_scales=() if known_focal else FOCAL_SCALES)
         result = attach_trust(result, frames, scores, segments, mask, cfg.top_k, cfg.kernel_angle, known_focal)
         return (result, ParserTrace(**stages)) if return_trace else result
 

@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
+from typing import NamedTuple
 
 import torch
 import torch.nn.functional as F
@@ -52,7 +53,7 @@ from ngp_kornia.geometry import (
 )
 from ngp_kornia.models.result import Calibration
 
-__all__ = ["horizon_support", "refine_horizon", "refine_up", "up_from_pitch_roll"]
+__all__ = ["FOCAL_SCALES", "horizon_support", "refine_horizon", "refine_up", "up_from_pitch_roll"]
 
 
 def _normalize(v: Tensor) -> Tensor:
@@ -210,8 +211,15 @@ def horizon_support(
         (0 for an empty peak).
     """
     return _support(
-        ups, _camera_segments(segments, K), _lengths(segments, mask), mask, num_peaks, kernel_deg, bins,
-        separation_deg, zenith_ups,
+        ups,
+        _camera_segments(segments, K),
+        _lengths(segments, mask),
+        mask,
+        num_peaks,
+        kernel_deg,
+        bins,
+        separation_deg,
+        zenith_ups,
     )
 
 
@@ -262,6 +270,10 @@ def _support(
     return support, dirs, value
 
 
+#: the frame's focal length is also tried times each of these (chosen on York Urban, ECD and renders together)
+FOCAL_SCALES = (0.8, 0.9, 1.1, 1.25)
+
+
 def refine_horizon(
     cal: Calibration,
     segments: Tensor,
@@ -274,7 +286,7 @@ def refine_horizon(
     zenith_tol: float = 2.0,
     margin: float = 0.08,
     tie_zenith: bool = True,
-    focal_scales: tuple[float, ...] = (0.8, 0.9, 1.1, 1.25),
+    focal_scales: tuple[float, ...] = FOCAL_SCALES,
     frame_roll: bool = False,
 ) -> Calibration:
     """The calibration with the horizon that the segments support best (module docstring: method, consistency).
@@ -303,16 +315,46 @@ def refine_horizon(
         invalid; otherwise ``R``, ``up``, ``zenith``, ``horizon``, ``vps``, ``pitch``, ``roll``, ``yaw`` follow
         the refined up vector, and ``K``, focal and FoV the chosen focal scale.
     """
-    K = cal.K
-    dtype = K.dtype
-    seg = segments.to(dtype)
-    up_frame = cal.up
-    cam, lengths = _camera_segments(seg, K), _lengths(seg, mask)
+    seg = segments.to(cal.K.dtype)
+    cam, lengths = _camera_segments(seg, cal.K), _lengths(seg, mask)
+    grid = _pitch_grid(cal.up, cam, lengths, mask, pitch_range, pitch_step, zenith_tol, frame_roll)
+    scales = [1.0] + [float(x) for x in focal_scales if float(x) != 1.0]  # the frame's focal length first
+    search = _Search(num_peaks, kernel_deg, tie_zenith)
+    coarse = _coarse_search(cal.K, cam, lengths, mask, grid, scales, search)
+    up, horizontal, support = _fine_search(cam, lengths, mask, grid, coarse, pitch_step, fine_step, search)
+    use = cal.valid & (support > coarse.support[:, 0] * (1.0 + margin)) & torch.isfinite(up).all(-1)
+    return _with_up(cal, use, torch.where(use[:, None, None], coarse.K, cal.K), up, horizontal)
+
+
+class _Search(NamedTuple):
+    num_peaks: int
+    kernel_deg: float
+    tie_zenith: bool
+
+
+class _Grid(NamedTuple):
+    pitches: Tensor  # (B, H) degrees
+    rolls: Tensor  # (B, H) degrees
+    zen: Tensor  # (B, H, 3) the zenith each hypothesis took its roll from
+    ups: Tensor  # (B, H, 3)
+
+
+class _Coarse(NamedTuple):
+    support: Tensor  # (B, S * H), scale-major; column 0 is the frame's own hypothesis
+    dirs: Tensor  # (B, S * H, P, 3) horizontal VP directions
+    cam: tuple  # the camera-coordinate segments of every scale, scale-major rows
+    best: Tensor  # (B,) index into the S * H hypotheses
+    K: Tensor  # (B, 3, 3) K with the best hypothesis' focal scale
+
+
+def _pitch_grid(up_frame, cam, lengths, mask, pitch_range, pitch_step, zenith_tol, frame_roll) -> _Grid:
+    """The coarse hypotheses: the frame's own first, then the refined zenith's roll with every pitch offset."""
+    dtype, device = up_frame.dtype, up_frame.device
     up_ref, _ = _refine_up(up_frame, cam, lengths, mask, zenith_tol, 2)
     pitch0, roll0 = pitch_roll_from_up(up_frame)
     _, roll1 = pitch_roll_from_up(up_ref)
     n = int(round(pitch_range / pitch_step))
-    offsets = torch.arange(-n, n + 1, dtype=dtype, device=K.device) * pitch_step
+    offsets = torch.arange(-n, n + 1, dtype=dtype, device=device) * pitch_step
     offsets = torch.cat([offsets.new_zeros(1), offsets[offsets != 0]])  # the frame's pitch first
     if frame_roll:  # the frame's and the refined roll, each with every pitch
         pitches = (pitch0[:, None] + offsets).repeat(1, 2)
@@ -322,10 +364,12 @@ def refine_horizon(
         pitches = torch.cat([pitch0[:, None], pitch0[:, None] + offsets], 1)
         rolls = torch.cat([roll0[:, None], roll1[:, None].expand(-1, len(offsets))], 1)
         zen = torch.cat([up_frame[:, None], up_ref[:, None].expand(-1, len(offsets), 3)], 1)
-    ups = up_from_pitch_roll(pitches, rolls)
-    scales = [1.0] + [float(x) for x in focal_scales if float(x) != 1.0]  # the frame's focal length first
-    S, B, Hn = len(scales), len(K), ups.shape[1]
-    # every focal scale as its own batch row (scale-major), one pass over all hypotheses
+    return _Grid(pitches, rolls, zen, up_from_pitch_roll(pitches, rolls))
+
+
+def _coarse_search(K, cam, lengths, mask, grid: _Grid, scales: list[float], search: _Search) -> _Coarse:
+    """Support of every hypothesis at every focal scale, in one pass (each scale its own batch rows)."""
+    S, B, Hn = len(scales), len(K), grid.ups.shape[1]
     # K^-1 with f times x maps the centred points to p / x: midpoints and directions scale by 1 / x, and the plane
     # normal (n_x, n_y, n_z) becomes (x n_x, x n_y, n_z) up to its length
     inv = torch.tensor([1.0 / x for x in scales]).to(K).repeat_interleave(B)[:, None, None]
@@ -333,42 +377,61 @@ def refine_horizon(
     stretch = torch.cat([1.0 / inv, 1.0 / inv, torch.ones_like(inv)], -1)
     cam_s = (mid * inv, direction * inv, _normalize(normals * stretch))
     sup, d, _ = _support(
-        ups.repeat(S, 1, 1), cam_s, lengths.repeat(S, 1), mask.repeat(S, 1), num_peaks, kernel_deg, 360, 3.0,
-        None if tie_zenith else zen.repeat(S, 1, 1),
+        grid.ups.repeat(S, 1, 1),
+        cam_s,
+        lengths.repeat(S, 1),
+        mask.repeat(S, 1),
+        search.num_peaks,
+        search.kernel_deg,
+        360,
+        3.0,
+        None if search.tie_zenith else grid.zen.repeat(S, 1, 1),
     )
     support = sup.view(S, B, Hn).transpose(0, 1).reshape(B, S * Hn)
     dirs = d.view(S, B, Hn, -1, 3).transpose(0, 1).reshape(B, S * Hn, -1, 3)
-    frame_support = support[:, 0]
     best = support.argmax(-1)
-    rows = torch.arange(len(best), device=K.device)
-    hyp = best % Hn
-    scale = torch.tensor(scales, dtype=dtype, device=K.device)[best // Hn]
-    K_best = _scaled_focal(K, scale)
+    scale = torch.tensor(scales, dtype=K.dtype, device=K.device)[best // Hn]
+    return _Coarse(support, dirs, cam if S == 1 else cam_s, best, _scaled_focal(K, scale))
+
+
+def _fine_search(cam, lengths, mask, grid: _Grid, coarse: _Coarse, pitch_step, fine_step, search: _Search):
+    """Pitches ``fine_step`` apart around the best coarse hypothesis, at its roll and focal scale: the chosen up
+    vectors (B, 3), their strongest horizontal VP directions (B, 3) and their support (B,)."""
+    B, Hn = len(coarse.best), grid.ups.shape[1]
+    rows = torch.arange(B, device=coarse.best.device)
+    hyp, best = coarse.best % Hn, coarse.best
     m = max(1, int(round(pitch_step / fine_step)))
-    fine = torch.arange(-m + 1, m, dtype=dtype, device=K.device) * fine_step
+    fine = torch.arange(-m + 1, m, dtype=grid.ups.dtype, device=grid.ups.device) * fine_step
     fine = fine[fine != 0]
-    fine_p = pitches[rows, hyp][:, None] + fine
-    fine_r = rolls[rows, hyp][:, None].expand_as(fine_p)
-    all_p = torch.cat([pitches[rows, hyp][:, None], fine_p], 1)
-    all_r = torch.cat([rolls[rows, hyp][:, None], fine_r], 1)
+    fine_p = grid.pitches[rows, hyp][:, None] + fine
+    fine_r = grid.rolls[rows, hyp][:, None].expand_as(fine_p)
+    all_p = torch.cat([grid.pitches[rows, hyp][:, None], fine_p], 1)
+    all_r = torch.cat([grid.rolls[rows, hyp][:, None], fine_r], 1)
+    cand_support, cand_dirs = coarse.support[rows, best][:, None], coarse.dirs[rows, best][:, None]
     if len(fine):
-        fine_zen = zen[rows, hyp][:, None].expand(-1, len(fine), 3)
-        row = (best // Hn) * B + rows  # the chosen scale's rows of the scale-major batch
-        cam_best = cam if S == 1 else tuple(t[row] for t in cam_s)
+        fine_zen = grid.zen[rows, hyp][:, None].expand(-1, len(fine), 3)
+        cam_best = coarse.cam if len(coarse.cam[0]) == B else tuple(t[(best // Hn) * B + rows] for t in coarse.cam)
         fine_support, fine_dirs, _ = _support(
-            up_from_pitch_roll(fine_p, fine_r), cam_best, lengths, mask, num_peaks, kernel_deg, 360, 3.0,
-            None if tie_zenith else fine_zen,
+            up_from_pitch_roll(fine_p, fine_r),
+            cam_best,
+            lengths,
+            mask,
+            search.num_peaks,
+            search.kernel_deg,
+            360,
+            3.0,
+            None if search.tie_zenith else fine_zen,
         )
-        cand_support = torch.cat([support[rows, best][:, None], fine_support], 1)
-        cand_dirs = torch.cat([dirs[rows, best][:, None], fine_dirs], 1)
-    else:
-        cand_support, cand_dirs = support[rows, best][:, None], dirs[rows, best][:, None]
+        cand_support = torch.cat([cand_support, fine_support], 1)
+        cand_dirs = torch.cat([cand_dirs, fine_dirs], 1)
     pick = cand_support.argmax(-1)
-    new_support = cand_support[rows, pick]
     up = up_from_pitch_roll(all_p[rows, pick], all_r[rows, pick])
-    horizontal = cand_dirs[rows, pick, 0]  # the strongest horizontal VP of the chosen horizon
-    use = cal.valid & (new_support > frame_support * (1.0 + margin)) & torch.isfinite(up).all(-1)
-    K = torch.where(use[:, None, None], K_best, K)
+    return up, cand_dirs[rows, pick, 0], cand_support[rows, pick]
+
+
+def _with_up(cal: Calibration, use: Tensor, K: Tensor, up: Tensor, horizontal: Tensor) -> Calibration:
+    """The calibration with, where ``use``, the up vector ``up``, the rotation from it and the horizontal VP
+    direction, and ``K``; every other field follows, so the horizon is the polar of the zenith."""
     down = -up
     h = _normalize(horizontal - (horizontal * up).sum(-1, keepdim=True) * up)
     R = canonical_manhattan_rotation(torch.stack([h, down, torch.linalg.cross(h, down)], -1))

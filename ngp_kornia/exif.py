@@ -1,9 +1,10 @@
-"""The focal length a JPEG's EXIF block records, in pixels: a prior for :func:`ngp_kornia.calibrate`.
+"""The focal length an image file's EXIF block records, in pixels: a prior for :func:`ngp_kornia.calibrate`.
 
-A small reader of the JPEG APP1 ``Exif`` segment (TIFF layout, either byte order): it follows IFD0 to the EXIF IFD
+A small reader of the EXIF block (found by :func:`ngp_kornia.io.exif_block` in JPEG, PNG, WebP and TIFF files; TIFF
+layout, either byte order): it follows IFD0 to the EXIF IFD
 and reads ``FocalLengthIn35mmFilm`` (0xA405), or else ``FocalLength`` (0x920A) with ``FocalPlaneXResolution``
 (0xA20E), ``FocalPlaneResolutionUnit`` (0xA210) and ``PixelXDimension`` / ``PixelYDimension`` (0xA002 / 0xA003).
-Anything missing, malformed or not a JPEG gives ``None``: the caller then estimates the focal length itself.
+Anything missing or malformed gives ``None``: the caller then estimates the focal length itself.
 """
 
 from __future__ import annotations
@@ -11,6 +12,8 @@ from __future__ import annotations
 import math
 import struct
 from pathlib import Path
+
+from ngp_kornia.io import exif_block
 
 __all__ = ["exif_focal", "exif_tags", "focal_from_exif_tags"]
 
@@ -20,23 +23,6 @@ _TYPE_SIZES = {1: 1, 2: 1, 3: 2, 4: 4, 5: 8, 7: 1, 9: 4, 10: 8}
 _EXIF_IFD = 0x8769
 _WANTED = {0xA405, 0x920A, 0xA20E, 0xA210, 0xA002, 0xA003}
 _UNIT_MM = {2: 25.4, 3: 10.0, 4: 1.0, 5: 0.001}
-
-
-def _app1_exif(data: bytes) -> bytes | None:
-    """The TIFF block of the first APP1 Exif segment of a JPEG, or None."""
-    if not data.startswith(b"\xff\xd8"):
-        return None
-    pos = 2
-    while pos + 4 <= len(data) and data[pos] == 0xFF:
-        marker = data[pos + 1]
-        if marker in (0xD9, 0xDA):  # end of image, start of scan: no more metadata
-            return None
-        length = struct.unpack(">H", data[pos + 2 : pos + 4])[0]
-        segment = data[pos + 4 : pos + 2 + length]
-        if marker == 0xE1 and segment.startswith(b"Exif\x00\x00"):
-            return segment[6:]
-        pos += 2 + length
-    return None
 
 
 def _read_ifd(tiff: bytes, offset: int, order: str, tags: dict[int, float]) -> int | None:
@@ -78,7 +64,7 @@ def exif_tags(data: bytes) -> dict[int, float]:
         >>> exif_tags(b"not a jpeg")
         {}
     """
-    tiff = _app1_exif(data)
+    tiff = exif_block(data)
     if tiff is None or len(tiff) < 8 or tiff[:2] not in (b"II", b"MM"):
         return {}
     order = "<" if tiff[:2] == b"II" else ">"

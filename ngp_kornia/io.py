@@ -43,6 +43,7 @@ __all__ = [
     "ImageReadError",
     "apply_orientation",
     "as_batch",
+    "exif_block",
     "exif_orientation",
     "header_size",
     "load_image",
@@ -234,7 +235,7 @@ def exif_orientation(data: bytes) -> int:
         1
     """
     try:
-        block = _exif_block(data)
+        block = exif_block(data)
         tags = _tiff_ifd0(block) if block else None
     except (struct.error, IndexError, ValueError):
         return 1
@@ -242,8 +243,8 @@ def exif_orientation(data: bytes) -> int:
     return value if 1 <= value <= 8 else 1
 
 
-def _exif_block(data: bytes) -> bytes | None:
-    """The TIFF-structured EXIF data of a file, or None."""
+def exif_block(data: bytes) -> bytes | None:
+    """The TIFF-structured EXIF data of a JPEG, PNG, WebP or TIFF file's bytes, or None."""
     if data[:2] == b"\xff\xd8":
         for marker, start, end in _jpeg_segments(data):
             if marker == 0xE1 and data[start : start + 6] == b"Exif\x00\x00":

@@ -37,7 +37,6 @@ from __future__ import annotations
 
 import csv
 import math
-import struct
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -61,7 +60,7 @@ from ngp_kornia.geometry.camera import (
     zenith_from_horizon,
     zenith_from_up,
 )
-from ngp_kornia.io import ImageError, exif_orientation, read_image_file
+from ngp_kornia.io import ImageError, exif_orientation, header_size, read_image_file
 
 __all__ = ["COLUMNS", "CSVManifest", "ManifestError", "ManifestSample", "read_image_size"]
 
@@ -131,37 +130,8 @@ class _Row:
         return all(self.values[n] is not None for n in names)
 
 
-def _png_size(head: bytes) -> tuple[int, int] | None:
-    if head[:8] != b"\x89PNG\r\n\x1a\n" or head[12:16] != b"IHDR" or len(head) < 24:
-        return None
-    width, height = struct.unpack(">II", head[16:24])
-    return height, width
-
-
-def _jpeg_size(data: bytes) -> tuple[int, int] | None:
-    """(H, W) from the first start-of-frame marker of a JPEG stream, None when not found."""
-    if data[:2] != b"\xff\xd8":
-        return None
-    i = 2
-    while i + 9 <= len(data):
-        if data[i] != 0xFF:
-            return None
-        marker = data[i + 1]
-        if marker == 0xFF:  # fill byte
-            i += 1
-            continue
-        if marker == 0x01 or 0xD0 <= marker <= 0xD8:  # markers without a length
-            i += 2
-            continue
-        if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):  # start of frame
-            height, width = struct.unpack(">HH", data[i + 5 : i + 9])
-            return (height, width) if height and width else None
-        i += 2 + struct.unpack(">H", data[i + 2 : i + 4])[0]
-    return None
-
-
 def read_image_size(path: str | Path) -> tuple[int, int]:
-    """``(height, width)`` of an image file: from the header for PNG and JPEG, else by decoding it.
+    """``(height, width)`` of an image file: from its header (:func:`ngp_kornia.io.header_size`), else by decoding it.
 
     The size is the one :func:`ngp_kornia.io.read_image_file` decodes: as displayed, after the EXIF orientation.
 
@@ -171,9 +141,9 @@ def read_image_size(path: str | Path) -> tuple[int, int]:
     try:
         with open(path, "rb") as f:
             head = f.read(1 << 16)
-            size = _png_size(head) or _jpeg_size(head)
+            size = header_size(head)
             if size is None and head[:2] == b"\xff\xd8":  # large metadata blocks before the frame header
-                size = _jpeg_size(head + f.read())
+                size = header_size(head + f.read())
             if size is not None and exif_orientation(head) >= 5:  # stored turned by 90 degrees
                 size = size[::-1]
     except OSError:
@@ -276,7 +246,10 @@ class CSVManifest(Sequence[ManifestSample]):
     """
 
     def __init__(
-        self, path: str | Path, root: str | Path | None = None, focal_tolerance: float = 0.01,
+        self,
+        path: str | Path,
+        root: str | Path | None = None,
+        focal_tolerance: float = 0.01,
         angle_tolerance: float = 1.0,
     ) -> None:
         self.path = Path(path)

@@ -80,27 +80,14 @@ def load_manifest(path: Path) -> list[Sample]:
     return out
 
 
-def published_yud_horizon(root: Path, sample: Sample) -> torch.Tensor:
-    """York Urban's published horizon: the line through its two raw horizontal VPs, ``(K v_a) x (K v_b)``."""
-    import scipy.io
-
-    vp = scipy.io.loadmat(root / sample.name / f"{sample.name}GroundTruthVP_CamParams.mat")["vp"]
-    vp = torch.as_tensor(np.asarray(vp, dtype=np.float64))
-    flip = torch.diag(torch.tensor([1.0, -1.0, 1.0], dtype=torch.float64))
-    a, b = (sample.K @ flip @ vp[:, j] for j in (0, 2))
-    line = torch.linalg.cross(a, b)
-    line = line / line[:2].norm()
-    return line if line[1] >= 0 else -line
-
-
 def load_samples(dataset: str, path: Path) -> list[Sample]:
     if dataset == "rendered":
         return load_rendered(path)
     if dataset == "manifest":
         return load_manifest(path)
-    samples = load_yud(path, "all", "orthogonal")
-    CALIBRATED_HORIZON.update((s.name, s.horizon) for s in samples)
-    return [replace(s, kind="yud", horizon=published_yud_horizon(path, s)) for s in samples]
+    calibrated = load_yud(path, "all", horizon="calibrated", ground_truth="orthogonal")
+    CALIBRATED_HORIZON.update((s.name, s.horizon) for s in calibrated)
+    return [replace(s, kind="yud") for s in load_yud(path, "all", horizon="published", ground_truth="orthogonal")]
 
 
 # ----------------------------------------------------------------------------------------------------------

@@ -7,11 +7,11 @@ default call took 8-10x lu-vp-detect's time with two threads and 1.0-1.14x with 
 which sets torch's (and OpenCV's) thread count for the duration of the call and restores the caller's afterwards,
 also when the call raises.
 
-How many threads: ``ParserConfig.num_threads`` (or ``calibrate(..., num_threads=N)``) when given; else the
-environment variable ``NGP_NUM_THREADS``; else 1. ``0`` leaves the caller's setting alone (the parser then runs
-with whatever ``torch.get_num_threads()`` says, as a layer of a larger model may want). With one thread the results
-do not depend on the machine's thread count; with more, sums may differ in the last bits from run to run of
-differently configured processes.
+How many threads: ``ParserConfig.num_threads`` (``calibrate(image, config=ParserConfig(num_threads=N))``) when
+given; else the environment variable ``NGP_NUM_THREADS``; else 1. ``0`` leaves the caller's setting alone (the
+parser then runs with whatever ``torch.get_num_threads()`` says, as a layer of a larger model may want). With one
+thread the results do not depend on the machine's thread count; with more, sums may differ in the last bits from
+run to run of differently configured processes.
 
 Threads: ``torch.set_num_threads`` and ``cv2.setNumThreads`` are process-wide, not per Python thread. While a call
 runs, other Python threads of the same process that use torch see its thread count too. Calls that overlap in

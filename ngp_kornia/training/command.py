@@ -184,7 +184,21 @@ def main(argv: list[str] | None = None) -> int:
         sys.argv[1:], args = args, None
     parser_kwargs = {"description": _DESCRIPTION, "epilog": epilog}
     LightningCLI(args=args, save_config_kwargs={"overwrite": True}, parser_kwargs=parser_kwargs)
+    _close_process_group()
     return 0
+
+
+def _close_process_group() -> None:
+    """Let every process of a multi-process run finish together and close gloo's connections before exit.
+
+    Lightning leaves the process group open; when one process exits while a peer's gloo thread still holds the
+    connection, the C++ runtime can abort that peer at interpreter shutdown (exit -6 after a finished run).
+    """
+    import torch.distributed as dist
+
+    if dist.is_available() and dist.is_initialized():
+        dist.barrier()
+        dist.destroy_process_group()
 
 
 if __name__ == "__main__":

@@ -276,8 +276,6 @@ def _predict(args: argparse.Namespace) -> int:
     except USER_ERRORS as err:
         print(f"ngp: error: {_one_line(err)}", file=sys.stderr, flush=True)
         return 1
-    if counts is None:  # another process of a multi-process run: the main one reports
-        return 0
     if counts["interrupted"]:
         print(
             f"ngp: interrupted: the {counts['images']} images finished are in {args.out}; "

@@ -98,6 +98,15 @@ def one_line(proc: subprocess.CompletedProcess, prefix: str = "ngp: error: ") ->
     return err.strip()
 
 
+def weights_usage_error(proc: subprocess.CompletedProcess) -> str:
+    """A bad ``--weights`` is a usage error (exit 2): the usage, then one line naming the file and the problem."""
+    err = proc.stderr
+    expect("Traceback" not in err, f"traceback: {err[-300:]!r}")
+    last = err.strip().splitlines()[-1] if err.strip() else ""
+    expect(proc.returncode == 2 and last.startswith("ngp calibrate: error: --weights: "), f"got {err[-400:]!r}")
+    return last
+
+
 def chunk(kind: bytes, body: bytes) -> bytes:
     return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
 
@@ -154,8 +163,8 @@ def _(tmp: Path) -> str:
     marker, weights = tmp / "ran", tmp / "evil.pt"
     torch.save({"format": FORMAT, "version": VERSION, "network": "ZSNet", "x": Planted(marker)}, weights)
     proc = ngp("calibrate", "--weights", weights, scene_png(tmp / "a.png"))
-    line = one_line(proc)
-    expect(proc.returncode == 1 and "refused" in line and not marker.exists(), line)
+    line = weights_usage_error(proc)
+    expect("refused" in line and not marker.exists(), line)
     return line
 
 
@@ -232,8 +241,8 @@ def _(tmp: Path) -> str:
     payload["settings"]["width"] = 10**5
     torch.save(payload, path)
     proc = ngp("calibrate", "--weights", path, scene_png(tmp / "a.png"))
-    line = one_line(proc)
-    expect(proc.returncode == 1 and "does not fit a ZSNet" in line, line)
+    line = weights_usage_error(proc)
+    expect("does not fit a ZSNet" in line, line)
     return line[-100:]
 
 
@@ -444,8 +453,8 @@ def _(tmp: Path) -> str:
             p.fill_(float("nan"))
     save_network(net, path, net.settings())
     proc = ngp("calibrate", "--weights", path, scene_png(tmp / "a.png"))
-    line = one_line(proc)
-    expect(proc.returncode == 1 and "NaN" in line, line)
+    line = weights_usage_error(proc)
+    expect("NaN" in line, line)
     return line[-70:]
 
 
@@ -466,8 +475,8 @@ def _(tmp: Path) -> str:
     path = tmp / "random.pt"
     path.write_bytes(os.urandom(4096))
     proc = ngp("calibrate", "--weights", path, scene_png(tmp / "a.png"))
-    line = one_line(proc)
-    expect(proc.returncode == 1 and "weights_only" not in line, line)
+    line = weights_usage_error(proc)
+    expect("weights_only" not in line, line)
     return line[-70:]
 
 

@@ -47,6 +47,7 @@ from ngp_kornia.errors import OutputError
 from ngp_kornia.exif import exif_focal
 from ngp_kornia.io import read_rgb_oriented
 from ngp_kornia.models import Calibration, NeuralGeometricParser, ParserConfig
+from ngp_kornia.threads import pipeline_threads
 
 __all__ = [
     "FolderImages",
@@ -390,7 +391,10 @@ def predict_folder(
     loader = DataLoader(FolderImages(images), batch_size=batch_size, num_workers=num_workers, collate_fn=collate_items)
     writer = JsonlWriter(out, devices)
     trainer = _trainer(devices, writer, progress_bar)
-    _run(trainer, module, loader, writer)
+    # fork from one thread: OpenCV's worker pool does not survive a fork, and a child that resizes the pool it
+    # inherited waits forever for threads that are not there
+    with pipeline_threads(1 if devices > 1 else 0):
+        _run(trainer, module, loader, writer)
     if writer.multi and not writer.interrupted:  # the forked processes wrote and merged; this one only waited
         writer.images, writer.errors = count_rows(writer.out)
     return {"images": writer.images, "errors": writer.errors, "interrupted": writer.interrupted}

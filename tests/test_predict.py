@@ -112,6 +112,31 @@ def test_two_processes_write_every_image_exactly_once(tmp_path):
     assert "11 rows written" in run.stdout and "Traceback" not in run.stderr
 
 
+_SESSION = """
+import json, sys
+import cv2, numpy as np
+from ngp_kornia.predict import predict_folder
+cv2.setNumThreads(2)  # a session that has used OpenCV's worker threads before the fork
+cv2.resize(np.zeros((2000, 2000, 3), np.uint8), (1000, 1000), interpolation=cv2.INTER_AREA)
+print(json.dumps(predict_folder(sys.argv[1], sys.argv[2], devices=2, recursive=True)))
+"""
+
+
+@pytest.mark.slow
+def test_two_processes_from_a_python_session_give_the_rows_of_one(folder, predicted, tmp_path):
+    # the processes are forked from the calling one: the call works in a running session (a notebook, a script
+    # that has used OpenCV's threads) and returns the merged counts
+    if sys.platform == "win32":
+        pytest.skip("no fork on Windows")
+    out = tmp_path / "two.jsonl"
+    run = subprocess.run(
+        [sys.executable, "-c", _SESSION, str(folder), str(out)], capture_output=True, text=True, timeout=240
+    )
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert json.loads(run.stdout.strip().splitlines()[-1]) == predicted[0] and _rows(out) == predicted[1]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["two.jsonl"]  # no part or temporary file left
+
+
 def test_out_that_is_an_input_is_refused(tmp_path, capsys):
     folder = tmp_path / "photos"
     _write_scenes(folder, [0])

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import ctypes
 import os
+import re
 import struct
 import tempfile
 import threading
@@ -346,7 +347,16 @@ def _decode(data: np.ndarray) -> tuple[np.ndarray | None, str]:
                 os.close(saved)
             messages.seek(0)
             text = messages.read().decode("utf-8", "replace")
-    return image, " ".join(line.strip() for line in text.splitlines() if line.strip())
+    return image, "; ".join(_clean(line) for line in text.splitlines() if line.strip())
+
+
+# OpenCV's log prefix, e.g. "[ WARN:0@3.818] global grfmt_png.cpp:855 ": a level, a thread, a timestamp and a place
+_CV_LOG_PREFIX = re.compile(r"^\[\s*[A-Z]+:\d+@[\d.]+\]\s*(global\s+)?(\S+:\d+\s+)?")
+
+
+def _clean(line: str) -> str:
+    """A decoder message without OpenCV's log prefix: the same file gives the same words in every run."""
+    return _CV_LOG_PREFIX.sub("", line.strip())
 
 
 def read_image(path: str | Path, max_pixels: int | None = None) -> ImageFile:

@@ -391,9 +391,9 @@ def predict_folder(
     loader = DataLoader(FolderImages(images), batch_size=batch_size, num_workers=num_workers, collate_fn=collate_items)
     writer = JsonlWriter(out, devices)
     trainer = _trainer(devices, writer, progress_bar)
-    # fork from one thread: OpenCV's worker pool does not survive a fork, and a child that resizes the pool it
-    # inherited waits forever for threads that are not there
-    with pipeline_threads(1 if devices > 1 else 0):
+    # fork (the processes of a multi-process run, the loader's workers) from one thread: OpenCV's worker pool does
+    # not survive a fork, and a child that resizes or uses the pool it inherited waits for threads that are not there
+    with pipeline_threads(1):
         _run(trainer, module, loader, writer)
     if writer.multi and not writer.interrupted:  # the forked processes wrote and merged; this one only waited
         writer.images, writer.errors = count_rows(writer.out)

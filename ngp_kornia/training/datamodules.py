@@ -28,7 +28,7 @@ from torch.utils.data import DataLoader, Dataset
 from ngp_kornia.data.folder import ImageFolder
 from ngp_kornia.data.manifest import CSVManifest
 from ngp_kornia.data.panorama import crop_ground_truth, perspective_crops, sample_crop_params
-from ngp_kornia.data.synth.render import RenderConfig, render_scene
+from ngp_kornia.data.synth.render import RenderConfig, config_spec, render_scene
 from ngp_kornia.detect import detect_segments, pad_segments
 from ngp_kornia.geometry import rotation_from_angles
 from ngp_kornia.io import load_image, read_image_file
@@ -36,6 +36,7 @@ from ngp_kornia.models.parser import ParserConfig
 
 __all__ = [
     "CachedScenes",
+    "JoinedScenes",
     "ManifestDataModule",
     "ManifestScenes",
     "PanoramaCrops",
@@ -209,12 +210,47 @@ class RenderedScenes(CachedScenes):
         self, seeds: Sequence[int], size: tuple[int, int] = (640, 480), config: RenderConfig | None = None, **kwargs
     ) -> None:
         self.size, self.config = tuple(size), config or RenderConfig()
-        spec = {"size": self.size, "cfg": asdict(self.config)}
+        spec = {"size": self.size, "cfg": config_spec(self.config)}
         super().__init__(seeds, f"rendered-{self.size[0]}x{self.size[1]}", spec, **kwargs)
 
     def compute(self, key: int) -> Sample:
         scene = render_scene(key, self.size, self.config)
         return self.sample_from_image(scene.image, scene.K, scene.R, scene.zenith, scene.horizon)
+
+
+class JoinedScenes(Dataset):
+    """Several scene datasets one after the other (each keeps its own cache).
+
+    Args:
+        parts: the datasets.
+    """
+
+    def __init__(self, parts: Sequence[CachedScenes]) -> None:
+        self.parts = list(parts)
+
+    @property
+    def keys(self) -> list:
+        return [k for part in self.parts for k in part.keys]
+
+    @keys.setter
+    def keys(self, keys: list) -> None:  # a prefix, as fast_dev_run cuts it
+        left = len(keys)
+        for part in self.parts:
+            part.keys, left = part.keys[:left], max(0, left - len(part.keys))
+
+    def __len__(self) -> int:
+        return sum(len(part) for part in self.parts)
+
+    def __getitem__(self, index: int) -> Sample:
+        for part in self.parts:
+            if index < len(part):
+                return part[index]
+            index -= len(part)
+        raise IndexError(index)
+
+    def prepare(self, workers: int = 0, progress: bool | None = None) -> None:
+        for part in self.parts:
+            part.prepare(workers, progress)
 
 
 class PanoramaCrops(CachedScenes):
@@ -369,6 +405,8 @@ class RenderedDataModule(SceneDataModule):
         num_workers: loader worker processes (also used to fill the cache).
         input_size: also load images resized to ``(w, h)``, for FSNet.
         max_segments: longest segments kept per image.
+        hard_size: extra training scenes rendered with ``hard_config`` (seeds from 3,000,000), after the others.
+        hard_config: :class:`RenderConfig` settings of those scenes, e.g. ``{"stairs": 1.5, "fronto_prob": 0.3}``.
 
     Example:
         >>> dm = RenderedDataModule(cache_dir=None, train_size=2, val_size=1, test_size=1, size=(160, 120))
@@ -377,7 +415,7 @@ class RenderedDataModule(SceneDataModule):
         (2, torch.Size([2, 3, 3]))
     """
 
-    VAL_SEED, TEST_SEED = 1_000_000, 2_000_000
+    VAL_SEED, TEST_SEED, HARD_SEED = 1_000_000, 2_000_000, 3_000_000
 
     def __init__(
         self,
@@ -390,6 +428,8 @@ class RenderedDataModule(SceneDataModule):
         num_workers: int = 0,
         input_size: tuple[int, int] | None = None,
         max_segments: int = 512,
+        hard_size: int = 0,
+        hard_config: dict | None = None,
     ) -> None:
         super().__init__(batch_size, num_workers)
         self.save_hyperparameters()
@@ -402,7 +442,12 @@ class RenderedDataModule(SceneDataModule):
             "test": (self.TEST_SEED, hp.test_size),
         }
         kwargs = {"cache_dir": hp.cache_dir, "max_segments": hp.max_segments, "input_size": hp.input_size}
-        return {k: RenderedScenes(range(a, a + n), tuple(hp.size), **kwargs) for k, (a, n) in ranges.items()}
+        out = {k: RenderedScenes(range(a, a + n), tuple(hp.size), **kwargs) for k, (a, n) in ranges.items()}
+        if hp.hard_size > 0:
+            hard = RenderedScenes(range(self.HARD_SEED, self.HARD_SEED + hp.hard_size), tuple(hp.size),
+                                  RenderConfig(**(hp.hard_config or {})), **kwargs)
+            out["train"] = JoinedScenes([out["train"], hard])
+        return out
 
 
 class PanoramaDataModule(SceneDataModule):

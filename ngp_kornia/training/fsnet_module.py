@@ -43,6 +43,8 @@ class FSNetModule(NetworkModule):
         zsnet: an optional trained ZSNet weighting the zenith candidates (frozen, not saved with this module).
         zsnet_weights: instead of ``zsnet``, a ZSNet weights file to load, or ``"zsnet"`` for the shipped one (the
             form a YAML config can give).
+        init_weights: start ``net`` from an FSNet weights file of the same settings (fine-tuning), or ``"fsnet"``
+            for the shipped one; None: from its own initialisation.
     """
 
     def __init__(
@@ -58,10 +60,14 @@ class FSNetModule(NetworkModule):
         parser_config: dict | None = None,
         zsnet: nn.Module | None = None,
         zsnet_weights: str | None = None,
+        init_weights: str | None = None,
     ) -> None:
         super().__init__()
         self.save_hyperparameters(ignore=["net", "zsnet"])
         self.net = net
+        if init_weights is not None:
+            path = shipped_weights("fsnet") if init_weights == "fsnet" else init_weights
+            net.load_state_dict(load_network(path, "FSNet").state_dict())
         if zsnet is None and zsnet_weights is not None:
             path = shipped_weights("zsnet") if zsnet_weights == "zsnet" else zsnet_weights
             zsnet = load_network(path, "ZSNet")

@@ -7,9 +7,15 @@ import lightning as L
 import numpy as np
 import torch
 
-from ngp_kornia.data.synth.render import render_scene
+from ngp_kornia.data.synth.render import RenderConfig, render_scene
 from ngp_kornia.models.zsnet import ZSNet
-from ngp_kornia.training.datamodules import ManifestDataModule, PanoramaDataModule
+from ngp_kornia.training.datamodules import (
+    JoinedScenes,
+    ManifestDataModule,
+    PanoramaDataModule,
+    RenderedDataModule,
+    RenderedScenes,
+)
 from ngp_kornia.training.zsnet_module import ZSNetModule
 
 
@@ -77,3 +83,21 @@ def test_manifest_rows_train_with_their_ground_truth(tmp_path):
         batch.zenith[0], torch.nn.functional.normalize(truth.zenith, dim=0).float(), atol=1e-4
     ) or torch.allclose(batch.zenith[0], -torch.nn.functional.normalize(truth.zenith, dim=0).float(), atol=1e-4)
     assert torch.isfinite(_fit(dm).callback_metrics["train/loss"])
+
+
+def test_cache_digest_unchanged_by_default_hard_options(tmp_path):
+    a = RenderedScenes(range(1), (160, 120), cache_dir=tmp_path)
+    b = RenderedScenes(range(1), (160, 120), RenderConfig(fronto_jitter=5.0), cache_dir=tmp_path)
+    c = RenderedScenes(range(1), (160, 120), RenderConfig(stairs=1.0), cache_dir=tmp_path)
+    assert a.cache == b.cache != c.cache
+
+
+def test_datamodule_joins_the_hard_scenes():
+    dm = RenderedDataModule(cache_dir=None, train_size=2, val_size=1, test_size=1, size=(96, 72),
+                            hard_size=2, hard_config={"stairs": 2.0, "kinds": {"street": 1.0, "atlanta": 1.0}})
+    train = dm.make_datasets()["train"]
+    assert isinstance(train, JoinedScenes) and len(train) == 4
+    assert train.keys == [0, 1, 3_000_000, 3_000_001]
+    assert train[3].K.shape == (3, 3)
+    train.keys = train.keys[:3]
+    assert len(train) == 3

@@ -130,3 +130,14 @@ def test_fast_dev_run(tmp_path):
     saved = torch.load(ckpt, weights_only=False)
     assert saved["ngp_network"] == {"name": "FSNet", "settings": module.net.settings()}
     assert not any(k.startswith("parser") for k in saved["state_dict"])
+
+
+def test_init_weights_start_from_the_shipped_fsnet():
+    from ngp_kornia.models.weights import load_network, shipped_weights
+
+    shipped = load_network(shipped_weights("fsnet"), "FSNet")
+    module = FSNetModule(FSNet(variant="shared", input_size=128), init_weights="fsnet")
+    for name, tensor in shipped.state_dict().items():
+        assert torch.equal(module.net.state_dict()[name], tensor)
+    fresh = FSNetModule(FSNet(variant="shared", input_size=128))
+    assert not all(torch.equal(fresh.net.state_dict()[k], v) for k, v in shipped.state_dict().items())

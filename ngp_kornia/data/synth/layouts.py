@@ -24,6 +24,7 @@ from ngp_kornia.data.synth.clutter import (
     wire,
 )
 from ngp_kornia.data.synth.facade import make_building
+from ngp_kornia.data.synth.hard import Additions, make_billboard, make_stairs
 from ngp_kornia.data.synth.painter import PinholeView
 from ngp_kornia.data.synth.scene import UP, Decal, Face, Scene
 
@@ -101,7 +102,7 @@ class _Street:
 
 
 def make_street(rng: np.random.Generator, cam_height: float, clutter: float = 1.0,
-                view: PinholeView | None = None) -> Scene:
+                view: PinholeView | None = None, additions: Additions | None = None) -> Scene:
     """A street crossing in a city grid around a camera standing on the road or a sidewalk at the origin.
 
     Args:
@@ -109,6 +110,7 @@ def make_street(rng: np.random.Generator, cam_height: float, clutter: float = 1.
         cam_height: camera height above the road.
         clutter: amount of cars, trees, poles, people (0 for none, 1 normal, 2 busy).
         view: the camera, when known: blocks it cannot see are left out (they would be culled anyway).
+        additions: hard cases (stairs, billboards) on the sidewalks, drawn from their own generator.
 
     Returns:
         The scene; ``boxes`` holds every building's main block (all aligned with the world axes).
@@ -125,8 +127,12 @@ def make_street(rng: np.random.Generator, cam_height: float, clutter: float = 1.
     _street_ground(rng, st, scene)
     _street_buildings(rng, st, scene)
     _flush_buildings(st, scene)
+    spots = _Spots()
+    spots.take(0.0, 0.0, 1.5)  # keep the camera free
     if clutter > 0:
-        _street_clutter(rng, st, scene, clutter)
+        _street_clutter(rng, st, scene, clutter, spots)
+    if additions is not None:
+        _street_additions(additions, st, scene, spots)
     return scene
 
 
@@ -294,11 +300,9 @@ def _cross_buildings(rng: np.random.Generator, st: _Street, scene: Scene, sx: in
         x += sx * width
 
 
-def _street_clutter(rng: np.random.Generator, st: _Street, scene: Scene, clutter: float) -> None:
+def _street_clutter(rng: np.random.Generator, st: _Street, scene: Scene, clutter: float, spots: _Spots) -> None:
     gy, top = st.gy, st.gy - st.curb
     reach = 80.0  # beyond, clutter is a few pixels
-    spots = _Spots()
-    spots.take(0.0, 0.0, 1.5)  # keep the camera free
     free = spots.take
 
     def along(lo: float, hi: float, step: tuple[float, float]):
@@ -364,7 +368,28 @@ def _street_traffic(rng: np.random.Generator, st: _Street, scene: Scene, clutter
             scene.overlay.append(wire(a, b, rng.uniform(0.3, 1.5)))
 
 
-def make_atlanta(rng: np.random.Generator, cam_height: float, clutter: float = 1.0, view_yaw: float = 0.0) -> Scene:
+def _street_additions(add: Additions, st: _Street, scene: Scene, spots: _Spots) -> None:
+    """Stairs along the facades and billboards turned off the axes, on the sidewalks, within 60 m."""
+    rng, top = add.rng, st.gy - st.curb
+    skip = (st.zs - st.cw - st.sw - 1, st.zs + st.cw + st.sw + 1)
+    for _ in range(rng.poisson(add.stairs)):
+        s, z = rng.choice([-1, 1]), rng.uniform(-60, 60)
+        width = min(rng.uniform(1.0, 2.2), st.sw - 0.4)
+        length = rng.uniform(3.0, 7.0)
+        x = st.xs + s * (st.rw + st.sw - 0.5 * width - 0.05)
+        if width > 0.8 and not skip[0] < z < skip[1] and spots.take(x, z, 0.5 * length + 0.2):
+            scene.items.append(make_stairs(rng, (x, z), 0.0, top, length, width))
+    for _ in range(rng.poisson(add.billboards)):
+        s, z = rng.choice([-1, 1]), rng.uniform(-50, 50)
+        turn = rng.choice([-1, 1]) * rng.uniform(15.0, 75.0)  # from the street's axis z
+        width = min(rng.uniform(2.5, 7.0), (st.sw - 0.4) / math.sin(math.radians(abs(turn))))
+        x = st.xs + s * (st.rw + 0.5 * st.sw)
+        if width > 1.2 and not skip[0] < z < skip[1] and spots.take(x, z, 0.5 * width + 0.2):
+            scene.items.append(make_billboard(rng, (x, z), turn + 90.0, top, width))
+
+
+def make_atlanta(rng: np.random.Generator, cam_height: float, clutter: float = 1.0, view_yaw: float = 0.0,
+                 additions: Additions | None = None) -> Scene:
     """An Atlanta world: a paved plaza with blocks of several yaws sharing the vertical.
 
     The dominant group has yaw 0 (the ground-truth Manhattan frame): it owns the largest block, placed ahead of
@@ -375,6 +400,7 @@ def make_atlanta(rng: np.random.Generator, cam_height: float, clutter: float = 1
         cam_height: camera height above the plaza.
         clutter: amount of trees, people, poles.
         view_yaw: the camera's yaw in degrees, to put the dominant block in view.
+        additions: hard cases (stairs, billboards) on the plaza, drawn from their own generator.
 
     Returns:
         The scene; ``frames`` lists the yaws of the groups, dominant first.
@@ -420,6 +446,26 @@ def make_atlanta(rng: np.random.Generator, cam_height: float, clutter: float = 1
     _plaza_ground(rng, scene, gy)
     if clutter > 0:
         _plaza_clutter(rng, scene, gy, clutter, place)
+    return _plaza_additions(additions, scene, gy, view_yaw, place)
+
+
+def _plaza_additions(add: Additions | None, scene: Scene, gy: float, view_yaw: float, place) -> Scene:
+    """Stairs along the axes of a block group and billboards at any yaw, towards the view direction."""
+    if add is None:
+        return scene
+    rng = add.rng
+    for n, stairs in ((rng.poisson(add.stairs), True), (rng.poisson(add.billboards), False)):
+        for _ in range(n):
+            ang, dist = math.radians(view_yaw + rng.uniform(-50, 50)), rng.uniform(6.0, 40.0)
+            x, z = dist * math.sin(ang), dist * math.cos(ang)
+            yaw = float(scene.frames[rng.integers(len(scene.frames))]) + (0.0 if stairs else rng.uniform(0, 180))
+            size = rng.uniform(3.0, 7.0) if stairs else rng.uniform(2.5, 7.0)
+            if not place(x, z, 0.5 * size + 0.3):
+                continue
+            if stairs:
+                scene.items.append(make_stairs(rng, (x, z), yaw, gy, size, rng.uniform(1.2, 3.0)))
+            else:
+                scene.items.append(make_billboard(rng, (x, z), yaw, gy, size))
     return scene
 
 

@@ -22,7 +22,7 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import cv2
@@ -30,6 +30,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from ngp_kornia.data.synth.hard import Additions
 from ngp_kornia.data.synth.interior import make_room
 from ngp_kornia.data.synth.layouts import make_atlanta, make_street
 from ngp_kornia.data.synth.painter import Canvas, PinholeView
@@ -47,7 +48,16 @@ from ngp_kornia.geometry.camera import (
     zenith_from_up,
 )
 
-__all__ = ["KINDS", "RenderConfig", "RenderedScene", "camera_ground_truth", "render_dataset", "render_scene"]
+__all__ = [
+    "HARD_DEFAULTS",
+    "KINDS",
+    "RenderConfig",
+    "RenderedScene",
+    "camera_ground_truth",
+    "config_spec",
+    "render_dataset",
+    "render_scene",
+]
 
 KINDS = ("street", "indoor", "atlanta")
 
@@ -85,6 +95,15 @@ class RenderConfig:
         haze_prob: probability of aerial perspective outdoors.
         visibility: distance in metres where ~63% of the colour is haze.
         overcast_prob: probability of a grey sky and soft light outdoors.
+        stairs: hard case, mean number of flights of stairs with handrails per outdoor scene (sloped lines).
+        billboards: hard case, mean number of billboards turned off the scene's axes per outdoor scene (a false
+            horizontal vanishing point).
+        fronto_prob: hard case, probability that an outdoor camera faces a facade square on (no finite horizontal
+            vanishing point): its yaw is moved to the nearest facade normal, plus ``fronto_jitter``.
+        fronto_jitter: standard deviation of the yaw around the facade normal.
+
+    The hard cases are off by default and drawn from a random stream of their own, after the scene: with all of them
+    off a render is the same, bit for bit, as before they existed (:data:`HARD_DEFAULTS`).
     """
 
     fov_v: tuple[float, float] = (40.0, 80.0)
@@ -110,6 +129,10 @@ class RenderConfig:
     haze_prob: float = 0.6
     visibility: tuple[float, float] = (250.0, 1500.0)
     overcast_prob: float = 0.3
+    stairs: float = 0.0
+    billboards: float = 0.0
+    fronto_prob: float = 0.0
+    fronto_jitter: float = 3.0
 
     def __post_init__(self) -> None:
         _check_range("fov_v", self.fov_v, 1.0, 179.0)
@@ -128,6 +151,10 @@ class RenderConfig:
                 raise ValueError(f"{name} must be a probability, got {getattr(self, name)}")
         if self.clutter < 0 or self.color_balance < 0:
             raise ValueError("clutter and color_balance must be non-negative")
+        if self.stairs < 0 or self.billboards < 0 or self.fronto_jitter < 0:
+            raise ValueError("stairs, billboards and fronto_jitter must be non-negative")
+        if not 0.0 <= self.fronto_prob <= 1.0:
+            raise ValueError(f"fronto_prob must be a probability, got {self.fronto_prob}")
         unknown = set(self.kinds) - set(KINDS)
         if unknown:
             raise ValueError(f"unknown scene kinds {sorted(unknown)}; choose from {KINDS}")
@@ -195,6 +222,24 @@ class RenderedScene:
         return out
 
 
+HARD_DEFAULTS = {"stairs": 0.0, "billboards": 0.0, "fronto_prob": 0.0, "fronto_jitter": 3.0}
+"""The hard-case options of :class:`RenderConfig` and their defaults (off)."""
+
+
+def config_spec(config: RenderConfig) -> dict:
+    """The settings of a config that change its renders, as a plain dict: every field, less the hard-case options
+    left at their defaults (so the digest of a config from before they existed does not change).
+
+    Example:
+        >>> "stairs" in config_spec(RenderConfig()), config_spec(RenderConfig(stairs=1.0))["stairs"]
+        (False, 1.0)
+    """
+    spec = asdict(config)
+    if config.fronto_prob == 0.0:
+        spec.pop("fronto_jitter")  # has no effect then
+    return {k: v for k, v in spec.items() if not (k in HARD_DEFAULTS and v == HARD_DEFAULTS[k])}
+
+
 def camera_ground_truth(fov_v: float, pitch: float, roll: float, yaw: float, size: tuple[int, int]) -> dict:
     """The calibration ground truth of a camera, with the project's geometry functions.
 
@@ -257,21 +302,26 @@ def render_scene(seed: int, size: tuple[int, int] = (640, 480), config: RenderCo
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
     W, H = _check_size(size)
     cfg = RenderConfig() if config is None else config
-    cam_rng, scene_rng, photo_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(int(seed)).spawn(3))
+    # the hard cases draw from a fourth stream: the first three are those of spawn(3), as before they existed
+    cam_rng, scene_rng, photo_rng, hard_rng = (
+        np.random.default_rng(s) for s in np.random.SeedSequence(int(seed)).spawn(4))
     names = [k for k in KINDS if cfg.kinds.get(k, 0.0) > 0]
     p = np.array([cfg.kinds[k] for k in names])
     kind = names[int(cam_rng.choice(len(names), p=p / p.sum()))]
     fov_v, pitch, roll, yaw = (_uniform(cam_rng, r) for r in (cfg.fov_v, cfg.pitch, cfg.roll, cfg.yaw))
     cam_h = _uniform(cam_rng, cfg.indoor_camera_height if kind == "indoor" else cfg.camera_height)
+    if kind != "indoor" and cfg.fronto_prob > 0 and hard_rng.random() < cfg.fronto_prob:
+        yaw = _fronto_yaw(hard_rng, kind, yaw, cfg.fronto_jitter)
     gt = camera_ground_truth(fov_v, pitch, roll, yaw, (W, H))
 
     view = PinholeView(gt["K"].numpy(), gt["R"].numpy(), np.zeros(3), W, H)
+    add = Additions(hard_rng, cfg.stairs, cfg.billboards) if cfg.stairs > 0 or cfg.billboards > 0 else None
     if kind == "street":
-        scene = make_street(scene_rng, cam_h, cfg.clutter, view=view)
+        scene = make_street(scene_rng, cam_h, cfg.clutter, view=view, additions=add)
     elif kind == "indoor":
         scene = make_room(scene_rng, cam_h, cfg.clutter, view_yaw=yaw)
     else:
-        scene = make_atlanta(scene_rng, cam_h, cfg.clutter, view_yaw=yaw)
+        scene = make_atlanta(scene_rng, cam_h, cfg.clutter, view_yaw=yaw, additions=add)
 
     light, sky = _lighting(photo_rng, kind, cfg)
     if scene.ground_color is None:  # indoors: the room hides everything, only seams between faces may show
@@ -288,6 +338,14 @@ def render_scene(seed: int, size: tuple[int, int] = (640, 480), config: RenderCo
     if cfg.photometric:
         image = photometric(photo_rng, image, cfg)
     return RenderedScene(image=image, seed=int(seed), kind=kind, frames=tuple(scene.frames), scene=scene, **gt)
+
+
+def _fronto_yaw(rng: np.random.Generator, kind: str, yaw: float, jitter: float) -> float:
+    """A yaw facing a facade square on: on a street the facades along the main road (normals along world x), in a
+    plaza the dominant block's nearest side; plus Gaussian jitter."""
+    step = 180.0 if kind == "street" else 90.0
+    base = 90.0 + step * round((yaw - 90.0) / step)
+    return float(base + rng.normal(0.0, jitter))
 
 
 _SKIES = {

@@ -12,6 +12,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from ngp_kornia.errors import ConfigError
 from ngp_kornia.metrics import frame_horizon_error, horizon_auc
 from ngp_kornia.models.fsnet import FSNet, FSNetInputs, frame_scores
 from ngp_kornia.models.parser import NeuralGeometricParser, ParserConfig
@@ -22,6 +23,18 @@ from ngp_kornia.training.datamodules import SceneBatch
 from ngp_kornia.training.losses import frame_classification_loss, frame_labels
 
 __all__ = ["FSNetModule"]
+
+
+def _start_from(net: FSNet, init_weights: str) -> None:
+    """Copy an FSNet weights file (or ``"fsnet"``, the shipped one) into ``net``, whose settings must be the file's."""
+    path = shipped_weights("fsnet") if init_weights == "fsnet" else init_weights
+    start = load_network(path, "FSNet")
+    theirs, ours = start.settings(), net.settings()
+    differ = sorted(k for k in {*theirs, *ours} if theirs.get(k) != ours.get(k))
+    if differ:
+        wanted = ", ".join(f"{k}={theirs.get(k)!r}" for k in differ)
+        raise ConfigError(f"init_weights {init_weights}: its FSNet was built with {wanted}; give model.net these")
+    net.load_state_dict(start.state_dict())
 
 
 class FSNetModule(NetworkModule):
@@ -66,8 +79,7 @@ class FSNetModule(NetworkModule):
         self.save_hyperparameters(ignore=["net", "zsnet"])
         self.net = net
         if init_weights is not None:
-            path = shipped_weights("fsnet") if init_weights == "fsnet" else init_weights
-            net.load_state_dict(load_network(path, "FSNet").state_dict())
+            _start_from(net, init_weights)
         if zsnet is None and zsnet_weights is not None:
             path = shipped_weights("zsnet") if zsnet_weights == "zsnet" else zsnet_weights
             zsnet = load_network(path, "ZSNet")

@@ -141,3 +141,10 @@ def test_init_weights_start_from_the_shipped_fsnet():
         assert torch.equal(module.net.state_dict()[name], tensor)
     fresh = FSNetModule(FSNet(variant="shared", input_size=128))
     assert not all(torch.equal(fresh.net.state_dict()[k], v) for k, v in shipped.state_dict().items())
+
+
+def test_init_weights_of_other_settings_is_one_clear_error():
+    from ngp_kornia.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="input_size"):
+        FSNetModule(FSNet(variant="shared", input_size=64), init_weights="fsnet")

@@ -110,6 +110,11 @@ def _parser() -> argparse.ArgumentParser:
     render.add_argument("--seed", type=int, default=0, help="dataset seed: each image gets its own seed from it")
     render.add_argument("--size", default="640x480", help="image size WxH in pixels")
     render.add_argument("--force", action="store_true", help="write into a folder that is not empty")
+    render.add_argument(
+        "--config",
+        help="a JSON file of RenderConfig settings, e.g. {\"stairs\": 1.5, \"fronto_prob\": 0.3, \"pitch\": [-45, 55]} "
+        "(the hard cases and every range of ngp_kornia.data.synth.RenderConfig)",
+    )
     for command in sub.choices.values():  # defaults in every --help
         command.formatter_class = _HelpFormatter
     return p
@@ -354,6 +359,11 @@ def _render(args: argparse.Namespace) -> int:
     if args.count < 1:
         print("ngp: error: --count must be at least 1", file=sys.stderr)
         return 2
+    try:
+        config = _render_config(args.config)
+    except ValueError as err:
+        print(f"ngp: error: --config {args.config}: {err}", file=sys.stderr)
+        return 2
     outdir = Path(args.outdir)
     if outdir.exists() and not outdir.is_dir():
         raise OutputError(f"{outdir} is a file; give a folder to render into")
@@ -365,9 +375,33 @@ def _render(args: argparse.Namespace) -> int:
     with tqdm(
         total=args.count, unit="scene", delay=_PROGRESS_DELAY, disable=not sys.stderr.isatty(), desc="rendering"
     ) as bar:
-        render_dataset(args.outdir, args.count, args.seed, (width, height), progress=bar.update)
+        render_dataset(args.outdir, args.count, args.seed, (width, height), config, progress=bar.update)
     print(f"wrote {args.count} images and ground_truth.json to {args.outdir}")
     return 0
+
+
+def _render_config(path: str | None):
+    """The RenderConfig of a JSON settings file (None: the defaults); ValueError naming what is wrong."""
+    from dataclasses import fields
+
+    from ngp_kornia.data.synth.render import RenderConfig
+
+    if path is None:
+        return None
+    try:
+        settings = json.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise ValueError(f"not a readable JSON file ({err})") from None
+    if not isinstance(settings, dict):
+        raise ValueError("give a JSON object of settings, e.g. {\"stairs\": 1.5}")
+    known = [f.name for f in fields(RenderConfig)]
+    unknown = sorted(set(settings) - set(known))
+    if unknown:
+        raise ValueError(f"unknown settings {unknown}; RenderConfig has {', '.join(known)}")
+    try:
+        return RenderConfig(**settings)
+    except (TypeError, ValueError) as err:
+        raise ValueError(str(err)) from None
 
 
 def _check_weights(parser: argparse.ArgumentParser, command: str, weights: str) -> None:

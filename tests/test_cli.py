@@ -92,6 +92,33 @@ def test_render_writes_images_and_ground_truth(tmp_path, capsys):
         assert key in records[0]
 
 
+def test_render_config_file_renders_what_render_scene_gives_with_it(tmp_path, capsys):
+    from ngp_kornia.data.synth.render import RenderConfig, render_scene
+
+    settings = {"stairs": 2.0, "fronto_prob": 1.0, "pitch": [30, 40], "kinds": {"street": 1.0}}
+    (tmp_path / "hard.json").write_text(json.dumps(settings))
+    args = ["render", str(tmp_path / "r"), "--count", "1", "--size", "160x120", "--config", str(tmp_path / "hard.json")]
+    assert main(args) == 0
+    record = json.loads((tmp_path / "r" / "ground_truth.json").read_text())[0]
+    assert 30.0 <= record["pitch"] <= 40.0
+    expected = render_scene(record["seed"], (160, 120), RenderConfig(**settings)).image
+    written = cv2.cvtColor(cv2.imread(str(tmp_path / "r" / record["image"])), cv2.COLOR_BGR2RGB)
+    assert np.array_equal(written, expected)
+
+
+@pytest.mark.parametrize(
+    "text, message",
+    [("{\"stair\": 1}", "unknown settings ['stair']"), ("[1, 2]", "JSON object"), ("{", "not a readable JSON file"),
+     ("{\"pitch\": [50, 10]}", "pitch must be a (min, max) range")],
+)
+def test_render_bad_config_is_a_usage_error(tmp_path, capsys, text, message):
+    (tmp_path / "c.json").write_text(text)
+    assert main(["render", str(tmp_path / "r"), "--config", str(tmp_path / "c.json")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("ngp: error: --config ") and message in err and err.count("\n") == 1
+    assert not (tmp_path / "r").exists()
+
+
 def test_render_rejects_a_bad_size(tmp_path, capsys):
     assert main(["render", str(tmp_path), "--size", "big"]) == 2
     assert "640x480" in capsys.readouterr().err

@@ -77,6 +77,17 @@ def _parser() -> argparse.ArgumentParser:
     pred.add_argument("--batch-size", type=int, default=1, help="images per loader batch")
     pred.add_argument("--seed", type=int, default=0, help="seed of the candidate sampling")
     _add_prior_arguments(pred)
+    _add_rectify(sub)
+    demo = sub.add_parser("demo", help="calibrate a built-in rendered example and print the estimate and the truth")
+    demo.add_argument("--overlay", help="write the overlay PNG here")
+    demo.add_argument("--seed", type=int, default=2, help="which built-in scene to render")
+    _add_render(sub)
+    for command in sub.choices.values():  # defaults in every --help
+        command.formatter_class = _HelpFormatter
+    return p
+
+
+def _add_rectify(sub) -> None:
     rect = sub.add_parser("rectify", help="calibrate a photo and write it rectified (level, upright or frontal)")
     rect.add_argument("image", help="image file")
     rect.add_argument(
@@ -96,9 +107,9 @@ def _parser() -> argparse.ArgumentParser:
     rect.add_argument("--weights", default="default", help=WEIGHTS_HELP)
     rect.add_argument("--seed", type=int, default=0, help="seed of the candidate sampling")
     rect.add_argument("--force", action="store_true", help=FORCE_HELP)
-    demo = sub.add_parser("demo", help="calibrate a built-in rendered example and print the estimate and the truth")
-    demo.add_argument("--overlay", help="write the overlay PNG here")
-    demo.add_argument("--seed", type=int, default=2, help="which built-in scene to render")
+
+
+def _add_render(sub) -> None:
     render = sub.add_parser(
         "render",
         help="render synthetic scenes with exact ground truth",
@@ -112,12 +123,9 @@ def _parser() -> argparse.ArgumentParser:
     render.add_argument("--force", action="store_true", help="write into a folder that is not empty")
     render.add_argument(
         "--config",
-        help="a JSON file of RenderConfig settings, e.g. {\"stairs\": 1.5, \"fronto_prob\": 0.3, \"pitch\": [-45, 55]} "
-        "(the hard cases and every range of ngp_kornia.data.synth.RenderConfig)",
+        help='a JSON file of RenderConfig settings, e.g. {"stairs": 1.5, "fronto_prob": 0.3, "pitch": [-45, 55]} '
+        "(the hard cases and every range of ngp_kornia.data.synth.render.RenderConfig)",
     )
-    for command in sub.choices.values():  # defaults in every --help
-        command.formatter_class = _HelpFormatter
-    return p
 
 
 def _add_prior_arguments(command: argparse.ArgumentParser) -> None:
@@ -393,7 +401,7 @@ def _render_config(path: str | None):
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
         raise ValueError(f"not a readable JSON file ({err})") from None
     if not isinstance(settings, dict):
-        raise ValueError("give a JSON object of settings, e.g. {\"stairs\": 1.5}")
+        raise ValueError('give a JSON object of settings, e.g. {"stairs": 1.5}')
     known = [f.name for f in fields(RenderConfig)]
     unknown = sorted(set(settings) - set(known))
     if unknown:

@@ -161,7 +161,7 @@ class JsonlWriter(BasePredictionWriter):
     never sees a row, and on an interruption it merges the part files the processes left.
 
     Attributes:
-        images: rows written by this process; after the run, in the processes that predicted, the total over all.
+        images: rows written; in the calling process of a multi-process run, after it, the rows of the merged file.
         errors: error rows, counted the same way.
         interrupted: the run was stopped (KeyboardInterrupt or an exception) before every image was done.
     """
@@ -209,11 +209,9 @@ class JsonlWriter(BasePredictionWriter):
         if not self.multi:
             self.temporary.replace(self.out)
             return
-        counts = torch.tensor([self.images, self.errors])
-        self.images, self.errors = (int(v) for v in trainer.strategy.reduce(counts, reduce_op="sum"))
         trainer.strategy.barrier("ngp_predict_parts_written")
         if trainer.is_global_zero:
-            self.images = self.finish()
+            self.finish()  # the calling process counts the merged rows
 
     def on_exception(self, trainer: L.Trainer, pl_module: L.LightningModule, exception: BaseException) -> None:
         """Interrupted: the main process keeps the rows finished so far, in folder order, as ``out``."""

@@ -74,3 +74,19 @@ def test_predict_and_training_name_the_extra_to_install(tmp_path):
     assert len(lines) == 2 and all("pip install 'ngp-kornia[train]'" in line for line in lines), out.stdout
     err = out.stderr.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("ngp: error: ") and "ngp-kornia[train]" in err[0]
+
+
+def test_loading_the_shipped_networks_stays_light(tmp_path):
+    # the shapes of a weights file are checked on the meta device; drawing random weights there imports
+    # torch._dynamo, which added 1-2 s to every process that loads a network
+    out = _run(
+        """
+        from ngp_kornia.api import load_parser
+        parser = load_parser("full")
+        assert parser.zsnet is not None and parser.fsnet is not None
+        print("torch._dynamo" in sys.modules)
+        """,
+        tmp_path,
+    )
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["False"]

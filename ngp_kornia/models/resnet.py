@@ -137,6 +137,8 @@ class ResNet(nn.Module):
         self._init_weights()
 
     def _init_weights(self) -> None:
+        if self.stem[0].weight.is_meta:  # shapes only: drawing on the meta device imports torch._dynamo (1-2 s)
+            return
         for m in self.modules():
             if isinstance(m, nn.Conv2d):
                 nn.init.kaiming_normal_(m.weight, mode="fan_out", nonlinearity="relu")

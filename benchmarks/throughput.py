@@ -12,10 +12,13 @@ to see past start-up costs) are calibrated
 * by ``calibrate(path)`` in a loop, split over N fresh Python processes (each takes every N-th file); the time is
   the wall time from starting the processes to the last one's end, and each process also reports its own loop
   time (without importing and loading), and
-* by ``ngp predict FOLDER --devices N`` (Lightning DDP on the CPU), wall time of the whole command.
+* by ``ngp predict FOLDER --devices N`` (Lightning DDP on the CPU), wall time of the whole command, once on the
+  whole folder and once on a folder of one copy of each image.
 
 Images per second = files / wall time. Start-up (importing torch, loading weights, starting DDP) is included in the
-wall times; the loop-only figure of the calibrate() runs shows what a long-running process reaches.
+wall times; the loop-only figure of the calibrate() runs shows what a long-running process reaches, and for
+``ngp predict`` the rate after start-up is the difference of the two runs: (files - files of one copy) / (wall time
+- wall time of one copy), which leaves out every fixed cost (importing Lightning alone takes seconds).
 """
 
 from __future__ import annotations
@@ -60,7 +63,7 @@ def calibrate_processes(files: list[str], processes: int, weights: str) -> dict:
 
 def predict_processes(folder: Path, count: int, processes: int, weights: str) -> dict:
     ngp = Path(sys.executable).with_name("ngp")
-    cmd = [str(ngp), "predict", str(folder), "--out", str(folder.parent / f"out{processes}.jsonl")]
+    cmd = [str(ngp), "predict", str(folder), "--out", str(folder.parent / f"out_{folder.name}_{processes}.jsonl")]
     cmd += ["--devices", str(processes), "--weights", weights]
     start = time.perf_counter()
     run = subprocess.run(cmd, capture_output=True, text=True)
@@ -68,6 +71,26 @@ def predict_processes(folder: Path, count: int, processes: int, weights: str) ->
     if run.returncode != 0:
         raise RuntimeError(f"{' '.join(cmd)} failed: {run.stderr[-2000:]}")
     return {"wall_s": wall, "images_per_s": count / wall}
+
+
+def predict_rows(folder: Path, files: list[str], per_copy: int, args) -> list[str]:
+    """``ngp predict`` on the whole folder and on one copy of each image, for every process count."""
+    small = folder.parent / "one_copy"
+    small.mkdir(exist_ok=True)
+    for f in files[:per_copy]:
+        (small / Path(f).name).symlink_to(Path(f).resolve())
+    rows = []
+    for n in args.processes:
+        whole = predict_processes(folder, len(files), n, args.weights)
+        first = predict_processes(small, per_copy, n, args.weights)
+        extra = len(files) - per_copy
+        after = extra / (whole["wall_s"] - first["wall_s"]) if extra else float("nan")
+        rows.append(
+            f"| ngp predict --devices {n} | {n} | {len(files)} | {whole['wall_s']:.1f} | "
+            f"{whole['images_per_s']:.2f} | {after:.2f} |"
+        )
+        print(rows[-1], f"(one copy: {per_copy} images, {first['wall_s']:.1f} s)", flush=True)
+    return rows
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -87,7 +110,7 @@ def main(argv: list[str] | None = None) -> int:
         f"{len(images)} images x {args.copies}, weights {args.weights}, OMP_NUM_THREADS="
         f"{os.environ.get('OMP_NUM_THREADS')}"
     )
-    rows = ["| what | processes | images | wall s | images / s | images / s, loop only |"]
+    rows = ["| what | processes | images | wall s | images / s | images / s, loop only or after start-up |"]
     rows.append("|---|---:|---:|---:|---:|---:|")
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp) / "images"
@@ -106,11 +129,7 @@ def main(argv: list[str] | None = None) -> int:
             )
             print(rows[-1], flush=True)
         if not args.no_predict:
-            for n in args.processes:
-                r = predict_processes(folder, len(files), n, args.weights)
-                rows.append(f"| ngp predict --devices {n} | {n} | {len(files)} | {r['wall_s']:.1f} | "
-                            f"{r['images_per_s']:.2f} | - |")
-                print(rows[-1], flush=True)
+            rows += predict_rows(folder, files, len(images), args)
     print(f"load after {os.getloadavg()[0]:.2f}")
     print("\n".join(rows))
     return 0

@@ -6,8 +6,9 @@ Atlanta-world plaza seen by a random pinhole camera, and returns it with the cam
 rotation, pitch / roll / yaw, field of view, zenith, horizon, Manhattan vanishing points), computed with the
 functions of :mod:`ngp_kornia.geometry.camera` so it follows the project's conventions exactly:
 
-* the principal point is the image centre ``((W - 1) / 2, (H - 1) / 2)``, pixels have their origin at the centre of
-  the top-left pixel, square pixels, no distortion;
+* the principal point is the image centre ``((W - 1) / 2, (H - 1) / 2)`` unless
+  :attr:`RenderConfig.principal_point_std` moves it (the label's ``K`` is always the true one), pixels have their
+  origin at the centre of the top-left pixel, square pixels, no distortion;
 * ``R = rotation_from_angles(pitch, roll, yaw)`` maps world to camera; the camera stands at the world origin and
   the ground is the plane ``y = camera_height`` (world y points down);
 * ``vps[i] = K @ R[:, i]`` normalised: the vanishing points of the world axes, row 1 the vertical. Streets and
@@ -50,6 +51,7 @@ from ngp_kornia.geometry.camera import (
 
 __all__ = [
     "HARD_DEFAULTS",
+    "IMPERFECTION_DEFAULTS",
     "KINDS",
     "RenderConfig",
     "RenderedScene",
@@ -101,9 +103,14 @@ class RenderConfig:
         fronto_prob: hard case, probability that an outdoor camera faces a facade square on (no finite horizontal
             vanishing point): its yaw is moved to the nearest facade normal, plus ``fronto_jitter``.
         fronto_jitter: standard deviation of the yaw around the facade normal.
+        principal_point_std: camera imperfection, standard deviation of the principal point's offset from the image
+            centre along each axis, as a fraction of the image height (Gaussian, clipped at 3 standard deviations).
+            Real cameras rarely have it exactly at the centre; the label's ``K`` carries the true one, so the
+            horizon is measured against it while pitch and roll (from ``R``) do not depend on it.
 
-    The hard cases are off by default and drawn from a random stream of their own, after the scene: with all of them
-    off a render is the same, bit for bit, as before they existed (:data:`HARD_DEFAULTS`).
+    The hard cases and the camera imperfections are off by default and drawn from random streams of their own, after
+    the scene: with all of them off a render is the same, bit for bit, as before they existed (:data:`HARD_DEFAULTS`,
+    :data:`IMPERFECTION_DEFAULTS`).
     """
 
     fov_v: tuple[float, float] = (40.0, 80.0)
@@ -133,6 +140,7 @@ class RenderConfig:
     billboards: float = 0.0
     fronto_prob: float = 0.0
     fronto_jitter: float = 3.0
+    principal_point_std: float = 0.0
 
     def __post_init__(self) -> None:
         _check_range("fov_v", self.fov_v, 1.0, 179.0)
@@ -153,6 +161,9 @@ class RenderConfig:
             raise ValueError("clutter and color_balance must be non-negative")
         if self.stairs < 0 or self.billboards < 0 or self.fronto_jitter < 0:
             raise ValueError("stairs, billboards and fronto_jitter must be non-negative")
+        if not (isinstance(self.principal_point_std, int | float) and 0.0 <= self.principal_point_std <= 0.25):
+            raise ValueError(f"principal_point_std must be a fraction of the image height in [0, 0.25], "
+                             f"got {self.principal_point_std!r}")
         if not 0.0 <= self.fronto_prob <= 1.0:
             raise ValueError(f"fronto_prob must be a probability, got {self.fronto_prob}")
         unknown = set(self.kinds) - set(KINDS)
@@ -168,7 +179,7 @@ class RenderedScene:
 
     Attributes:
         image: (H, W, 3) uint8 RGB.
-        K: (3, 3) intrinsics, principal point at the image centre.
+        K: (3, 3) the true intrinsics (principal point at the image centre unless the config moves it).
         R: (3, 3) world-to-camera rotation.
         focal: focal length.
         fov_v: vertical field of view.
@@ -225,6 +236,9 @@ class RenderedScene:
 HARD_DEFAULTS = {"stairs": 0.0, "billboards": 0.0, "fronto_prob": 0.0, "fronto_jitter": 3.0}
 """The hard-case options of :class:`RenderConfig` and their defaults (off)."""
 
+IMPERFECTION_DEFAULTS = {"principal_point_std": 0.0}
+"""The camera-imperfection options of :class:`RenderConfig` and their defaults (off: an ideal pinhole)."""
+
 
 def config_spec(config: RenderConfig) -> dict:
     """The settings of a config that change its renders, as a plain dict: every field, less the hard-case options
@@ -237,10 +251,12 @@ def config_spec(config: RenderConfig) -> dict:
     spec = asdict(config)
     if config.fronto_prob == 0.0:
         spec.pop("fronto_jitter")  # has no effect then
-    return {k: v for k, v in spec.items() if not (k in HARD_DEFAULTS and v == HARD_DEFAULTS[k])}
+    defaults = {**HARD_DEFAULTS, **IMPERFECTION_DEFAULTS}
+    return {k: v for k, v in spec.items() if not (k in defaults and v == defaults[k])}
 
 
-def camera_ground_truth(fov_v: float, pitch: float, roll: float, yaw: float, size: tuple[int, int]) -> dict:
+def camera_ground_truth(fov_v: float, pitch: float, roll: float, yaw: float, size: tuple[int, int],
+                        offset: tuple[float, float] = (0.0, 0.0)) -> dict:
     """The calibration ground truth of a camera, with the project's geometry functions.
 
     Args:
@@ -249,6 +265,7 @@ def camera_ground_truth(fov_v: float, pitch: float, roll: float, yaw: float, siz
         roll: roll (degrees).
         yaw: yaw (degrees).
         size: image ``(W, H)``.
+        offset: the principal point's offset ``(dx, dy)`` from the image centre, pixels.
 
     Returns:
         A dict of float64 tensors: ``K, R, focal, fov_v, fov_h, pitch, roll, yaw, zenith, horizon, vps``.
@@ -262,7 +279,10 @@ def camera_ground_truth(fov_v: float, pitch: float, roll: float, yaw: float, siz
     t = {k: torch.tensor([float(v)], dtype=torch.float64) for k, v in
          dict(fov_v=fov_v, pitch=pitch, roll=roll, yaw=yaw).items()}
     focal = focal_from_fov(t["fov_v"], H)
-    K = intrinsics_matrix(focal, image_center(H, W, like=focal))
+    center = image_center(H, W, like=focal)
+    if offset[0] != 0.0 or offset[1] != 0.0:
+        center = center + torch.tensor([float(offset[0]), float(offset[1])], dtype=center.dtype)
+    K = intrinsics_matrix(focal, center)
     R = rotation_from_angles(t["pitch"], t["roll"], t["yaw"])
     zenith = zenith_from_up(K, up_from_rotation(R))
     return {
@@ -302,9 +322,10 @@ def render_scene(seed: int, size: tuple[int, int] = (640, 480), config: RenderCo
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
     W, H = _check_size(size)
     cfg = RenderConfig() if config is None else config
-    # the hard cases draw from a fourth stream: the first three are those of spawn(3), as before they existed
-    cam_rng, scene_rng, photo_rng, hard_rng = (
-        np.random.default_rng(s) for s in np.random.SeedSequence(int(seed)).spawn(4))
+    # the hard cases draw from a fourth stream, the camera imperfections from a fifth: the first three are those of
+    # spawn(3), as before they existed (a SeedSequence's i-th child does not depend on how many are spawned)
+    cam_rng, scene_rng, photo_rng, hard_rng, lens_rng = (
+        np.random.default_rng(s) for s in np.random.SeedSequence(int(seed)).spawn(5))
     names = [k for k in KINDS if cfg.kinds.get(k, 0.0) > 0]
     p = np.array([cfg.kinds[k] for k in names])
     kind = names[int(cam_rng.choice(len(names), p=p / p.sum()))]
@@ -312,7 +333,10 @@ def render_scene(seed: int, size: tuple[int, int] = (640, 480), config: RenderCo
     cam_h = _uniform(cam_rng, cfg.indoor_camera_height if kind == "indoor" else cfg.camera_height)
     if kind != "indoor" and cfg.fronto_prob > 0 and hard_rng.random() < cfg.fronto_prob:
         yaw = _fronto_yaw(hard_rng, kind, yaw, cfg.fronto_jitter)
-    gt = camera_ground_truth(fov_v, pitch, roll, yaw, (W, H))
+    offset = (0.0, 0.0)
+    if cfg.principal_point_std > 0:
+        offset = tuple(float(v) for v in np.clip(lens_rng.normal(0.0, 1.0, 2), -3, 3) * cfg.principal_point_std * H)
+    gt = camera_ground_truth(fov_v, pitch, roll, yaw, (W, H), offset)
 
     view = PinholeView(gt["K"].numpy(), gt["R"].numpy(), np.zeros(3), W, H)
     add = Additions(hard_rng, cfg.stairs, cfg.billboards) if cfg.stairs > 0 or cfg.billboards > 0 else None

@@ -22,7 +22,8 @@ The confidence is a logistic regression (L2 penalty 1e-2 on standardised inputs,
 share a normal distribution puts there). Fit on renders only, never on the real photos used to check it.
 
 Step 3: with the principal point off the centre by ``principal_point_std`` image heights per axis (the renders'
-``RenderConfig.principal_point_std``), each standard deviation becomes ``hypot(line term, k * t)`` with ``t`` from
+``RenderConfig.principal_point_std``; the records carry the answer's focal length and pitch), each standard
+deviation becomes ``hypot(line term, k * t)`` with ``t`` from
 :func:`ngp_kornia.models.confidence.principal_point_terms`; ``k`` per parameter is the smallest gain (by bisection)
 that puts 68.3% of the errors within one standard deviation, 0 where the line term alone already does.
 """
@@ -106,6 +107,42 @@ def load_samples(dataset: str, path: Path) -> list[Sample]:
 # collecting
 
 
+def _record(s: Sample, cal, feats: dict) -> dict:
+    """One record: the trust features, the answer's trust outputs, focal length and pitch, and its errors."""
+    h_err = float(horizon_error(cal.horizon[None].double(), s.horizon[None], s.height, s.width)[0])
+    rec = {
+        "name": s.name,
+        "kind": s.kind,
+        "features": feats,
+        "valid": bool(cal.valid),
+        "score": float(cal.score),
+        "confidence": float(cal.confidence),
+        "pitch_std": float(cal.pitch_std),
+        "roll_std": float(cal.roll_std),
+        "fov_v_std": float(cal.fov_v_std),
+        "horizon": h_err,
+        "focal": float(cal.focal),
+        "pitch_answer": float(cal.pitch),
+        "height": s.height,
+    }
+    if s.name in CALIBRATED_HORIZON:
+        truth = CALIBRATED_HORIZON[s.name][None]
+        calibrated = horizon_error(cal.horizon[None].double(), truth, s.height, s.width)
+        rec["horizon_calibrated"] = float(calibrated[0])
+    if math.isfinite(s.pitch):
+        p = torch.tensor([float(cal.pitch)], dtype=torch.float64)
+        r = torch.tensor([float(cal.roll)], dtype=torch.float64)
+        rec["pitch_signed"] = float(cal.pitch) - s.pitch
+        rec["roll_signed"] = float(cal.roll) - s.roll
+        rec["pitch"] = float(pitch_error(p, torch.tensor([s.pitch], dtype=torch.float64))[0])
+        rec["roll"] = float(roll_error(r, torch.tensor([s.roll], dtype=torch.float64))[0])
+        rec["up"] = float(up_vector_error(cal.up[None].double(), s.up[None])[0])
+    if math.isfinite(s.fov_v):
+        fov = torch.tensor([float(cal.fov_v)], dtype=torch.float64)
+        rec["fov_v"] = float(fov_error(fov, torch.tensor([s.fov_v], dtype=torch.float64))[0])
+    return rec
+
+
 def collect(samples: list[Sample], spec: str | None, seed: int, prior: str) -> list[dict]:
     """Run calibrate() on every sample; one record per image: features, answer, trust outputs, errors."""
     weights, config = weights_and_config(spec)
@@ -130,37 +167,7 @@ def collect(samples: list[Sample], spec: str | None, seed: int, prior: str) -> l
                 cfg = replace(config, exif=True)
             cal = calibrate(str(s.image_path), weights=weights, seed=seed, config=cfg)
             feats = {k: float(v[0]) for k, v in captured.pop().as_dict().items()}
-            h_err = float(horizon_error(cal.horizon[None].double(), s.horizon[None], s.height, s.width)[0])
-            rec = {
-                "name": s.name,
-                "kind": s.kind,
-                "features": feats,
-                "valid": bool(cal.valid),
-                "score": float(cal.score),
-                "confidence": float(cal.confidence),
-                "pitch_std": float(cal.pitch_std),
-                "roll_std": float(cal.roll_std),
-                "fov_v_std": float(cal.fov_v_std),
-                "horizon": h_err,
-                "focal": float(cal.focal),
-                "height": s.height,
-            }
-            if s.name in CALIBRATED_HORIZON:
-                truth = CALIBRATED_HORIZON[s.name][None]
-                calibrated = horizon_error(cal.horizon[None].double(), truth, s.height, s.width)
-                rec["horizon_calibrated"] = float(calibrated[0])
-            if math.isfinite(s.pitch):
-                p = torch.tensor([float(cal.pitch)], dtype=torch.float64)
-                r = torch.tensor([float(cal.roll)], dtype=torch.float64)
-                rec["pitch_signed"] = float(cal.pitch) - s.pitch
-                rec["roll_signed"] = float(cal.roll) - s.roll
-                rec["pitch"] = float(pitch_error(p, torch.tensor([s.pitch], dtype=torch.float64))[0])
-                rec["roll"] = float(roll_error(r, torch.tensor([s.roll], dtype=torch.float64))[0])
-                rec["up"] = float(up_vector_error(cal.up[None].double(), s.up[None])[0])
-            if math.isfinite(s.fov_v):
-                fov = torch.tensor([float(cal.fov_v)], dtype=torch.float64)
-                rec["fov_v"] = float(fov_error(fov, torch.tensor([s.fov_v], dtype=torch.float64))[0])
-            records.append(rec)
+            records.append(_record(s, cal, feats))
             print(f"\r{i + 1}/{len(samples)} {s.name}", end="", file=sys.stderr, flush=True)
     finally:
         parser_module.attach_trust = attach
@@ -261,11 +268,11 @@ def fit_principal_point(records: list[dict], model: TrustModel, principal_point_
         **{k: torch.tensor([r["features"][k] for r in records], dtype=torch.float64) for k in records[0]["features"]}
     )
     line = model.stds(feats, model.confidence(feats))
-    focal = torch.tensor([r["focal"] for r in records], dtype=torch.float64)
+    focal, pitch = (torch.tensor([r[k] for r in records], dtype=torch.float64) for k in ("focal", "pitch_answer"))
     heights = {r["height"] for r in records}
     if len(heights) != 1:
         raise SystemExit(f"records of one image height please, got {sorted(heights)}")
-    terms = principal_point_terms(principal_point_std, focal, heights.pop())
+    terms = principal_point_terms(principal_point_std, focal, heights.pop(), pitch)
     gains = {}
     for name in STD_SPREADS:
         errors = np.array([r.get(f"{name}_signed", r.get(name, math.nan)) for r in records], dtype=np.float64)

@@ -51,10 +51,10 @@ def trust_of(records: list[dict], model: TrustModel, principal_point_std: float 
     conf = model.confidence(feats)
     floor = None
     if principal_point_std > 0:
-        if any("focal" not in r for r in records):
-            raise SystemExit("records without the answer's focal length: collect them again")
-        focal = torch.tensor([r["focal"] for r in records], dtype=torch.float64)
-        floor = principal_point_terms(principal_point_std, focal, records[0]["height"])
+        if any("pitch_answer" not in r for r in records):
+            raise SystemExit("records without the answer's focal length and pitch: collect them again")
+        focal, pitch = (torch.tensor([r[k] for r in records], dtype=torch.float64) for k in ("focal", "pitch_answer"))
+        floor = principal_point_terms(principal_point_std, focal, records[0]["height"], pitch)
     stds = model.stds(feats, conf, floor)
     valid = torch.tensor([r["valid"] for r in records])
     out = {"confidence": torch.where(valid, conf, torch.zeros_like(conf)).numpy()}

@@ -10,7 +10,7 @@ frame. :func:`trust_features` gathers these per image; :class:`TrustModel` maps 
   ``exp(a + b * log(spread) + c * logit(confidence))`` with ``spread`` the score-weighted spread of that parameter
   over the top-k frames, combined in quadrature with the error an uncertain principal point puts under every
   answer (:func:`principal_point_terms`): the parser assumes it at the image centre, and a principal point ``d``
-  pixels off tilts every viewing ray by about ``d / f``.
+  pixels off turns the viewing rays by about ``d / f``.
 
 The coefficients are fitted on rendered scenes only (``benchmarks/fit_confidence.py`` writes
 ``ngp_kornia/weights/trust.json``), for the shipped default weight set; other weight sets get the same model.
@@ -299,27 +299,42 @@ class TrustModel:
         return out
 
 
-def principal_point_terms(principal_point_std: float, focal: Tensor, height: int) -> dict[str, Tensor] | None:
+def principal_point_terms(
+    principal_point_std: float, focal: Tensor, height: int, pitch: Tensor
+) -> dict[str, Tensor] | None:
     """The errors (degrees, (B,)) a principal point ``principal_point_std * height`` pixels off the centre along
     each axis puts under the answer, before the model's per-parameter gains; None when the option is 0.
 
-    A principal point ``d = (dx, dy)`` pixels off the assumed centre turns every viewing ray by about ``d / f``
-    radians: ``dy`` tilts the camera (pitch, ``sigma / f``), ``dx`` turns it about its own vertical axis, which moves
-    the roll only as the camera is pitched (the same scale, a gain well below 1). The focal length of two or three
-    vanishing points moves by a multiple of ``d`` (``f^2 = -(v_1 - c) . (v_2 - c)``), and the vertical field of
-    view with it: ``d fov_v / d f = -H / (f^2 + H^2 / 4)``. The gains are fitted on renders with off-centre principal
-    points (``benchmarks/fit_confidence.py``).
+    A principal point ``d = (dx, dy)`` pixels off the assumed centre turns the viewing rays by about ``d / f``
+    radians. ``dy`` tilts the camera: pitch ``sigma / f``. ``dx`` turns it about its own vertical axis, which moves
+    the up vector sideways in proportion to its forward component: roll ``sigma / f * |tan(pitch)|`` (nothing for a
+    level camera, whose horizon slope a principal point cannot change). The focal length of two or three vanishing
+    points moves by a multiple of ``d`` (``f^2 = -(v_1 - c) . (v_2 - c)``), and the vertical field of view with it:
+    ``d fov_v / d f = -H / (f^2 + H^2 / 4)``. The gains are fitted on renders with off-centre principal points
+    (``benchmarks/fit_confidence.py principal-point``).
+
+    Args:
+        principal_point_std: standard deviation per axis, a fraction of the image height.
+        focal: (B,) the answer's focal length, pixels.
+        height: image height, pixels.
+        pitch: (B,) the answer's pitch, degrees.
 
     Example:
-        >>> principal_point_terms(0.02, torch.tensor([480.0]), 480)["pitch"]  # 9.6 px at f = 480: 1.15 degrees
-        tensor([1.1459])
+        >>> terms = principal_point_terms(0.02, torch.tensor([480.0]), 480, torch.tensor([45.0]))
+        >>> terms["pitch"], terms["roll"]  # 9.6 px at f = 480: 1.15 degrees, times tan(45) for the roll
+        (tensor([1.1459]), tensor([1.1459]))
     """
     if principal_point_std == 0:
         return None
     sigma = principal_point_std * height
     f = focal.clamp_min(1e-6)
     ray = torch.rad2deg(sigma / f)
-    return {"pitch": ray, "roll": ray, "fov_v": torch.rad2deg(sigma * height / (f.square() + height**2 / 4.0))}
+    tilt = torch.tan(torch.deg2rad(pitch.abs().clamp_max(80.0)))
+    return {
+        "pitch": ray,
+        "roll": ray * tilt,
+        "fov_v": torch.rad2deg(sigma * height / (f.square() + height**2 / 4.0)),
+    }
 
 
 @lru_cache(maxsize=1)
@@ -367,7 +382,8 @@ def attach_trust(
         features = trust_features(result, frames, scores.detach(), segments.detach(), mask, top_k, kernel_angle)
         conf = model.confidence(features)
         height = int(result.image_size[0, 0])
-        stds = model.stds(features, conf, principal_point_terms(principal_point_std, result.focal.detach(), height))
+        floor = principal_point_terms(principal_point_std, result.focal.detach(), height, result.pitch.detach())
+        stds = model.stds(features, conf, floor)
     valid = result.valid
     conf = torch.where(valid, conf, torch.zeros_like(conf))
     pitch_std = torch.where(valid, stds["pitch"], torch.full_like(conf, 90.0))

@@ -66,19 +66,22 @@ def test_known_focal_keeps_the_fov_std_at_zero(image):
 
 
 def test_principal_point_terms():
-    assert principal_point_terms(0.0, torch.tensor([500.0]), 480) is None
-    terms = principal_point_terms(0.02, torch.tensor([480.0, 960.0]), 480)
+    level, steep = torch.tensor([0.0]), torch.tensor([45.0])
+    assert principal_point_terms(0.0, torch.tensor([500.0]), 480, level) is None
+    terms = principal_point_terms(0.02, torch.tensor([480.0, 960.0]), 480, torch.tensor([0.0, 45.0]))
     assert terms["pitch"][0].item() == pytest.approx(math.degrees(0.02 * 480 / 480))
     assert terms["pitch"][1].item() == pytest.approx(terms["pitch"][0].item() / 2)  # longer lens, smaller angle
+    # roll: nothing for a level camera, tan(pitch) times the ray's turn otherwise
+    assert terms["roll"][0].item() == 0.0 and terms["roll"][1].item() == pytest.approx(terms["pitch"][1].item())
+    assert principal_point_terms(0.02, torch.tensor([480.0]), 480, -steep)["roll"].item() > 0
     # d fov_v / d f at f = H / 2 (90 degrees): H / (f^2 + H^2 / 4) = 2 / H per pixel
-    fov = principal_point_terms(0.02, torch.tensor([240.0]), 480)["fov_v"]
+    fov = principal_point_terms(0.02, torch.tensor([240.0]), 480, level)["fov_v"]
     assert fov.item() == pytest.approx(math.degrees(0.02 * 480 * 2 / 480))
 
 
 def test_shipped_gains_and_old_files(tmp_path):
     model = TrustModel.load()
     assert all(model.principal_point[k] > 0 for k in ("pitch", "roll", "fov_v"))
-    assert model.principal_point["roll"] < model.principal_point["pitch"]  # roll moves little
     data = json.loads(TRUST_FILE.read_text())
     data.pop("principal_point")
     old = tmp_path / "trust.json"

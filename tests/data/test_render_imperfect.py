@@ -79,3 +79,31 @@ def test_the_image_is_drawn_through_the_true_k():
         K_c[0, 2], K_c[1, 2] = (SIZE[0] - 1) / 2, (SIZE[1] - 1) / 2
         centred = torch.nn.functional.normalize((K_c @ r.R).T, dim=-1).numpy()
         assert _median_vp_error(r.image, r.vps.numpy()) < 0.5 * _median_vp_error(r.image, centred)
+
+
+def test_radial_distortion_off_unchanged_on_bends_and_is_labelled(tmp_path):
+    lens = RenderConfig(radial_distortion=0.05)
+    assert "radial_distortion" not in config_spec(RenderConfig()) and IMPERFECTION_DEFAULTS["radial_distortion"] == 0
+    for seed in range(3):
+        a = render_scene(seed, (160, 120))
+        b = render_scene(seed, (160, 120), RenderConfig(radial_distortion=0.0))
+        assert np.array_equal(a.image, b.image) and a.to_dict() == b.to_dict() and "k1" not in a.to_dict()
+        c = render_scene(seed, (160, 120), lens)
+        assert c.k1 != 0 and abs(c.k1) <= 0.15 and c.to_dict()["k1"] == c.k1
+        assert torch.equal(a.K, c.K) and torch.equal(a.R, c.R)  # the pinhole ground truth is kept
+        assert not np.array_equal(a.image, c.image)
+    render_dataset(tmp_path, 2, seed=1, size=(160, 120), config=lens)
+    assert all(s.K.shape == (3, 3) for s in load_renders(tmp_path))
+    with pytest.raises(ValueError, match="radial_distortion"):
+        RenderConfig(radial_distortion=0.5)
+
+
+def test_distorted_lines_point_at_the_vps_less_well():
+    """The warp does what it says: straight 3D edges stop pointing exactly at the pinhole camera's VPs."""
+    plain = RenderConfig(kinds={"street": 1.0}, photometric=False)
+    bent = RenderConfig(kinds={"street": 1.0}, photometric=False, radial_distortion=0.1)
+    worse = 0
+    for seed in range(4):
+        a, b = render_scene(seed, SIZE, plain), render_scene(seed, SIZE, bent)
+        worse += _median_vp_error(b.image, b.vps.numpy()) > _median_vp_error(a.image, a.vps.numpy())
+    assert worse >= 3

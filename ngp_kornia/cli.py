@@ -124,7 +124,8 @@ def _add_render(sub) -> None:
     render.add_argument(
         "--config",
         help='a JSON file of RenderConfig settings, e.g. {"stairs": 1.5, "fronto_prob": 0.3, "pitch": [-45, 55]} '
-        "(the hard cases and every range of ngp_kornia.data.synth.render.RenderConfig)",
+        "(the hard cases, the camera imperfections principal_point_std and radial_distortion, and every range of "
+        "ngp_kornia.data.synth.render.RenderConfig)",
     )
 
 

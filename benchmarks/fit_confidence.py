@@ -10,12 +10,22 @@ Two steps, so the expensive one runs once per data set and seed::
         (--prior true gives the sample's focal length: York Urban's, a render's, or a manifest's focal_px column)
     # 2. fit the coefficients on the renders' records and write them
     python benchmarks/fit_confidence.py fit fit.json --out ngp_kornia/weights/trust.json
+    # 3. fit the gains of the principal-point term on renders with off-centre principal points (ngp render --config
+    #    with principal_point_std), keeping the confidence and the line / spread terms of step 2
+    python benchmarks/fit_confidence.py principal-point fit_pp.json --principal-point-std 0.02 \
+        --model ngp_kornia/weights/trust.json --out ngp_kornia/weights/trust.json
 
 The confidence is a logistic regression (L2 penalty 1e-2 on standardised inputs, Newton's method) of
 ``horizon error < threshold`` on :func:`ngp_kornia.models.confidence.confidence_inputs`. Each standard deviation is
 ``exp(a + b * log(spread + 0.01) + c * logit(confidence))``: (b, c) and a first ``a`` by least squares on
 ``log |error|``, then ``a`` shifted so that 68.3% of the fitting errors lie within one standard deviation (the
 share a normal distribution puts there). Fit on renders only, never on the real photos used to check it.
+
+Step 3: with the principal point off the centre by ``principal_point_std`` image heights per axis (the renders'
+``RenderConfig.principal_point_std``; the records carry the answer's focal length and pitch), each standard
+deviation becomes ``hypot(line term, k * t)`` with ``t`` from
+:func:`ngp_kornia.models.confidence.principal_point_terms`; ``k`` per parameter is the smallest gain (by bisection)
+that puts 68.3% of the errors within one standard deviation, 0 where the line term alone already does.
 """
 
 from __future__ import annotations
@@ -39,8 +49,11 @@ from ngp_kornia.metrics import fov_error, horizon_error, pitch_error, roll_error
 from ngp_kornia.models.confidence import (
     INPUT_NAMES,
     STD_SPREADS,
+    TRUST_FILE,
     TrustFeatures,
+    TrustModel,
     confidence_inputs,
+    principal_point_terms,
     trust_features,
 )
 
@@ -94,6 +107,42 @@ def load_samples(dataset: str, path: Path) -> list[Sample]:
 # collecting
 
 
+def _record(s: Sample, cal, feats: dict) -> dict:
+    """One record: the trust features, the answer's trust outputs, focal length and pitch, and its errors."""
+    h_err = float(horizon_error(cal.horizon[None].double(), s.horizon[None], s.height, s.width)[0])
+    rec = {
+        "name": s.name,
+        "kind": s.kind,
+        "features": feats,
+        "valid": bool(cal.valid),
+        "score": float(cal.score),
+        "confidence": float(cal.confidence),
+        "pitch_std": float(cal.pitch_std),
+        "roll_std": float(cal.roll_std),
+        "fov_v_std": float(cal.fov_v_std),
+        "horizon": h_err,
+        "focal": float(cal.focal),
+        "pitch_answer": float(cal.pitch),
+        "height": s.height,
+    }
+    if s.name in CALIBRATED_HORIZON:
+        truth = CALIBRATED_HORIZON[s.name][None]
+        calibrated = horizon_error(cal.horizon[None].double(), truth, s.height, s.width)
+        rec["horizon_calibrated"] = float(calibrated[0])
+    if math.isfinite(s.pitch):
+        p = torch.tensor([float(cal.pitch)], dtype=torch.float64)
+        r = torch.tensor([float(cal.roll)], dtype=torch.float64)
+        rec["pitch_signed"] = float(cal.pitch) - s.pitch
+        rec["roll_signed"] = float(cal.roll) - s.roll
+        rec["pitch"] = float(pitch_error(p, torch.tensor([s.pitch], dtype=torch.float64))[0])
+        rec["roll"] = float(roll_error(r, torch.tensor([s.roll], dtype=torch.float64))[0])
+        rec["up"] = float(up_vector_error(cal.up[None].double(), s.up[None])[0])
+    if math.isfinite(s.fov_v):
+        fov = torch.tensor([float(cal.fov_v)], dtype=torch.float64)
+        rec["fov_v"] = float(fov_error(fov, torch.tensor([s.fov_v], dtype=torch.float64))[0])
+    return rec
+
+
 def collect(samples: list[Sample], spec: str | None, seed: int, prior: str) -> list[dict]:
     """Run calibrate() on every sample; one record per image: features, answer, trust outputs, errors."""
     weights, config = weights_and_config(spec)
@@ -118,35 +167,7 @@ def collect(samples: list[Sample], spec: str | None, seed: int, prior: str) -> l
                 cfg = replace(config, exif=True)
             cal = calibrate(str(s.image_path), weights=weights, seed=seed, config=cfg)
             feats = {k: float(v[0]) for k, v in captured.pop().as_dict().items()}
-            h_err = float(horizon_error(cal.horizon[None].double(), s.horizon[None], s.height, s.width)[0])
-            rec = {
-                "name": s.name,
-                "kind": s.kind,
-                "features": feats,
-                "valid": bool(cal.valid),
-                "score": float(cal.score),
-                "confidence": float(cal.confidence),
-                "pitch_std": float(cal.pitch_std),
-                "roll_std": float(cal.roll_std),
-                "fov_v_std": float(cal.fov_v_std),
-                "horizon": h_err,
-            }
-            if s.name in CALIBRATED_HORIZON:
-                truth = CALIBRATED_HORIZON[s.name][None]
-                calibrated = horizon_error(cal.horizon[None].double(), truth, s.height, s.width)
-                rec["horizon_calibrated"] = float(calibrated[0])
-            if math.isfinite(s.pitch):
-                p = torch.tensor([float(cal.pitch)], dtype=torch.float64)
-                r = torch.tensor([float(cal.roll)], dtype=torch.float64)
-                rec["pitch_signed"] = float(cal.pitch) - s.pitch
-                rec["roll_signed"] = float(cal.roll) - s.roll
-                rec["pitch"] = float(pitch_error(p, torch.tensor([s.pitch], dtype=torch.float64))[0])
-                rec["roll"] = float(roll_error(r, torch.tensor([s.roll], dtype=torch.float64))[0])
-                rec["up"] = float(up_vector_error(cal.up[None].double(), s.up[None])[0])
-            if math.isfinite(s.fov_v):
-                fov = torch.tensor([float(cal.fov_v)], dtype=torch.float64)
-                rec["fov_v"] = float(fov_error(fov, torch.tensor([s.fov_v], dtype=torch.float64))[0])
-            records.append(rec)
+            records.append(_record(s, cal, feats))
             print(f"\r{i + 1}/{len(samples)} {s.name}", end="", file=sys.stderr, flush=True)
     finally:
         parser_module.attach_trust = attach
@@ -221,6 +242,44 @@ def fit(records: list[dict], threshold: float) -> dict:
     }
 
 
+def fit_gain(line: np.ndarray, term: np.ndarray, error: np.ndarray, share: float = 0.6827) -> float:
+    """The smallest k >= 0 with ``share`` of ``|error|`` within ``hypot(line, k * term)`` (bisection)."""
+    ok = np.isfinite(error)
+    line, term, e = line[ok], term[ok], np.abs(error[ok])
+
+    def covered(k: float) -> float:
+        return float((e <= np.hypot(line, k * term)).mean())
+
+    if covered(0.0) >= share:
+        return 0.0
+    low, high = 0.0, 1.0
+    while covered(high) < share and high < 1e4:
+        high *= 2.0
+    for _ in range(60):
+        mid = (low + high) / 2.0
+        low, high = (low, mid) if covered(mid) >= share else (mid, high)
+    return high
+
+
+def fit_principal_point(records: list[dict], model: TrustModel, principal_point_std: float) -> dict[str, float]:
+    """Per parameter the gain of the principal-point term, on records of renders with off-centre principal
+    points; the model's confidence and line terms stay as they are."""
+    feats = TrustFeatures(
+        **{k: torch.tensor([r["features"][k] for r in records], dtype=torch.float64) for k in records[0]["features"]}
+    )
+    line = model.stds(feats, model.confidence(feats))
+    focal, pitch = (torch.tensor([r[k] for r in records], dtype=torch.float64) for k in ("focal", "pitch_answer"))
+    heights = {r["height"] for r in records}
+    if len(heights) != 1:
+        raise SystemExit(f"records of one image height please, got {sorted(heights)}")
+    terms = principal_point_terms(principal_point_std, focal, heights.pop(), pitch)
+    gains = {}
+    for name in STD_SPREADS:
+        errors = np.array([r.get(f"{name}_signed", r.get(name, math.nan)) for r in records], dtype=np.float64)
+        gains[name] = round(fit_gain(line[name].numpy(), terms[name].numpy(), errors), 4)
+    return gains
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -238,6 +297,11 @@ def main(argv: list[str] | None = None) -> int:
     p_fit.add_argument("records", type=Path, nargs="+")
     p_fit.add_argument("--out", type=Path, required=True)
     p_fit.add_argument("--threshold", type=float, default=THRESHOLD)
+    p_pp = sub.add_parser("principal-point", help="fit the principal-point gains on renders with off-centre ones")
+    p_pp.add_argument("records", type=Path, nargs="+")
+    p_pp.add_argument("--principal-point-std", type=float, required=True, help="the renders' principal_point_std")
+    p_pp.add_argument("--model", type=Path, default=TRUST_FILE, help="coefficients whose other terms are kept")
+    p_pp.add_argument("--out", type=Path, required=True)
     args = parser.parse_args(argv)
 
     if args.command == "collect":
@@ -245,13 +309,20 @@ def main(argv: list[str] | None = None) -> int:
         records = collect(samples, args.weights, args.seed, args.prior)
         args.out.write_text(json.dumps({"command": " ".join(sys.argv), "records": records}, indent=0))
         print(f"wrote {len(records)} records to {args.out}")
+        return 0
+    records = [r for path in args.records for r in json.loads(path.read_text())["records"]]
+    if any(r["kind"] in ("yud", "manifest") for r in records):
+        parser.error("fit on renders only: these records include real photos")
+    if args.command == "principal-point":
+        model = json.loads(args.model.read_text())
+        model["principal_point"] = fit_principal_point(records, TrustModel.load(args.model), args.principal_point_std)
+        model["principal_point_fitted_on"] = (
+            f"{len(records)} rendered images, principal_point_std {args.principal_point_std}"
+        )
     else:
-        records = [r for path in args.records for r in json.loads(path.read_text())["records"]]
-        if any(r["kind"] in ("yud", "manifest") for r in records):
-            parser.error("fit on renders only: these records include real photos")
         model = fit(records, args.threshold)
-        args.out.write_text(json.dumps(model, indent=1) + "\n")
-        print(json.dumps(model, indent=1))
+    args.out.write_text(json.dumps(model, indent=1) + "\n")
+    print(json.dumps(model, indent=1))
     return 0
 
 

@@ -5,7 +5,12 @@ The confidence and the standard deviations are recomputed from each record's fea
 (``--model``, the shipped one by default), so records collected once serve any fit. Usage::
 
     python benchmarks/trust_report.py --renders test_s0.json --real yud_s0.json ecd_s0.json \\
-        [--prior-pairs test_s0.json:testprior_s0.json ...] [--plots docs/]
+        [--prior-pairs test_s0.json:testprior_s0.json ...] [--plots docs/] \\
+        [--principal-point-std 0.02] [--renders-principal-point-std 0]
+
+The principal-point term of the standard deviations uses ``--principal-point-std`` for the real photos (the
+parser's default by default) and ``--renders-principal-point-std`` for the renders (0: centred, as renders are
+unless ``RenderConfig.principal_point_std`` moved them).
 
 * expected calibration error (ECE): 10 equal-width confidence bins, the count-weighted mean of
   |mean confidence - share of errors below the threshold|;
@@ -28,7 +33,8 @@ import numpy as np
 import torch
 
 from ngp_kornia.metrics import horizon_auc
-from ngp_kornia.models.confidence import TRUST_FILE, TrustFeatures, TrustModel
+from ngp_kornia.models import ParserConfig
+from ngp_kornia.models.confidence import TRUST_FILE, TrustFeatures, TrustModel, principal_point_terms
 
 GROSS = 0.1
 
@@ -37,13 +43,19 @@ def load(paths: list[Path]) -> list[dict]:
     return [r for p in paths for r in json.loads(Path(p).read_text())["records"]]
 
 
-def trust_of(records: list[dict], model: TrustModel) -> dict[str, np.ndarray]:
+def trust_of(records: list[dict], model: TrustModel, principal_point_std: float = 0.0) -> dict[str, np.ndarray]:
     """Confidence and standard deviations of the records from their features (answers without a frame: 0)."""
     feats = TrustFeatures(
         **{k: torch.tensor([r["features"][k] for r in records], dtype=torch.float64) for k in records[0]["features"]}
     )
     conf = model.confidence(feats)
-    stds = model.stds(feats, conf)
+    floor = None
+    if principal_point_std > 0:
+        if any("pitch_answer" not in r for r in records):
+            raise SystemExit("records without the answer's focal length and pitch: collect them again")
+        focal, pitch = (torch.tensor([r[k] for r in records], dtype=torch.float64) for k in ("focal", "pitch_answer"))
+        floor = principal_point_terms(principal_point_std, focal, records[0]["height"], pitch)
+    stds = model.stds(feats, conf, floor)
     valid = torch.tensor([r["valid"] for r in records])
     out = {"confidence": torch.where(valid, conf, torch.zeros_like(conf)).numpy()}
     out.update({name: v.numpy() for name, v in stds.items()})
@@ -143,8 +155,8 @@ def centred_yud_records(records: list[dict], root: Path) -> list[dict]:
     ]
 
 
-def section(records: list[dict], model: TrustModel) -> dict:
-    trust = trust_of(records, model)
+def section(records: list[dict], model: TrustModel, principal_point_std: float = 0.0) -> dict:
+    trust = trust_of(records, model, principal_point_std)
     errors = np.array([r["horizon"] for r in records])
     hit = (errors < model.threshold).astype(np.float64)
     score = np.array([r["score"] for r in records])
@@ -253,17 +265,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--model", type=Path, default=TRUST_FILE)
     parser.add_argument("--plots", type=Path, default=None, help="folder for the PNGs")
     parser.add_argument("--out", type=Path, default=None)
+    parser.add_argument("--principal-point-std", type=float, default=ParserConfig().principal_point_std)
+    parser.add_argument("--renders-principal-point-std", type=float, default=0.0)
     args = parser.parse_args(argv)
 
-    model = TrustModel.load(args.model)
-    sections = {"renders": section(load(args.renders), model)}
+    model, pp = TrustModel.load(args.model), args.principal_point_std
+    sections = {"renders": section(load(args.renders), model, args.renders_principal_point_std)}
     if args.real:
-        sections["real photos pooled"] = section(load(args.real), model)
+        sections["real photos pooled"] = section(load(args.real), model, pp)
     if args.yud:
-        sections["York Urban"] = section(load(args.yud), model)
+        sections["York Urban"] = section(load(args.yud), model, pp)
         if args.yud_root is not None:
             sections["York Urban, centred principal point"] = section(
-                centred_yud_records(load(args.yud), args.yud_root), model
+                centred_yud_records(load(args.yud), args.yud_root), model, pp
             )
     report = {name: strip(sec) for name, sec in sections.items()}
     pairs = [tuple(Path(p) for p in pair.split(":")) for pair in args.prior_pairs]

@@ -124,7 +124,8 @@ def _add_render(sub) -> None:
     render.add_argument(
         "--config",
         help='a JSON file of RenderConfig settings, e.g. {"stairs": 1.5, "fronto_prob": 0.3, "pitch": [-45, 55]} '
-        "(the hard cases and every range of ngp_kornia.data.synth.render.RenderConfig)",
+        "(the hard cases, the camera imperfections principal_point_std and radial_distortion, and every range of "
+        "ngp_kornia.data.synth.render.RenderConfig)",
     )
 
 
@@ -134,6 +135,20 @@ def _add_prior_arguments(command: argparse.ArgumentParser) -> None:
     command.add_argument(
         "--exif", action="store_true", help="use the focal length in each file's EXIF, where it has one"
     )
+    command.add_argument(
+        "--principal-point-std",
+        type=float,
+        default=0.02,
+        help="how far the principal point may be off the image centre (a standard deviation per axis, fraction of "
+        "the image height); only widens pitch_std, roll_std, fov_v_std; 0 when it is known to be at the centre",
+    )
+
+
+def _trust_config(args: argparse.Namespace):
+    """The ParserConfig of --principal-point-std (checked in main())."""
+    from ngp_kornia.models import ParserConfig
+
+    return ParserConfig(principal_point_std=args.principal_point_std)
 
 
 def _prior(args: argparse.Namespace, image: str, rgb: np.ndarray) -> dict:
@@ -196,7 +211,7 @@ def _calibrate_loaded(loaded: list, args: argparse.Namespace) -> list:
     from ngp_kornia.api import calibrate
 
     priors = [_prior(args, image, rgb) for image, rgb, _ in loaded]
-    options = {"weights": args.weights, "seed": args.seed}
+    options = {"weights": args.weights, "seed": args.seed, "config": _trust_config(args)}
     if all(p == priors[0] for p in priors[1:]):
         return calibrate([rgb for _, rgb, _ in loaded], **options, **priors[0]) if loaded else []
     return [calibrate(rgb, **options, **p) for (_, rgb, _), p in zip(loaded, priors, strict=True)]
@@ -246,7 +261,8 @@ def _calibrate_or_none(image: str, rgb: np.ndarray, args: argparse.Namespace):
     from ngp_kornia.api import calibrate
 
     try:
-        return calibrate(rgb, weights=args.weights, seed=args.seed, **_prior(args, image, rgb))
+        options = {"weights": args.weights, "seed": args.seed, "config": _trust_config(args)}
+        return calibrate(rgb, **options, **_prior(args, image, rgb))
     except USER_ERRORS as err:
         print(f"ngp: error: {image}: {_one_line(err)}", file=sys.stderr, flush=True)
         return None
@@ -283,7 +299,9 @@ def _predict(args: argparse.Namespace) -> int:
             recursive=args.recursive,
             batch_size=args.batch_size,
             seed=args.seed,
-            config=ParserConfig(focal=args.focal, fov_v=args.fov, exif=args.exif),
+            config=ParserConfig(
+                focal=args.focal, fov_v=args.fov, exif=args.exif, principal_point_std=args.principal_point_std
+            ),
             progress_bar=sys.stdout.isatty(),
         )
     except USER_ERRORS as err:
@@ -429,6 +447,13 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if getattr(args, "weights", None) is not None:
         _check_weights(parser, args.command, args.weights)
+    if getattr(args, "principal_point_std", None) is not None:
+        from ngp_kornia.errors import ConfigError
+
+        try:
+            _trust_config(args)
+        except ConfigError as err:
+            parser.error(f"--principal-point-std: {err}")
     commands = {"calibrate": _calibrate, "predict": _predict, "rectify": _rectify, "demo": _demo, "render": _render}
     try:
         return commands[args.command](args)

@@ -8,7 +8,9 @@ frame. :func:`trust_features` gathers these per image; :class:`TrustModel` maps 
   logistic model of the features;
 * ``pitch_std``, ``roll_std``, ``fov_v_std``: standard deviations in degrees, each
   ``exp(a + b * log(spread) + c * logit(confidence))`` with ``spread`` the score-weighted spread of that parameter
-  over the top-k frames.
+  over the top-k frames, combined in quadrature with the error an uncertain principal point puts under every
+  answer (:func:`principal_point_terms`): the parser assumes it at the image centre, and a principal point ``d``
+  pixels off turns the viewing rays by about ``d / f``.
 
 The coefficients are fitted on rendered scenes only (``benchmarks/fit_confidence.py`` writes
 ``ngp_kornia/weights/trust.json``), for the shipped default weight set; other weight sets get the same model.
@@ -17,7 +19,7 @@ The coefficients are fitted on rendered scenes only (``benchmarks/fit_confidence
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, field, fields, replace
 from functools import lru_cache
 from pathlib import Path
 
@@ -37,7 +39,14 @@ from ngp_kornia.geometry import (
 from ngp_kornia.models.result import Calibration
 from ngp_kornia.sampling import FrameCandidates
 
-__all__ = ["TRUST_FILE", "TrustFeatures", "TrustModel", "attach_trust", "trust_features"]
+__all__ = [
+    "TRUST_FILE",
+    "TrustFeatures",
+    "TrustModel",
+    "attach_trust",
+    "principal_point_terms",
+    "trust_features",
+]
 
 #: the shipped coefficients (written by benchmarks/fit_confidence.py)
 TRUST_FILE = Path(__file__).resolve().parent.parent / "weights" / "trust.json"
@@ -234,6 +243,8 @@ class TrustModel:
         scale: (D,) input standard deviations used to standardise.
         std: per parameter (``pitch``, ``roll``, ``fov_v``) ``(a, b, c)`` of
             ``log(std) = a + b * log(spread + 0.01) + c * logit(confidence)``.
+        principal_point: per parameter the gain ``k`` of the principal-point term of :func:`principal_point_terms`
+            (0 for all when the file has none).
     """
 
     threshold: float
@@ -242,6 +253,7 @@ class TrustModel:
     mean: tuple[float, ...]
     scale: tuple[float, ...]
     std: dict[str, tuple[float, float, float]]
+    principal_point: dict[str, float] = field(default_factory=lambda: dict.fromkeys(STD_SPREADS, 0.0))
 
     @classmethod
     def load(cls, path: str | Path = TRUST_FILE) -> TrustModel:
@@ -256,6 +268,7 @@ class TrustModel:
             mean=tuple(data["mean"]),
             scale=tuple(data["scale"]),
             std={k: tuple(v) for k, v in data["std"].items()},
+            principal_point={k: float(data.get("principal_point", {}).get(k, 0.0)) for k in STD_SPREADS},
         )
 
     def confidence(self, features: TrustFeatures) -> Tensor:
@@ -264,15 +277,64 @@ class TrustModel:
         mean, scale, weights = (torch.tensor(v).to(x) for v in (self.mean, self.scale, self.weights))
         return torch.sigmoid(((x - mean) / scale) @ weights + self.bias)
 
-    def stds(self, features: TrustFeatures, confidence: Tensor) -> dict[str, Tensor]:
-        """Standard deviations (B,) in degrees of ``pitch``, ``roll`` and ``fov_v``."""
+    def stds(
+        self, features: TrustFeatures, confidence: Tensor, floor: dict[str, Tensor] | None = None
+    ) -> dict[str, Tensor]:
+        """Standard deviations (B,) in degrees of ``pitch``, ``roll`` and ``fov_v``.
+
+        Args:
+            features: the trust features.
+            confidence: (B,) the confidence.
+            floor: per parameter (B,) the unscaled principal-point terms of :func:`principal_point_terms`, degrees;
+                each is scaled by :attr:`principal_point` and added in quadrature. None: a known principal point.
+        """
         p = confidence.clamp(1e-4, 1 - 1e-4)
         logit = torch.log(p) - torch.log1p(-p)
         out = {}
         for name, spread in STD_SPREADS.items():
             a, b, c = self.std[name]
             out[name] = torch.exp(a + b * torch.log(getattr(features, spread) + 0.01) + c * logit)
+            if floor is not None:
+                out[name] = torch.hypot(out[name], self.principal_point[name] * floor[name])
         return out
+
+
+def principal_point_terms(
+    principal_point_std: float, focal: Tensor, height: int, pitch: Tensor
+) -> dict[str, Tensor] | None:
+    """The errors (degrees, (B,)) a principal point ``principal_point_std * height`` pixels off the centre along
+    each axis puts under the answer, before the model's per-parameter gains; None when the option is 0.
+
+    A principal point ``d = (dx, dy)`` pixels off the assumed centre turns the viewing rays by about ``d / f``
+    radians. ``dy`` tilts the camera: pitch ``sigma / f``. ``dx`` turns it about its own vertical axis, which moves
+    the up vector sideways in proportion to its forward component: roll ``sigma / f * |tan(pitch)|`` (nothing for a
+    level camera, whose horizon slope a principal point cannot change). The focal length of two or three vanishing
+    points moves by a multiple of ``d`` (``f^2 = -(v_1 - c) . (v_2 - c)``), and the vertical field of view with it:
+    ``d fov_v / d f = -H / (f^2 + H^2 / 4)``. The gains are fitted on renders with off-centre principal points
+    (``benchmarks/fit_confidence.py principal-point``).
+
+    Args:
+        principal_point_std: standard deviation per axis, a fraction of the image height.
+        focal: (B,) the answer's focal length, pixels.
+        height: image height, pixels.
+        pitch: (B,) the answer's pitch, degrees.
+
+    Example:
+        >>> terms = principal_point_terms(0.02, torch.tensor([480.0]), 480, torch.tensor([45.0]))
+        >>> terms["pitch"], terms["roll"]  # 9.6 px at f = 480: 1.15 degrees, times tan(45) for the roll
+        (tensor([1.1459]), tensor([1.1459]))
+    """
+    if principal_point_std == 0:
+        return None
+    sigma = principal_point_std * height
+    f = focal.clamp_min(1e-6)
+    ray = torch.rad2deg(sigma / f)
+    tilt = torch.tan(torch.deg2rad(pitch.abs().clamp_max(80.0)))
+    return {
+        "pitch": ray,
+        "roll": ray * tilt,
+        "fov_v": torch.rad2deg(sigma * height / (f.square() + height**2 / 4.0)),
+    }
 
 
 @lru_cache(maxsize=1)
@@ -290,6 +352,7 @@ def attach_trust(
     kernel_angle: float = 89.0,
     known_focal: bool = False,
     model: TrustModel | None = None,
+    principal_point_std: float = 0.0,
 ) -> Calibration:
     """The answer with ``confidence``, ``pitch_std``, ``roll_std`` and ``fov_v_std`` filled in.
 
@@ -307,6 +370,8 @@ def attach_trust(
         kernel_angle: the Manhattan score's kernel width, degrees.
         known_focal: the focal length was given as a prior.
         model: coefficients; None uses the shipped ones.
+        principal_point_std: how uncertain the principal point is, a standard deviation per axis as a fraction of
+            the image height (:attr:`ngp_kornia.models.ParserConfig.principal_point_std`); 0: at the centre.
 
     Returns:
         a new :class:`Calibration`.
@@ -316,7 +381,9 @@ def attach_trust(
         frames = FrameCandidates(**{k: v.detach() for k, v in frames.__dict__.items()})
         features = trust_features(result, frames, scores.detach(), segments.detach(), mask, top_k, kernel_angle)
         conf = model.confidence(features)
-        stds = model.stds(features, conf)
+        height = int(result.image_size[0, 0])
+        floor = principal_point_terms(principal_point_std, result.focal.detach(), height, result.pitch.detach())
+        stds = model.stds(features, conf, floor)
     valid = result.valid
     conf = torch.where(valid, conf, torch.zeros_like(conf))
     pitch_std = torch.where(valid, stds["pitch"], torch.full_like(conf, 90.0))

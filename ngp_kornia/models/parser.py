@@ -106,6 +106,12 @@ class ParserConfig:
         refine_horizon: after the frame search, move the horizon (and the focal length) to the one that the
             segments support best, searching horizontal VPs of every building block along it
             (:mod:`ngp_kornia.models.refine`); measured better on real photos, see BENCHMARKS.md.
+        principal_point_std: how far the principal point may be from the image centre, a standard deviation per
+            axis as a fraction of the image height. The parser always assumes the centre; this only widens
+            ``pitch_std``, ``roll_std`` and ``fov_v_std`` by the error such an offset causes (answers and
+            ``confidence`` do not change). The default 0.02 (about 10 pixels at 480) is a prior for photos of unknown
+            cameras, whose principal points lie typically 1-3% of the image size off the centre; 0 says it is known
+            to be at the centre (renders, or images corrected by a calibration).
     """
 
     working_size: int = 640
@@ -133,6 +139,7 @@ class ParserConfig:
     fov_v: float | None = None
     exif: bool = False
     refine_horizon: bool = True
+    principal_point_std: float = 0.02
 
     def __post_init__(self) -> None:
         check_config(self)
@@ -187,6 +194,7 @@ _FIELDS = {
     "num_scored": ("int", 1, None, "at least 1"),
     "fallback_fov": ("float", 0.0, 180.0, "an angle in degrees, in (0, 180)"),
     "seed": ("int", 0, 2**64 - 1, "in [0, 2**64 - 1]"),
+    "principal_point_std": ("float", 0.0, 0.25, "a fraction of the image height in [0, 0.25]"),
 }
 _OPEN_LOW = {"vertical_threshold", "kernel_angle", "fallback_fov"}
 _OPEN_HIGH = {"vertical_threshold", "zenith_threshold", "vertical_tol", "kernel_angle", "fallback_fov"}
@@ -311,7 +319,10 @@ class NeuralGeometricParser(nn.Module):
         known_focal = cfg.focal is not None or cfg.fov_v is not None
         if cfg.refine_horizon:  # with a known focal length only the horizon moves, never the focal length
             result = refine_horizon(result, segments, mask, focal_scales=() if known_focal else FOCAL_SCALES)
-        result = attach_trust(result, frames, scores, segments, mask, cfg.top_k, cfg.kernel_angle, known_focal)
+        result = attach_trust(
+            result, frames, scores, segments, mask, cfg.top_k, cfg.kernel_angle, known_focal,
+            principal_point_std=cfg.principal_point_std,
+        )
         return (result, ParserTrace(**stages)) if return_trace else result
 
     def score_frames(

@@ -6,8 +6,9 @@ Atlanta-world plaza seen by a random pinhole camera, and returns it with the cam
 rotation, pitch / roll / yaw, field of view, zenith, horizon, Manhattan vanishing points), computed with the
 functions of :mod:`ngp_kornia.geometry.camera` so it follows the project's conventions exactly:
 
-* the principal point is the image centre ``((W - 1) / 2, (H - 1) / 2)``, pixels have their origin at the centre of
-  the top-left pixel, square pixels, no distortion;
+* the principal point is the image centre ``((W - 1) / 2, (H - 1) / 2)`` unless
+  :attr:`RenderConfig.principal_point_std` moves it (the label's ``K`` is always the true one), pixels have their
+  origin at the centre of the top-left pixel, square pixels, no distortion;
 * ``R = rotation_from_angles(pitch, roll, yaw)`` maps world to camera; the camera stands at the world origin and
   the ground is the plane ``y = camera_height`` (world y points down);
 * ``vps[i] = K @ R[:, i]`` normalised: the vanishing points of the world axes, row 1 the vertical. Streets and
@@ -50,6 +51,7 @@ from ngp_kornia.geometry.camera import (
 
 __all__ = [
     "HARD_DEFAULTS",
+    "IMPERFECTION_DEFAULTS",
     "KINDS",
     "RenderConfig",
     "RenderedScene",
@@ -101,9 +103,19 @@ class RenderConfig:
         fronto_prob: hard case, probability that an outdoor camera faces a facade square on (no finite horizontal
             vanishing point): its yaw is moved to the nearest facade normal, plus ``fronto_jitter``.
         fronto_jitter: standard deviation of the yaw around the facade normal.
+        principal_point_std: camera imperfection, standard deviation of the principal point's offset from the image
+            centre along each axis, as a fraction of the image height (Gaussian, clipped at 3 standard deviations).
+            Real cameras rarely have it exactly at the centre; the label's ``K`` carries the true one, so the
+            horizon is measured against it while pitch and roll (from ``R``) do not depend on it.
+        radial_distortion: camera imperfection, standard deviation of the radial distortion coefficient ``k1``
+            (Gaussian, clipped at 3 standard deviations) of the division model ``x_u = x_d / (1 + k1 |x_d|^2)``,
+            ``x`` the ray's coordinates ``(p - c) / f`` about the principal point: the pinhole image, drawn with a
+            margin, is warped so that straight lines bend (``k1 < 0`` barrel). The ground truth stays the pinhole
+            camera's (``K``, ``R``); the label also carries ``k1``.
 
-    The hard cases are off by default and drawn from a random stream of their own, after the scene: with all of them
-    off a render is the same, bit for bit, as before they existed (:data:`HARD_DEFAULTS`).
+    The hard cases and the camera imperfections are off by default and drawn from random streams of their own, after
+    the scene: with all of them off a render is the same, bit for bit, as before they existed (:data:`HARD_DEFAULTS`,
+    :data:`IMPERFECTION_DEFAULTS`).
     """
 
     fov_v: tuple[float, float] = (40.0, 80.0)
@@ -133,6 +145,8 @@ class RenderConfig:
     billboards: float = 0.0
     fronto_prob: float = 0.0
     fronto_jitter: float = 3.0
+    principal_point_std: float = 0.0
+    radial_distortion: float = 0.0
 
     def __post_init__(self) -> None:
         _check_range("fov_v", self.fov_v, 1.0, 179.0)
@@ -153,6 +167,12 @@ class RenderConfig:
             raise ValueError("clutter and color_balance must be non-negative")
         if self.stairs < 0 or self.billboards < 0 or self.fronto_jitter < 0:
             raise ValueError("stairs, billboards and fronto_jitter must be non-negative")
+        if not (isinstance(self.principal_point_std, int | float) and 0.0 <= self.principal_point_std <= 0.25):
+            raise ValueError(f"principal_point_std must be a fraction of the image height in [0, 0.25], "
+                             f"got {self.principal_point_std!r}")
+        if not (isinstance(self.radial_distortion, int | float) and 0.0 <= self.radial_distortion <= 0.1):
+            raise ValueError(f"radial_distortion must be a standard deviation of k1 in [0, 0.1], "
+                             f"got {self.radial_distortion!r}")
         if not 0.0 <= self.fronto_prob <= 1.0:
             raise ValueError(f"fronto_prob must be a probability, got {self.fronto_prob}")
         unknown = set(self.kinds) - set(KINDS)
@@ -168,7 +188,7 @@ class RenderedScene:
 
     Attributes:
         image: (H, W, 3) uint8 RGB.
-        K: (3, 3) intrinsics, principal point at the image centre.
+        K: (3, 3) the true intrinsics (principal point at the image centre unless the config moves it).
         R: (3, 3) world-to-camera rotation.
         focal: focal length.
         fov_v: vertical field of view.
@@ -183,6 +203,7 @@ class RenderedScene:
         kind: ``street``, ``indoor`` or ``atlanta``.
         frames: yaws (degrees) of the block groups in the scene, the ground-truth one (0) first.
         scene: the 3D scene (for checks and debugging).
+        k1: the radial distortion coefficient the image was warped with (0: a pinhole image).
     """
 
     image: np.ndarray
@@ -201,6 +222,7 @@ class RenderedScene:
     kind: str
     frames: tuple[float, ...] = (0.0,)
     scene: Scene | None = field(default=None, repr=False)
+    k1: float = 0.0
 
     @property
     def height(self) -> int:
@@ -213,17 +235,23 @@ class RenderedScene:
     def to_dict(self) -> dict:
         """The ground truth as plain JSON-able lists and floats.
 
-        Keys: ``K, R, focal, fov_v, fov_h, pitch, roll, yaw, zenith, horizon, vps, width, height, seed, kind``.
+        Keys: ``K, R, focal, fov_v, fov_h, pitch, roll, yaw, zenith, horizon, vps, width, height, seed, kind``,
+        and ``k1`` when the image was distorted.
         """
         out = {name: getattr(self, name).tolist() for name in ("K", "R", "zenith", "horizon", "vps")}
         for name in ("focal", "fov_v", "fov_h", "pitch", "roll", "yaw"):
             out[name] = float(getattr(self, name))
         out.update(width=self.width, height=self.height, seed=int(self.seed), kind=self.kind)
+        if self.k1 != 0.0:
+            out["k1"] = float(self.k1)
         return out
 
 
 HARD_DEFAULTS = {"stairs": 0.0, "billboards": 0.0, "fronto_prob": 0.0, "fronto_jitter": 3.0}
 """The hard-case options of :class:`RenderConfig` and their defaults (off)."""
+
+IMPERFECTION_DEFAULTS = {"principal_point_std": 0.0, "radial_distortion": 0.0}
+"""The camera-imperfection options of :class:`RenderConfig` and their defaults (off: an ideal pinhole)."""
 
 
 def config_spec(config: RenderConfig) -> dict:
@@ -237,10 +265,12 @@ def config_spec(config: RenderConfig) -> dict:
     spec = asdict(config)
     if config.fronto_prob == 0.0:
         spec.pop("fronto_jitter")  # has no effect then
-    return {k: v for k, v in spec.items() if not (k in HARD_DEFAULTS and v == HARD_DEFAULTS[k])}
+    defaults = {**HARD_DEFAULTS, **IMPERFECTION_DEFAULTS}
+    return {k: v for k, v in spec.items() if not (k in defaults and v == defaults[k])}
 
 
-def camera_ground_truth(fov_v: float, pitch: float, roll: float, yaw: float, size: tuple[int, int]) -> dict:
+def camera_ground_truth(fov_v: float, pitch: float, roll: float, yaw: float, size: tuple[int, int],
+                        offset: tuple[float, float] = (0.0, 0.0)) -> dict:
     """The calibration ground truth of a camera, with the project's geometry functions.
 
     Args:
@@ -249,6 +279,7 @@ def camera_ground_truth(fov_v: float, pitch: float, roll: float, yaw: float, siz
         roll: roll (degrees).
         yaw: yaw (degrees).
         size: image ``(W, H)``.
+        offset: the principal point's offset ``(dx, dy)`` from the image centre, pixels.
 
     Returns:
         A dict of float64 tensors: ``K, R, focal, fov_v, fov_h, pitch, roll, yaw, zenith, horizon, vps``.
@@ -262,7 +293,10 @@ def camera_ground_truth(fov_v: float, pitch: float, roll: float, yaw: float, siz
     t = {k: torch.tensor([float(v)], dtype=torch.float64) for k, v in
          dict(fov_v=fov_v, pitch=pitch, roll=roll, yaw=yaw).items()}
     focal = focal_from_fov(t["fov_v"], H)
-    K = intrinsics_matrix(focal, image_center(H, W, like=focal))
+    center = image_center(H, W, like=focal)
+    if offset[0] != 0.0 or offset[1] != 0.0:
+        center = center + torch.tensor([float(offset[0]), float(offset[1])], dtype=center.dtype)
+    K = intrinsics_matrix(focal, center)
     R = rotation_from_angles(t["pitch"], t["roll"], t["yaw"])
     zenith = zenith_from_up(K, up_from_rotation(R))
     return {
@@ -302,9 +336,10 @@ def render_scene(seed: int, size: tuple[int, int] = (640, 480), config: RenderCo
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
     W, H = _check_size(size)
     cfg = RenderConfig() if config is None else config
-    # the hard cases draw from a fourth stream: the first three are those of spawn(3), as before they existed
-    cam_rng, scene_rng, photo_rng, hard_rng = (
-        np.random.default_rng(s) for s in np.random.SeedSequence(int(seed)).spawn(4))
+    # the hard cases draw from a fourth stream, the camera imperfections from a fifth: the first three are those of
+    # spawn(3), as before they existed (a SeedSequence's i-th child does not depend on how many are spawned)
+    cam_rng, scene_rng, photo_rng, hard_rng, lens_rng = (
+        np.random.default_rng(s) for s in np.random.SeedSequence(int(seed)).spawn(5))
     names = [k for k in KINDS if cfg.kinds.get(k, 0.0) > 0]
     p = np.array([cfg.kinds[k] for k in names])
     kind = names[int(cam_rng.choice(len(names), p=p / p.sum()))]
@@ -312,9 +347,16 @@ def render_scene(seed: int, size: tuple[int, int] = (640, 480), config: RenderCo
     cam_h = _uniform(cam_rng, cfg.indoor_camera_height if kind == "indoor" else cfg.camera_height)
     if kind != "indoor" and cfg.fronto_prob > 0 and hard_rng.random() < cfg.fronto_prob:
         yaw = _fronto_yaw(hard_rng, kind, yaw, cfg.fronto_jitter)
-    gt = camera_ground_truth(fov_v, pitch, roll, yaw, (W, H))
+    offset = (0.0, 0.0)
+    if cfg.principal_point_std > 0:
+        offset = tuple(float(v) for v in np.clip(lens_rng.normal(0.0, 1.0, 2), -3, 3) * cfg.principal_point_std * H)
+    gt = camera_ground_truth(fov_v, pitch, roll, yaw, (W, H), offset)
 
-    view = PinholeView(gt["K"].numpy(), gt["R"].numpy(), np.zeros(3), W, H)
+    k1 = float(np.clip(lens_rng.normal(), -3, 3) * cfg.radial_distortion) if cfg.radial_distortion > 0 else 0.0
+    source = _undistorted_coordinates(gt["K"].numpy(), k1, W, H) if k1 != 0.0 else None
+    margin = 0 if source is None else _margin(source, W, H)
+    K = gt["K"].numpy() + np.array([[0, 0, margin], [0, 0, margin], [0, 0, 0]])
+    view = PinholeView(K, gt["R"].numpy(), np.zeros(3), W + 2 * margin, H + 2 * margin)
     add = Additions(hard_rng, cfg.stairs, cfg.billboards) if cfg.stairs > 0 or cfg.billboards > 0 else None
     if kind == "street":
         scene = make_street(scene_rng, cam_h, cfg.clutter, view=view, additions=add)
@@ -322,22 +364,44 @@ def render_scene(seed: int, size: tuple[int, int] = (640, 480), config: RenderCo
         scene = make_room(scene_rng, cam_h, cfg.clutter, view_yaw=yaw)
     else:
         scene = make_atlanta(scene_rng, cam_h, cfg.clutter, view_yaw=yaw, additions=add)
+    image = _paint(view, scene, *_lighting(photo_rng, kind, cfg), cfg.antialias)
+    if source is not None:
+        image = cv2.remap(image, *(source + margin), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    if cfg.photometric:
+        image = photometric(photo_rng, image, cfg)
+    return RenderedScene(image=image, seed=int(seed), kind=kind, frames=tuple(scene.frames), scene=scene, k1=k1, **gt)
 
-    light, sky = _lighting(photo_rng, kind, cfg)
+
+def _paint(view: PinholeView, scene: Scene, light: Lighting, sky: tuple, antialias: bool) -> np.ndarray:
+    """The pinhole image of a scene: sky, ground, haze and objects."""
     if scene.ground_color is None:  # indoors: the room hides everything, only seams between faces may show
-        image = np.full((H, W, 3), 150, np.uint8)
+        image = np.full((view.height, view.width, 3), 150, np.uint8)
     else:
         sin_down = view_rays(view)
         ground = scene.ground_color * light.factor(np.array([0.0, -1.0, 0.0]))
         image = sky_and_ground(view, ground, sky, sin_down)
-    canvas = Canvas(view, image, antialias=cfg.antialias)
+    canvas = Canvas(view, image, antialias=antialias)
     draw_ground(canvas, scene, light)
     if scene.ground_color is not None:
         ground_haze(image, scene.ground_y, light.visibility, light.haze, sin_down)
     draw_objects(canvas, scene, light)
-    if cfg.photometric:
-        image = photometric(photo_rng, image, cfg)
-    return RenderedScene(image=image, seed=int(seed), kind=kind, frames=tuple(scene.frames), scene=scene, **gt)
+    return image
+
+
+def _undistorted_coordinates(K: np.ndarray, k1: float, W: int, H: int) -> np.ndarray:
+    """(2, H, W) float32: for every pixel of the distorted image, where its ray meets the pinhole image (the
+    division model ``x_u = x_d / (1 + k1 |x_d|^2)``)."""
+    f, cx, cy = K[0, 0], K[0, 2], K[1, 2]
+    xd = (np.arange(W, dtype=np.float64)[None, :] - cx) / f + np.zeros((H, 1))
+    yd = (np.arange(H, dtype=np.float64)[:, None] - cy) / f + np.zeros((1, W))
+    scale = 1.0 + k1 * (xd * xd + yd * yd)
+    return np.stack([xd / scale * f + cx, yd / scale * f + cy]).astype(np.float32)
+
+
+def _margin(source: np.ndarray, W: int, H: int) -> int:
+    """Pixels to draw beyond each border so that every source coordinate lies inside the pinhole image."""
+    over = max(-source.min(), source[0].max() - (W - 1), source[1].max() - (H - 1), 0.0)
+    return int(math.ceil(over)) + 2
 
 
 def _fronto_yaw(rng: np.random.Generator, kind: str, yaw: float, jitter: float) -> float:

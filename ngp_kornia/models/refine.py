@@ -22,7 +22,8 @@ Method (all batched over B with the segment mask; no loop over images; about 6 m
    image angle between segment ``i`` and the ray from its midpoint to ``v`` and ``k(t) = max(0, 1 - sin^2 t /
    (4 sin^2 kernel_deg))`` (the same measure for every hypothesis, the frame's included). The refined horizon
    replaces the frame's only where its support is higher by more than ``margin`` (relative); the margin was chosen
-   on renders.
+   on renders. :func:`search_horizon` is the search without this choice; a logistic chooser fitted on renders
+   (``benchmarks/fit_chooser.py``) was measured no better than the margin on the real sets (BENCHMARKS.md).
 
 Consistency of the reported camera: the focal length and ``K`` stay the frame's (or, with ``focal_scales``, the
 chosen hypothesis' scaled focal length); the chosen hypothesis is an up vector ``u``, so the zenith is ``K u``, the

@@ -22,7 +22,8 @@ Method (all batched over B with the segment mask; no loop over images; about 6 m
    image angle between segment ``i`` and the ray from its midpoint to ``v`` and ``k(t) = max(0, 1 - sin^2 t /
    (4 sin^2 kernel_deg))`` (the same measure for every hypothesis, the frame's included). The refined horizon
    replaces the frame's only where its support is higher by more than ``margin`` (relative); the margin was chosen
-   on renders.
+   on renders. :func:`search_horizon` is the search without this choice; a logistic chooser fitted on renders
+   (``benchmarks/fit_chooser.py``) was measured no better than the margin on the real sets (BENCHMARKS.md).
 
 Consistency of the reported camera: the focal length and ``K`` stay the frame's (or, with ``focal_scales``, the
 chosen hypothesis' scaled focal length); the chosen hypothesis is an up vector ``u``, so the zenith is ``K u``, the
@@ -53,7 +54,15 @@ from ngp_kornia.geometry import (
 )
 from ngp_kornia.models.result import Calibration
 
-__all__ = ["FOCAL_SCALES", "horizon_support", "refine_horizon", "refine_up", "up_from_pitch_roll"]
+__all__ = [
+    "FOCAL_SCALES",
+    "Refinement",
+    "horizon_support",
+    "refine_horizon",
+    "refine_up",
+    "search_horizon",
+    "up_from_pitch_roll",
+]
 
 
 def _normalize(v: Tensor) -> Tensor:
@@ -315,15 +324,87 @@ def refine_horizon(
         invalid; otherwise ``R``, ``up``, ``zenith``, ``horizon``, ``vps``, ``pitch``, ``roll``, ``yaw`` follow
         the refined up vector, and ``K``, focal and FoV the chosen focal scale.
     """
+    found = search_horizon(
+        cal,
+        segments,
+        mask,
+        pitch_range,
+        pitch_step,
+        fine_step,
+        num_peaks,
+        kernel_deg,
+        zenith_tol,
+        tie_zenith,
+        focal_scales,
+        frame_roll,
+    )
+    better = found.support > found.frame_support * (1.0 + margin)
+    use = cal.valid & better & torch.isfinite(found.up).all(-1)
+    return _with_up(cal, use, torch.where(use[:, None, None], found.K, cal.K), found.up, found.horizontal)
+
+
+class Refinement(NamedTuple):
+    """What the horizon search found, per image (:func:`search_horizon`).
+
+    Attributes:
+        up: (B, 3) the best hypothesis' up vector.
+        horizontal: (B, 3) its strongest horizontal VP direction (camera coordinates).
+        K: (B, 3, 3) the frame's ``K`` at the best hypothesis' focal scale.
+        support: (B,) its line support.
+        frame_support: (B,) the line support of the frame's own horizon.
+        peaks: (B, P) histogram weights of the best hypothesis' horizontal VPs over the total segment length.
+        frame_peaks: (B, P) the same for the frame's own horizon.
+        up_refined: (B, 3) the least-squares up vector of the zenith refinement (the hypotheses' roll).
+        scale: (B,) the best hypothesis' focal scale.
+    """
+
+    up: Tensor
+    horizontal: Tensor
+    K: Tensor
+    support: Tensor
+    frame_support: Tensor
+    peaks: Tensor
+    frame_peaks: Tensor
+    up_refined: Tensor
+    scale: Tensor
+
+
+def search_horizon(
+    cal: Calibration,
+    segments: Tensor,
+    mask: Tensor,
+    pitch_range: float = 8.0,
+    pitch_step: float = 1.0,
+    fine_step: float = 0.25,
+    num_peaks: int = 4,
+    kernel_deg: float = 1.0,
+    zenith_tol: float = 2.0,
+    tie_zenith: bool = True,
+    focal_scales: tuple[float, ...] = FOCAL_SCALES,
+    frame_roll: bool = False,
+) -> Refinement:
+    """The search of :func:`refine_horizon` (same arguments) without the choice: the best hypothesis and what is
+    known about it and about the frame's own horizon."""
     seg = segments.to(cal.K.dtype)
     cam, lengths = _camera_segments(seg, cal.K), _lengths(seg, mask)
     grid = _pitch_grid(cal.up, cam, lengths, mask, pitch_range, pitch_step, zenith_tol, frame_roll)
     scales = [1.0] + [float(x) for x in focal_scales if float(x) != 1.0]  # the frame's focal length first
     search = _Search(num_peaks, kernel_deg, tie_zenith)
     coarse = _coarse_search(cal.K, cam, lengths, mask, grid, scales, search)
-    up, horizontal, support = _fine_search(cam, lengths, mask, grid, coarse, pitch_step, fine_step, search)
-    use = cal.valid & (support > coarse.support[:, 0] * (1.0 + margin)) & torch.isfinite(up).all(-1)
-    return _with_up(cal, use, torch.where(use[:, None, None], coarse.K, cal.K), up, horizontal)
+    up, horizontal, support, peaks = _fine_search(cam, lengths, mask, grid, coarse, pitch_step, fine_step, search)
+    total = lengths.sum(-1, keepdim=True).clamp_min(torch.finfo(lengths.dtype).tiny ** 0.5)
+    scale = torch.tensor(scales, dtype=cal.K.dtype, device=cal.K.device)[coarse.best // grid.ups.shape[1]]
+    return Refinement(
+        up,
+        horizontal,
+        coarse.K,
+        support,
+        coarse.support[:, 0],
+        peaks / total,
+        coarse.peaks[:, 0] / total,
+        grid.up_refined,
+        scale,
+    )
 
 
 class _Search(NamedTuple):
@@ -337,6 +418,7 @@ class _Grid(NamedTuple):
     rolls: Tensor  # (B, H) degrees
     zen: Tensor  # (B, H, 3) the zenith each hypothesis took its roll from
     ups: Tensor  # (B, H, 3)
+    up_refined: Tensor  # (B, 3) the least-squares up vector
 
 
 class _Coarse(NamedTuple):
@@ -345,6 +427,7 @@ class _Coarse(NamedTuple):
     cam: tuple  # the camera-coordinate segments of every scale, scale-major rows
     best: Tensor  # (B,) index into the S * H hypotheses
     K: Tensor  # (B, 3, 3) K with the best hypothesis' focal scale
+    peaks: Tensor  # (B, S * H, P) histogram weights of the horizontal VPs
 
 
 def _pitch_grid(up_frame, cam, lengths, mask, pitch_range, pitch_step, zenith_tol, frame_roll) -> _Grid:
@@ -364,7 +447,7 @@ def _pitch_grid(up_frame, cam, lengths, mask, pitch_range, pitch_step, zenith_to
         pitches = torch.cat([pitch0[:, None], pitch0[:, None] + offsets], 1)
         rolls = torch.cat([roll0[:, None], roll1[:, None].expand(-1, len(offsets))], 1)
         zen = torch.cat([up_frame[:, None], up_ref[:, None].expand(-1, len(offsets), 3)], 1)
-    return _Grid(pitches, rolls, zen, up_from_pitch_roll(pitches, rolls))
+    return _Grid(pitches, rolls, zen, up_from_pitch_roll(pitches, rolls), up_ref)
 
 
 def _coarse_search(K, cam, lengths, mask, grid: _Grid, scales: list[float], search: _Search) -> _Coarse:
@@ -376,7 +459,7 @@ def _coarse_search(K, cam, lengths, mask, grid: _Grid, scales: list[float], sear
     mid, direction, normals = (t.repeat(S, 1, 1) for t in cam)
     stretch = torch.cat([1.0 / inv, 1.0 / inv, torch.ones_like(inv)], -1)
     cam_s = (mid * inv, direction * inv, _normalize(normals * stretch))
-    sup, d, _ = _support(
+    sup, d, v = _support(
         grid.ups.repeat(S, 1, 1),
         cam_s,
         lengths.repeat(S, 1),
@@ -389,14 +472,16 @@ def _coarse_search(K, cam, lengths, mask, grid: _Grid, scales: list[float], sear
     )
     support = sup.view(S, B, Hn).transpose(0, 1).reshape(B, S * Hn)
     dirs = d.view(S, B, Hn, -1, 3).transpose(0, 1).reshape(B, S * Hn, -1, 3)
+    peaks = v.view(S, B, Hn, -1).transpose(0, 1).reshape(B, S * Hn, -1)
     best = support.argmax(-1)
     scale = torch.tensor(scales, dtype=K.dtype, device=K.device)[best // Hn]
-    return _Coarse(support, dirs, cam if S == 1 else cam_s, best, _scaled_focal(K, scale))
+    return _Coarse(support, dirs, cam if S == 1 else cam_s, best, _scaled_focal(K, scale), peaks)
 
 
 def _fine_search(cam, lengths, mask, grid: _Grid, coarse: _Coarse, pitch_step, fine_step, search: _Search):
     """Pitches ``fine_step`` apart around the best coarse hypothesis, at its roll and focal scale: the chosen up
-    vectors (B, 3), their strongest horizontal VP directions (B, 3) and their support (B,)."""
+    vectors (B, 3), their strongest horizontal VP directions (B, 3), their support (B,) and their horizontal VPs'
+    histogram weights (B, P)."""
     B, Hn = len(coarse.best), grid.ups.shape[1]
     rows = torch.arange(B, device=coarse.best.device)
     hyp, best = coarse.best % Hn, coarse.best
@@ -408,10 +493,11 @@ def _fine_search(cam, lengths, mask, grid: _Grid, coarse: _Coarse, pitch_step, f
     all_p = torch.cat([grid.pitches[rows, hyp][:, None], fine_p], 1)
     all_r = torch.cat([grid.rolls[rows, hyp][:, None], fine_r], 1)
     cand_support, cand_dirs = coarse.support[rows, best][:, None], coarse.dirs[rows, best][:, None]
+    cand_peaks = coarse.peaks[rows, best][:, None]
     if len(fine):
         fine_zen = grid.zen[rows, hyp][:, None].expand(-1, len(fine), 3)
         cam_best = coarse.cam if len(coarse.cam[0]) == B else tuple(t[(best // Hn) * B + rows] for t in coarse.cam)
-        fine_support, fine_dirs, _ = _support(
+        fine_support, fine_dirs, fine_peaks = _support(
             up_from_pitch_roll(fine_p, fine_r),
             cam_best,
             lengths,
@@ -424,9 +510,10 @@ def _fine_search(cam, lengths, mask, grid: _Grid, coarse: _Coarse, pitch_step, f
         )
         cand_support = torch.cat([cand_support, fine_support], 1)
         cand_dirs = torch.cat([cand_dirs, fine_dirs], 1)
+        cand_peaks = torch.cat([cand_peaks, fine_peaks], 1)
     pick = cand_support.argmax(-1)
     up = up_from_pitch_roll(all_p[rows, pick], all_r[rows, pick])
-    return up, cand_dirs[rows, pick, 0], cand_support[rows, pick]
+    return up, cand_dirs[rows, pick, 0], cand_support[rows, pick], cand_peaks[rows, pick]
 
 
 def _with_up(cal: Calibration, use: Tensor, K: Tensor, up: Tensor, horizontal: Tensor) -> Calibration:

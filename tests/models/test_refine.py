@@ -12,10 +12,18 @@ from ngp_kornia.geometry import (
     intrinsics_matrix,
     pitch_roll_from_up,
     rotation_from_angles,
+    zenith_from_up,
 )
 from ngp_kornia.metrics import horizon_error
 from ngp_kornia.models import NeuralGeometricParser, ParserConfig
-from ngp_kornia.models.refine import horizon_support, refine_horizon, refine_up, up_from_pitch_roll
+from ngp_kornia.models.refine import (
+    FOCAL_SCALES,
+    horizon_support,
+    refine_horizon,
+    refine_up,
+    search_horizon,
+    up_from_pitch_roll,
+)
 
 H, W = 480, 640
 
@@ -202,3 +210,35 @@ def test_float64_inputs_give_a_finite_float64_result():
     for name in ("K", "R", "horizon", "zenith", "vps", "pitch", "roll", "focal"):
         assert bool(torch.isfinite(getattr(out, name)).all()), name
     assert float(horizon_error(out.horizon, calibration(K, R).horizon.double(), H, W)) < 0.01
+
+
+def test_search_horizon_reports_the_hypothesis_that_refine_horizon_takes():
+    K, R = camera(8.0, -3.0)
+    seg, mask = atlanta_segments(K, R, clutter=20, seed=8)
+    start = calibration(K, camera(11.0, -3.0)[1])
+    found = search_horizon(start, seg, mask)
+    assert float(found.support[0]) > float(found.frame_support[0]) * 1.08  # the wrong pitch loses support
+    assert found.peaks.shape == found.frame_peaks.shape == (1, 4)
+    assert bool((found.peaks[:, :-1] >= found.peaks[:, 1:]).all()) and 0 < float(found.peaks.sum()) <= 1.0
+    assert float(found.scale[0]) in (1.0, *FOCAL_SCALES)
+    assert torch.allclose(found.K[:, 0, 0], start.K[:, 0, 0] * found.scale)
+    assert torch.allclose(found.up.norm(dim=-1), torch.ones(1))
+    assert torch.allclose(found.up_refined.norm(dim=-1), torch.ones(1))
+    out = refine_horizon(start, seg, mask)
+    zenith = zenith_from_up(found.K, found.up)
+    line = horizon_from_zenith(found.K, zenith / zenith.norm(dim=-1, keepdim=True))
+    assert float(horizon_error(out.horizon.double(), line.double(), H, W)) < 1e-4
+    # with a margin the hypothesis cannot beat, the frame's horizon is kept
+    kept = refine_horizon(start, seg, mask, margin=10.0)
+    assert torch.equal(kept.horizon, start.horizon) and torch.equal(kept.K, start.K)
+
+
+def test_search_horizon_frame_support_is_the_support_of_the_frames_horizon():
+    K, R = camera(4.0, 2.0)
+    seg, mask = atlanta_segments(K, R, clutter=10, seed=9)
+    start = calibration(K, camera(6.0, 2.0)[1])
+    found = search_horizon(start, seg, mask)
+    support, _, weight = horizon_support(start.up[:, None], seg, mask, start.K)
+    assert torch.allclose(found.frame_support, support[:, 0], atol=1e-5)
+    total = (seg[..., 1, :] - seg[..., 0, :]).norm(dim=-1).sum()
+    assert torch.allclose(found.frame_peaks, weight[:, 0] / total, atol=1e-5)

@@ -88,9 +88,30 @@ def up_from_pitch_roll(pitch: Tensor, roll: Tensor) -> Tensor:
     return torch.stack([torch.cos(p) * torch.sin(r), -torch.cos(p) * torch.cos(r), torch.sin(p)], -1)
 
 
-def _camera_segments(segments: Tensor, K: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-    """Segments in normalised camera coordinates ``K^-1 p``: midpoints (B, N, 2), directions (B, N, 2) and unit
-    interpretation-plane normals (B, N, 3). ``K^-1`` is a similarity for square pixels, so image angles are kept."""
+class _Cam(NamedTuple):
+    """Segments in normalised camera coordinates (B, N, ...): midpoints, directions, unit interpretation-plane
+    normals, and each segment's line through its midpoint (unit normal, :func:`_line`)."""
+
+    mid: Tensor
+    direction: Tensor
+    normals: Tensor
+    line: Tensor
+
+    def rows(self, index: Tensor) -> _Cam:
+        return _Cam(*(t[index] for t in self))
+
+
+def _line(mid: Tensor, direction: Tensor) -> Tensor:
+    """The line through each midpoint along its direction, ``(-s_y, s_x, s_y m_x - s_x m_y) / |s|`` (B, N, 3)."""
+    tiny = torch.finfo(mid.dtype).tiny ** 0.5
+    sx, sy = direction[..., 0], direction[..., 1]
+    line = torch.stack([-sy, sx, sy * mid[..., 0] - sx * mid[..., 1]], -1)
+    return line / direction.norm(dim=-1, keepdim=True).clamp_min(tiny)
+
+
+def _camera_segments(segments: Tensor, K: Tensor) -> _Cam:
+    """Segments in normalised camera coordinates ``K^-1 p`` (:class:`_Cam`). ``K^-1`` is a similarity for square
+    pixels, so image angles are kept."""
     ones = segments.new_ones(*segments.shape[:-1], 1)
     pts = torch.cat([segments, ones], -1)  # (B, N, 2, 3)
     cam = torch.einsum("bij,bnkj->bnki", torch.linalg.inv(K), pts)
@@ -98,39 +119,71 @@ def _camera_segments(segments: Tensor, K: Tensor) -> tuple[Tensor, Tensor, Tenso
     mid, direction = cam.mean(-2), cam[..., 1, :] - cam[..., 0, :]
     p0 = torch.cat([cam[..., 0, :], ones[..., 0, :]], -1)
     p1 = torch.cat([cam[..., 1, :], ones[..., 0, :]], -1)
-    return mid, direction, _normalize(torch.linalg.cross(p0, p1))
+    return _Cam(mid, direction, _normalize(torch.linalg.cross(p0, p1)), _line(mid, direction))
 
 
-def _sin2(mid: Tensor, direction: Tensor, vps: Tensor) -> Tensor:
+def _ratio(cam: _Cam, vps: Tensor, inplace: bool = False) -> tuple[Tensor, Tensor]:
+    """Numerator ``(|s x d| / |s|)^2`` and denominator ``|d|^2`` (B, V, N) of the squared sine of :func:`_sin2`,
+    with ``d = v_xy - m v_z`` the ray from each midpoint ``m`` to each VP ``v`` (B, V, 3); ``inplace`` (no
+    autograd) reuses the products' memory."""
+    num = vps @ cam.line.transpose(-1, -2)
+    num = torch.square(num, out=num if inplace else None)
+    vz = vps[..., 2:]
+    den = vps[..., :2] @ cam.mid.transpose(-1, -2)
+    out = den if inplace else None
+    den = torch.mul(2.0 * vz, den, out=out)
+    den = torch.sub(vps[..., :2].square().sum(-1, keepdim=True), den, out=out)
+    return num, torch.add(den, vz.square() * cam.mid.square().sum(-1)[:, None], out=out)
+
+
+def _sin2(cam: _Cam, vps: Tensor) -> Tensor:
     """Squared sine of the image angle between every segment and the ray from its midpoint to every VP
     (normalised camera coordinates).
 
     Args:
-        mid: (B, N, 2) midpoints; direction: (B, N, 2); vps: (B, ..., 3) directions (VPs at infinity allowed).
+        cam: the segments (:class:`_Cam`); vps: (B, ..., 3) directions (VPs at infinity allowed).
 
     Returns:
         (B, ..., N) in [0, 1]; a VP at the midpoint gives 1, a zero-length segment 0 (padding: mask it).
     """
-    shape = vps.shape[:-1]
-    v = vps.reshape(vps.shape[0], -1, 3)  # (B, V, 3)
-    tiny = torch.finfo(mid.dtype).tiny ** 0.5
-    # the segment's line through its midpoint, unit normal: (-s_y, s_x, s_y m_x - s_x m_y) / |s|
-    sx, sy = direction[..., 0], direction[..., 1]
-    line = torch.stack([-sy, sx, sy * mid[..., 0] - sx * mid[..., 1]], -1)
-    line = line / direction.norm(dim=-1, keepdim=True).clamp_min(tiny)
-    num = (v @ line.transpose(-1, -2)).square()  # (B, V, N): (|s x d| / |s|)^2 with d = v_xy - mid v_z
-    vz = v[..., 2:]
-    den = v[..., :2].square().sum(-1, keepdim=True) - 2.0 * vz * (v[..., :2] @ mid.transpose(-1, -2))
-    den = den + vz.square() * mid.square().sum(-1)[:, None]  # |d|^2
-    sin2 = torch.where(den > tiny, num / den.clamp_min(tiny), torch.ones_like(den)).clamp_max(1.0)
-    return sin2.reshape(*shape, mid.shape[1])
+    tiny = torch.finfo(vps.dtype).tiny ** 0.5
+    num, den = _ratio(cam, vps.reshape(vps.shape[0], -1, 3))
+    sin2 = torch.where(den > tiny, num / den.clamp_min(tiny), 1.0).clamp_max(1.0)
+    return sin2.reshape(*vps.shape[:-1], -1)
 
 
-def _kernel(mid: Tensor, direction: Tensor, vps: Tensor, kernel_deg: float) -> Tensor:
-    """Closeness ``max(0, 1 - sin^2 theta / (4 sin^2 sigma))`` of every segment to every VP (``theta`` as in
-    :func:`_sin2`, ``sigma`` = ``kernel_deg``): 1 on the VP, 3/4 at ``sigma``, 0 beyond ``2 sigma`` (a cheap
-    stand-in for a Gaussian of width ``sigma``). Shapes as :func:`_sin2`."""
-    return (1.0 - _sin2(mid, direction, vps) / (4.0 * math.sin(math.radians(kernel_deg)) ** 2)).clamp_min(0.0)
+def _kernel(cam: _Cam, vps: Tensor, kernel_deg: float, keep: Tensor | None = None) -> Tensor:
+    """Closeness ``max(0, 1 - sin^2 theta / (4 sin^2 sigma))`` of every segment to the nearest of a group of VPs
+    (``theta`` as in :func:`_sin2`, ``sigma`` = ``kernel_deg``): 1 on the VP, 3/4 at ``sigma``, 0 beyond
+    ``2 sigma`` (a cheap stand-in for a Gaussian of width ``sigma``).
+
+    Args:
+        cam: the segments (:class:`_Cam`); vps: (B, H, P, 3), P VPs per group; keep: (B, H, P) bool, the VPs that
+            count (all when omitted).
+
+    Returns:
+        (B, H, N): the largest closeness over each group's kept VPs (0 where none is kept).
+
+    The values of :func:`_sin2` and the closeness taken VP by VP, with fewer full-size passes (this dominates the
+    search's time): the closeness falls with ``sin^2``, so the largest is that of the smallest ``sin^2``; the
+    guard against a VP on a midpoint runs only where one is that close, and without autograd the arithmetic runs
+    in place."""
+    B, H, P, _ = vps.shape
+    tiny = torch.finfo(vps.dtype).tiny ** 0.5
+    v = vps.reshape(B, H * P, 3)
+    grad = torch.is_grad_enabled() and (v.requires_grad or cam.line.requires_grad or cam.mid.requires_grad)
+    num, den = _ratio(cam, v, not grad)
+    if bool(den.amin() > tiny):
+        sin2 = torch.div(num, den, out=None if grad else num)
+    else:
+        sin2 = torch.where(den > tiny, num / den.clamp_min(tiny), 1.0)
+    if keep is not None and not bool(keep.all()):
+        sin2 = sin2.masked_fill(~keep.reshape(B, H * P, 1), math.inf)
+    sin2 = sin2.view(B, H, P, -1).amin(2) if P > 1 else sin2.view(B, H, -1)
+    c = 4.0 * math.sin(math.radians(kernel_deg)) ** 2
+    if c > 1.0:  # below, a clamped 1 and anything above 1 both give 0
+        sin2 = sin2.clamp_max(1.0)
+    return (1.0 - sin2 / c).clamp_min(0.0)
 
 
 def refine_up(
@@ -174,13 +227,12 @@ def _refine_up(
     up: Tensor, cam: tuple[Tensor, Tensor, Tensor], lengths: Tensor, mask: Tensor, zenith_tol: float, iterations: int
 ) -> tuple[Tensor, Tensor]:
     """:func:`refine_up` on segments already in camera coordinates."""
-    mid, direction, normals = cam
     cos_tol = math.cos(math.radians(10.0))
     cur, ok = up, torch.zeros(len(up), dtype=torch.bool, device=up.device)
     for _ in range(iterations):
-        inlier = (_sin2(mid, direction, cur[:, None])[:, 0] <= math.sin(math.radians(zenith_tol)) ** 2) & mask
+        inlier = (_sin2(cam, cur[:, None])[:, 0] <= math.sin(math.radians(zenith_tol)) ** 2) & mask
         w = lengths * inlier
-        M = torch.einsum("bn,bni,bnj->bij", w, normals, normals)
+        M = torch.einsum("bn,bni,bnj->bij", w, cam.normals, cam.normals)
         _, vecs = torch.linalg.eigh(M)
         fit = vecs[..., 0].detach()  # no gradient through eigh (unstable for close eigenvalues)
         fit = fit * torch.where((fit * up).sum(-1, keepdim=True) < 0, -1.0, 1.0).to(fit)
@@ -245,17 +297,11 @@ def _support(
 ) -> tuple[Tensor, Tensor, Tensor]:
     """:func:`horizon_support` on segments already in camera coordinates (:func:`_camera_segments`)."""
     B, H, _ = ups.shape
-    mid, direction, normals = cam
-    kz = _kernel(mid, direction, ups if zenith_ups is None else zenith_ups, kernel_deg) * mask[:, None]  # (B, H, N)
-    # a basis of each horizontal plane; psi is the angle of a horizontal direction in it
-    ref = torch.tensor([0.0, 0.0, 1.0]).to(ups).expand_as(ups)
-    alt = torch.tensor([1.0, 0.0, 0.0]).to(ups).expand_as(ups)
-    e1 = torch.linalg.cross(ups, ref)
-    e1 = _normalize(torch.where(e1.norm(dim=-1, keepdim=True) > 1e-6, e1, torch.linalg.cross(ups, alt)))
-    e2 = torch.linalg.cross(ups, e1)
+    kz = _kernel(cam, (ups if zenith_ups is None else zenith_ups)[:, :, None], kernel_deg) * mask[:, None]
+    e1, e2 = _horizontal_basis(ups)
     # each segment's line meets the horizon in the horizontal direction n x u; with (e1, e2, u) right-handed its
     # coordinates are (n . e2, -n . e1), and |n x u|^2 = 1 - (n . u)^2
-    nt = normals.transpose(-1, -2)
+    nt = cam.normals.transpose(-1, -2)
     psi = torch.atan2(-(e1 @ nt), e2 @ nt).remainder(math.pi)  # (B, H, N)
     meets = 1.0 - (ups @ nt).square() > 1e-12
     weight = lengths[:, None] * (1.0 - kz) * meets
@@ -267,16 +313,32 @@ def _support(
     half = max(1, round(separation_deg / 180.0 * bins))
     padded = F.pad(hist.reshape(B * H, 1, bins), (half, half), mode="circular")
     local_max = F.max_pool1d(padded, 2 * half + 1, stride=1).reshape(B, H, bins)
-    peaks = torch.where(hist >= local_max, hist, torch.zeros_like(hist))
-    p = min(num_peaks, bins)
-    value, idx = peaks.topk(p, dim=-1)
+    peaks = torch.where(hist >= local_max, hist, 0.0)
+    value, idx = peaks.topk(min(num_peaks, bins), dim=-1)
     angle = (idx.to(ups) + 0.5) * (math.pi / bins)
     dirs = torch.cos(angle)[..., None] * e1[:, :, None] + torch.sin(angle)[..., None] * e2[:, :, None]  # (B,H,P,3)
-    kh = _kernel(mid, direction, dirs, kernel_deg) * (value > 0)[..., None] * mask[:, None, None]  # (B, H, P, N)
-    explained = torch.maximum(kz, kh.amax(2))
+    kh = _kernel(cam, dirs, kernel_deg, value > 0) * mask[:, None]  # (B, H, N)
+    explained = torch.maximum(kz, kh)
     total = lengths.sum(-1, keepdim=True)
     support = (explained * lengths[:, None]).sum(-1) / total.clamp_min(torch.finfo(total.dtype).tiny ** 0.5)
     return support, dirs, value
+
+
+_AXES: dict[tuple[torch.dtype, torch.device], Tensor] = {}
+
+
+def _horizontal_basis(ups: Tensor) -> tuple[Tensor, Tensor]:
+    """A basis ``e1, e2`` (B, H, 3) of each horizontal plane, ``(e1, e2, u)`` right-handed: ``e1`` along
+    ``u x z`` (``u x x`` where ``u`` is the optical axis)."""
+    key = (ups.dtype, ups.device)
+    if key not in _AXES:  # a per-call constant: built once per dtype and device
+        _AXES[key] = torch.tensor([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]], dtype=ups.dtype, device=ups.device)
+    ref, alt = _AXES[key]
+    e1 = torch.linalg.cross(ups, ref.expand_as(ups))
+    if not bool((e1.norm(dim=-1) > 1e-6).all()):
+        e1 = torch.where(e1.norm(dim=-1, keepdim=True) > 1e-6, e1, torch.linalg.cross(ups, alt.expand_as(ups)))
+    e1 = _normalize(e1)
+    return e1, torch.linalg.cross(ups, e1)
 
 
 #: the frame's focal length is also tried times each of these (chosen on York Urban, ECD and renders together)
@@ -424,7 +486,7 @@ class _Grid(NamedTuple):
 class _Coarse(NamedTuple):
     support: Tensor  # (B, S * H), scale-major; column 0 is the frame's own hypothesis
     dirs: Tensor  # (B, S * H, P, 3) horizontal VP directions
-    cam: tuple  # the camera-coordinate segments of every scale, scale-major rows
+    cam: _Cam  # the camera-coordinate segments of every scale, scale-major rows
     best: Tensor  # (B,) index into the S * H hypotheses
     K: Tensor  # (B, 3, 3) K with the best hypothesis' focal scale
     peaks: Tensor  # (B, S * H, P) histogram weights of the horizontal VPs
@@ -456,9 +518,10 @@ def _coarse_search(K, cam, lengths, mask, grid: _Grid, scales: list[float], sear
     # K^-1 with f times x maps the centred points to p / x: midpoints and directions scale by 1 / x, and the plane
     # normal (n_x, n_y, n_z) becomes (x n_x, x n_y, n_z) up to its length
     inv = torch.tensor([1.0 / x for x in scales]).to(K).repeat_interleave(B)[:, None, None]
-    mid, direction, normals = (t.repeat(S, 1, 1) for t in cam)
+    mid, direction, normals = (t.repeat(S, 1, 1) for t in cam[:3])
     stretch = torch.cat([1.0 / inv, 1.0 / inv, torch.ones_like(inv)], -1)
-    cam_s = (mid * inv, direction * inv, _normalize(normals * stretch))
+    mid, direction = mid * inv, direction * inv
+    cam_s = _Cam(mid, direction, _normalize(normals * stretch), _line(mid, direction))
     sup, d, v = _support(
         grid.ups.repeat(S, 1, 1),
         cam_s,
@@ -496,7 +559,7 @@ def _fine_search(cam, lengths, mask, grid: _Grid, coarse: _Coarse, pitch_step, f
     cand_peaks = coarse.peaks[rows, best][:, None]
     if len(fine):
         fine_zen = grid.zen[rows, hyp][:, None].expand(-1, len(fine), 3)
-        cam_best = coarse.cam if len(coarse.cam[0]) == B else tuple(t[(best // Hn) * B + rows] for t in coarse.cam)
+        cam_best = coarse.cam if len(coarse.cam[0]) == B else coarse.cam.rows((best // Hn) * B + rows)
         fine_support, fine_dirs, fine_peaks = _support(
             up_from_pitch_roll(fine_p, fine_r),
             cam_best,
@@ -519,6 +582,8 @@ def _fine_search(cam, lengths, mask, grid: _Grid, coarse: _Coarse, pitch_step, f
 def _with_up(cal: Calibration, use: Tensor, K: Tensor, up: Tensor, horizontal: Tensor) -> Calibration:
     """The calibration with, where ``use``, the up vector ``up``, the rotation from it and the horizontal VP
     direction, and ``K``; every other field follows, so the horizon is the polar of the zenith."""
+    if not bool(use.any()):  # every frame kept (the common case): the fields the choice below would give
+        return replace(cal, K=K, focal=K[:, 0, 0], up=-cal.R[..., :, 1])
     down = -up
     h = _normalize(horizontal - (horizontal * up).sum(-1, keepdim=True) * up)
     R = canonical_manhattan_rotation(torch.stack([h, down, torch.linalg.cross(h, down)], -1))

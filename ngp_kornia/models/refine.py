@@ -89,16 +89,28 @@ def up_from_pitch_roll(pitch: Tensor, roll: Tensor) -> Tensor:
 
 
 class _Cam(NamedTuple):
-    """Segments in normalised camera coordinates (B, N, ...): midpoints, directions, unit interpretation-plane
-    normals, and each segment's line through its midpoint (unit normal, :func:`_line`)."""
+    """Segments in normalised camera coordinates (:func:`_cam`): midpoints (B, N, 2), directions (B, N, 2) and
+    unit interpretation-plane normals (B, N, 3); the terms every hypothesis is scored with, built once: each
+    segment's line through its midpoint (unit normal, :func:`_line`), the midpoints and the normals as (B, 3 or 2,
+    N) matrices, and the midpoints' squared lengths (B, 1, N)."""
 
     mid: Tensor
     direction: Tensor
     normals: Tensor
-    line: Tensor
+    line_t: Tensor
+    mid_t: Tensor
+    normals_t: Tensor
+    mid_sq: Tensor
 
     def rows(self, index: Tensor) -> _Cam:
         return _Cam(*(t[index] for t in self))
+
+
+def _cam(mid: Tensor, direction: Tensor, normals: Tensor) -> _Cam:
+    def t(x: Tensor) -> Tensor:
+        return x.transpose(-1, -2).contiguous()
+
+    return _Cam(mid, direction, normals, t(_line(mid, direction)), t(mid), t(normals), mid.square().sum(-1)[:, None])
 
 
 def _line(mid: Tensor, direction: Tensor) -> Tensor:
@@ -114,26 +126,26 @@ def _camera_segments(segments: Tensor, K: Tensor) -> _Cam:
     pixels, so image angles are kept."""
     ones = segments.new_ones(*segments.shape[:-1], 1)
     pts = torch.cat([segments, ones], -1)  # (B, N, 2, 3)
-    cam = torch.einsum("bij,bnkj->bnki", torch.linalg.inv(K), pts)
+    cam = (pts.flatten(1, 2) @ torch.linalg.inv(K).transpose(-1, -2)).view_as(pts)
     cam = cam[..., :2] / cam[..., 2:]
     mid, direction = cam.mean(-2), cam[..., 1, :] - cam[..., 0, :]
     p0 = torch.cat([cam[..., 0, :], ones[..., 0, :]], -1)
     p1 = torch.cat([cam[..., 1, :], ones[..., 0, :]], -1)
-    return _Cam(mid, direction, _normalize(torch.linalg.cross(p0, p1)), _line(mid, direction))
+    return _cam(mid, direction, _normalize(torch.linalg.cross(p0, p1)))
 
 
 def _ratio(cam: _Cam, vps: Tensor, inplace: bool = False) -> tuple[Tensor, Tensor]:
     """Numerator ``(|s x d| / |s|)^2`` and denominator ``|d|^2`` (B, V, N) of the squared sine of :func:`_sin2`,
     with ``d = v_xy - m v_z`` the ray from each midpoint ``m`` to each VP ``v`` (B, V, 3); ``inplace`` (no
     autograd) reuses the products' memory."""
-    num = vps @ cam.line.transpose(-1, -2)
+    num = vps @ cam.line_t
     num = torch.square(num, out=num if inplace else None)
     vz = vps[..., 2:]
-    den = vps[..., :2] @ cam.mid.transpose(-1, -2)
+    den = vps[..., :2] @ cam.mid_t
     out = den if inplace else None
     den = torch.mul(2.0 * vz, den, out=out)
     den = torch.sub(vps[..., :2].square().sum(-1, keepdim=True), den, out=out)
-    return num, torch.add(den, vz.square() * cam.mid.square().sum(-1)[:, None], out=out)
+    return num, torch.add(den, vz.square() * cam.mid_sq, out=out)
 
 
 def _sin2(cam: _Cam, vps: Tensor) -> Tensor:
@@ -171,7 +183,7 @@ def _kernel(cam: _Cam, vps: Tensor, kernel_deg: float, keep: Tensor | None = Non
     B, H, P, _ = vps.shape
     tiny = torch.finfo(vps.dtype).tiny ** 0.5
     v = vps.reshape(B, H * P, 3)
-    grad = torch.is_grad_enabled() and (v.requires_grad or cam.line.requires_grad or cam.mid.requires_grad)
+    grad = torch.is_grad_enabled() and (v.requires_grad or cam.line_t.requires_grad or cam.mid_t.requires_grad)
     num, den = _ratio(cam, v, not grad)
     if bool(den.amin() > tiny):
         sin2 = torch.div(num, den, out=None if grad else num)
@@ -232,11 +244,12 @@ def _refine_up(
     for _ in range(iterations):
         inlier = (_sin2(cam, cur[:, None])[:, 0] <= math.sin(math.radians(zenith_tol)) ** 2) & mask
         w = lengths * inlier
-        M = torch.einsum("bn,bni,bnj->bij", w, cam.normals, cam.normals)
+        M = (w[:, None] * cam.normals_t) @ cam.normals  # sum_i w_i n_i n_i^T
         _, vecs = torch.linalg.eigh(M)
         fit = vecs[..., 0].detach()  # no gradient through eigh (unstable for close eigenvalues)
-        fit = fit * torch.where((fit * up).sum(-1, keepdim=True) < 0, -1.0, 1.0).to(fit)
-        good = (inlier.sum(-1) >= 3) & ((fit * up).sum(-1) > cos_tol) & torch.isfinite(fit).all(-1)
+        dot = (fit * up).sum(-1, keepdim=True)
+        fit = fit * torch.where(dot < 0, -1.0, 1.0).to(fit)
+        good = (inlier.sum(-1) >= 3) & (dot.abs()[:, 0] > cos_tol) & torch.isfinite(fit).all(-1)  # |dot|: fit . up
         cur = torch.where(good[:, None], fit, cur)
         ok = ok | good
     return _normalize(cur), ok
@@ -301,18 +314,18 @@ def _support(
     e1, e2 = _horizontal_basis(ups)
     # each segment's line meets the horizon in the horizontal direction n x u; with (e1, e2, u) right-handed its
     # coordinates are (n . e2, -n . e1), and |n x u|^2 = 1 - (n . u)^2
-    nt = cam.normals.transpose(-1, -2)
+    nt = cam.normals_t
     psi = torch.atan2(-(e1 @ nt), e2 @ nt).remainder(math.pi)  # (B, H, N)
     meets = 1.0 - (ups @ nt).square() > 1e-12
     weight = lengths[:, None] * (1.0 - kz) * meets
     index = (psi / math.pi * bins).long().clamp(0, bins - 1)
     hist = torch.zeros(B, H, bins, dtype=ups.dtype, device=ups.device).scatter_add_(-1, index, weight)
     # smooth (circular) and keep separated local maxima
-    near = hist.roll(1, -1) + hist.roll(-1, -1)
-    hist = (3.0 * hist + 2.0 * near + hist.roll(2, -1) + hist.roll(-2, -1)) / 9.0
+    wrap = _wrap(hist, 2)  # wrap[..., 2 + i - k] is hist rolled by k
+    near = wrap[..., 1 : bins + 1] + wrap[..., 3 : bins + 3]
+    hist = (3.0 * hist + 2.0 * near + wrap[..., :bins] + wrap[..., 4:]) / 9.0
     half = max(1, round(separation_deg / 180.0 * bins))
-    padded = F.pad(hist.reshape(B * H, 1, bins), (half, half), mode="circular")
-    local_max = F.max_pool1d(padded, 2 * half + 1, stride=1).reshape(B, H, bins)
+    local_max = F.max_pool1d(_wrap(hist, half).reshape(B * H, 1, -1), 2 * half + 1, stride=1).reshape(B, H, bins)
     peaks = torch.where(hist >= local_max, hist, 0.0)
     value, idx = peaks.topk(min(num_peaks, bins), dim=-1)
     angle = (idx.to(ups) + 0.5) * (math.pi / bins)
@@ -324,20 +337,33 @@ def _support(
     return support, dirs, value
 
 
-_AXES: dict[tuple[torch.dtype, torch.device], Tensor] = {}
+def _wrap(x: Tensor, k: int) -> Tensor:
+    """``x`` circularly padded by ``k`` on both sides of its last dimension (``k`` at most its length)."""
+    return torch.cat([x[..., -k:], x, x[..., :k]], -1)
+
+
+_CONSTANTS: dict[tuple, tuple[Tensor, ...]] = {}
+
+
+def _constants(key: tuple, like: Tensor, *rows: list[float]) -> tuple[Tensor, ...]:
+    """Per-call constant vectors, built once per ``key``, dtype and device (building them costs more than the
+    arithmetic that uses them)."""
+    key = (*key, like.dtype, like.device)
+    if key not in _CONSTANTS:
+        _CONSTANTS[key] = tuple(torch.tensor(r, dtype=like.dtype, device=like.device) for r in rows)
+    return _CONSTANTS[key]
 
 
 def _horizontal_basis(ups: Tensor) -> tuple[Tensor, Tensor]:
     """A basis ``e1, e2`` (B, H, 3) of each horizontal plane, ``(e1, e2, u)`` right-handed: ``e1`` along
     ``u x z`` (``u x x`` where ``u`` is the optical axis)."""
-    key = (ups.dtype, ups.device)
-    if key not in _AXES:  # a per-call constant: built once per dtype and device
-        _AXES[key] = torch.tensor([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]], dtype=ups.dtype, device=ups.device)
-    ref, alt = _AXES[key]
+    ref, alt = _constants(("axes",), ups, [0.0, 0.0, 1.0], [1.0, 0.0, 0.0])
     e1 = torch.linalg.cross(ups, ref.expand_as(ups))
-    if not bool((e1.norm(dim=-1) > 1e-6).all()):
-        e1 = torch.where(e1.norm(dim=-1, keepdim=True) > 1e-6, e1, torch.linalg.cross(ups, alt.expand_as(ups)))
-    e1 = _normalize(e1)
+    norm = e1.norm(dim=-1, keepdim=True)
+    if not bool((norm > 1e-6).all()):
+        e1 = torch.where(norm > 1e-6, e1, torch.linalg.cross(ups, alt.expand_as(ups)))
+        norm = e1.norm(dim=-1, keepdim=True)
+    e1 = e1 / norm.clamp_min(torch.finfo(e1.dtype).tiny ** 0.5)  # _normalize
     return e1, torch.linalg.cross(ups, e1)
 
 
@@ -455,7 +481,7 @@ def search_horizon(
     coarse = _coarse_search(cal.K, cam, lengths, mask, grid, scales, search)
     up, horizontal, support, peaks = _fine_search(cam, lengths, mask, grid, coarse, pitch_step, fine_step, search)
     total = lengths.sum(-1, keepdim=True).clamp_min(torch.finfo(lengths.dtype).tiny ** 0.5)
-    scale = torch.tensor(scales, dtype=cal.K.dtype, device=cal.K.device)[coarse.best // grid.ups.shape[1]]
+    scale = _scale_constants(scales, cal.K)[0][coarse.best // grid.ups.shape[1]]
     return Refinement(
         up,
         horizontal,
@@ -494,13 +520,11 @@ class _Coarse(NamedTuple):
 
 def _pitch_grid(up_frame, cam, lengths, mask, pitch_range, pitch_step, zenith_tol, frame_roll) -> _Grid:
     """The coarse hypotheses: the frame's own first, then the refined zenith's roll with every pitch offset."""
-    dtype, device = up_frame.dtype, up_frame.device
     up_ref, _ = _refine_up(up_frame, cam, lengths, mask, zenith_tol, 2)
     pitch0, roll0 = pitch_roll_from_up(up_frame)
     _, roll1 = pitch_roll_from_up(up_ref)
     n = int(round(pitch_range / pitch_step))
-    offsets = torch.arange(-n, n + 1, dtype=dtype, device=device) * pitch_step
-    offsets = torch.cat([offsets.new_zeros(1), offsets[offsets != 0]])  # the frame's pitch first
+    offsets = _pitch_offsets(n, pitch_step, up_frame)
     if frame_roll:  # the frame's and the refined roll, each with every pitch
         pitches = (pitch0[:, None] + offsets).repeat(1, 2)
         rolls = torch.cat([roll0[:, None].expand(-1, len(offsets)), roll1[:, None].expand(-1, len(offsets))], 1)
@@ -512,16 +536,23 @@ def _pitch_grid(up_frame, cam, lengths, mask, pitch_range, pitch_step, zenith_to
     return _Grid(pitches, rolls, zen, up_from_pitch_roll(pitches, rolls), up_ref)
 
 
+def _pitch_offsets(n: int, step: float, like: Tensor) -> Tensor:
+    """``step`` times 0, then -n..n without 0 (the frame's pitch first), as :func:`torch.arange` would give them."""
+    key = ("pitch", n, step, like.dtype, like.device)
+    if key not in _CONSTANTS:
+        offsets = torch.arange(-n, n + 1, dtype=like.dtype, device=like.device) * step
+        _CONSTANTS[key] = (torch.cat([offsets.new_zeros(1), offsets[offsets != 0]]),)
+    return _CONSTANTS[key][0]
+
+
 def _coarse_search(K, cam, lengths, mask, grid: _Grid, scales: list[float], search: _Search) -> _Coarse:
     """Support of every hypothesis at every focal scale, in one pass (each scale its own batch rows)."""
     S, B, Hn = len(scales), len(K), grid.ups.shape[1]
     # K^-1 with f times x maps the centred points to p / x: midpoints and directions scale by 1 / x, and the plane
     # normal (n_x, n_y, n_z) becomes (x n_x, x n_y, n_z) up to its length
-    inv = torch.tensor([1.0 / x for x in scales]).to(K).repeat_interleave(B)[:, None, None]
-    mid, direction, normals = (t.repeat(S, 1, 1) for t in cam[:3])
-    stretch = torch.cat([1.0 / inv, 1.0 / inv, torch.ones_like(inv)], -1)
-    mid, direction = mid * inv, direction * inv
-    cam_s = _Cam(mid, direction, _normalize(normals * stretch), _line(mid, direction))
+    scale, inv, stretch = _scale_constants(scales, K)
+    mid, direction = (cam.mid * inv).flatten(0, 1), (cam.direction * inv).flatten(0, 1)
+    cam_s = _cam(mid, direction, _normalize((cam.normals * stretch).flatten(0, 1)))
     sup, d, v = _support(
         grid.ups.repeat(S, 1, 1),
         cam_s,
@@ -537,8 +568,17 @@ def _coarse_search(K, cam, lengths, mask, grid: _Grid, scales: list[float], sear
     dirs = d.view(S, B, Hn, -1, 3).transpose(0, 1).reshape(B, S * Hn, -1, 3)
     peaks = v.view(S, B, Hn, -1).transpose(0, 1).reshape(B, S * Hn, -1)
     best = support.argmax(-1)
-    scale = torch.tensor(scales, dtype=K.dtype, device=K.device)[best // Hn]
-    return _Coarse(support, dirs, cam if S == 1 else cam_s, best, _scaled_focal(K, scale), peaks)
+    return _Coarse(support, dirs, cam if S == 1 else cam_s, best, _scaled_focal(K, scale[best // Hn]), peaks)
+
+
+def _scale_constants(scales: list[float], like: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """The focal scales (S,), their inverses (S, 1, 1, 1) and the stretch of the plane normals (S, 1, 1, 3)."""
+    key = ("scales", *scales, like.dtype, like.device)
+    if key not in _CONSTANTS:
+        inv = torch.tensor([1.0 / x for x in scales]).to(like)[:, None, None, None]
+        stretch = torch.cat([1.0 / inv, 1.0 / inv, torch.ones_like(inv)], -1)
+        _CONSTANTS[key] = (torch.tensor(scales, dtype=like.dtype, device=like.device), inv, stretch)
+    return _CONSTANTS[key]
 
 
 def _fine_search(cam, lengths, mask, grid: _Grid, coarse: _Coarse, pitch_step, fine_step, search: _Search):
@@ -549,12 +589,11 @@ def _fine_search(cam, lengths, mask, grid: _Grid, coarse: _Coarse, pitch_step, f
     rows = torch.arange(B, device=coarse.best.device)
     hyp, best = coarse.best % Hn, coarse.best
     m = max(1, int(round(pitch_step / fine_step)))
-    fine = torch.arange(-m + 1, m, dtype=grid.ups.dtype, device=grid.ups.device) * fine_step
-    fine = fine[fine != 0]
-    fine_p = grid.pitches[rows, hyp][:, None] + fine
-    fine_r = grid.rolls[rows, hyp][:, None].expand_as(fine_p)
-    all_p = torch.cat([grid.pitches[rows, hyp][:, None], fine_p], 1)
-    all_r = torch.cat([grid.rolls[rows, hyp][:, None], fine_r], 1)
+    fine = _pitch_offsets(m - 1, fine_step, grid.ups)[1:]
+    pitch, roll = grid.pitches[rows, hyp][:, None], grid.rolls[rows, hyp][:, None]
+    fine_p = pitch + fine
+    fine_r = roll.expand_as(fine_p)
+    all_p, all_r = torch.cat([pitch, fine_p], 1), torch.cat([roll, fine_r], 1)
     cand_support, cand_dirs = coarse.support[rows, best][:, None], coarse.dirs[rows, best][:, None]
     cand_peaks = coarse.peaks[rows, best][:, None]
     if len(fine):

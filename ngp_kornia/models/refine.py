@@ -127,11 +127,10 @@ def _camera_segments(segments: Tensor, K: Tensor) -> _Cam:
     ones = segments.new_ones(*segments.shape[:-1], 1)
     pts = torch.cat([segments, ones], -1)  # (B, N, 2, 3)
     cam = (pts.flatten(1, 2) @ torch.linalg.inv(K).transpose(-1, -2)).view_as(pts)
-    cam = cam[..., :2] / cam[..., 2:]
-    mid, direction = cam.mean(-2), cam[..., 1, :] - cam[..., 0, :]
-    p0 = torch.cat([cam[..., 0, :], ones[..., 0, :]], -1)
-    p1 = torch.cat([cam[..., 1, :], ones[..., 0, :]], -1)
-    return _cam(mid, direction, _normalize(torch.linalg.cross(p0, p1)))
+    cam = cam / cam[..., 2:]  # (x, y, 1): z / z is exactly 1
+    xy = cam[..., :2]
+    mid, direction = xy.mean(-2), xy[..., 1, :] - xy[..., 0, :]
+    return _cam(mid, direction, _normalize(torch.linalg.cross(cam[..., 0, :], cam[..., 1, :])))
 
 
 def _ratio(cam: _Cam, vps: Tensor, inplace: bool = False) -> tuple[Tensor, Tensor]:
@@ -164,17 +163,17 @@ def _sin2(cam: _Cam, vps: Tensor) -> Tensor:
     return sin2.reshape(*vps.shape[:-1], -1)
 
 
-def _kernel(cam: _Cam, vps: Tensor, kernel_deg: float, keep: Tensor | None = None) -> Tensor:
+def _kernel(cam: _Cam, vps: Tensor, kernel_deg: float, mask: Tensor, keep: Tensor | None = None) -> Tensor:
     """Closeness ``max(0, 1 - sin^2 theta / (4 sin^2 sigma))`` of every segment to the nearest of a group of VPs
     (``theta`` as in :func:`_sin2`, ``sigma`` = ``kernel_deg``): 1 on the VP, 3/4 at ``sigma``, 0 beyond
     ``2 sigma`` (a cheap stand-in for a Gaussian of width ``sigma``).
 
     Args:
-        cam: the segments (:class:`_Cam`); vps: (B, H, P, 3), P VPs per group; keep: (B, H, P) bool, the VPs that
-            count (all when omitted).
+        cam: the segments (:class:`_Cam`); vps: (B, H, P, 3), P VPs per group; mask: (B, N) bool, the segments
+            that count; keep: (B, H, P) bool, the VPs that count (all when omitted).
 
     Returns:
-        (B, H, N): the largest closeness over each group's kept VPs (0 where none is kept).
+        (B, H, N): the largest closeness over each group's kept VPs (0 where none is kept or masked).
 
     The values of :func:`_sin2` and the closeness taken VP by VP, with fewer full-size passes (this dominates the
     search's time): the closeness falls with ``sin^2``, so the largest is that of the smallest ``sin^2``; the
@@ -195,7 +194,9 @@ def _kernel(cam: _Cam, vps: Tensor, kernel_deg: float, keep: Tensor | None = Non
     c = 4.0 * math.sin(math.radians(kernel_deg)) ** 2
     if c > 1.0:  # below, a clamped 1 and anything above 1 both give 0
         sin2 = sin2.clamp_max(1.0)
-    return (1.0 - sin2 / c).clamp_min(0.0)
+    if grad:
+        return (1.0 - sin2 / c).clamp_min(0.0) * mask[:, None]
+    return sin2.div_(c).neg_().add_(1.0).clamp_min_(0.0).mul_(mask[:, None])  # 1 - x as -x + 1: the same value
 
 
 def refine_up(
@@ -236,7 +237,7 @@ def _lengths(segments: Tensor, mask: Tensor) -> Tensor:
 
 
 def _refine_up(
-    up: Tensor, cam: tuple[Tensor, Tensor, Tensor], lengths: Tensor, mask: Tensor, zenith_tol: float, iterations: int
+    up: Tensor, cam: _Cam, lengths: Tensor, mask: Tensor, zenith_tol: float, iterations: int
 ) -> tuple[Tensor, Tensor]:
     """:func:`refine_up` on segments already in camera coordinates."""
     cos_tol = math.cos(math.radians(10.0))
@@ -248,7 +249,7 @@ def _refine_up(
         _, vecs = torch.linalg.eigh(M)
         fit = vecs[..., 0].detach()  # no gradient through eigh (unstable for close eigenvalues)
         dot = (fit * up).sum(-1, keepdim=True)
-        fit = fit * torch.where(dot < 0, -1.0, 1.0).to(fit)
+        fit = torch.where(dot < 0, -fit, fit)
         good = (inlier.sum(-1) >= 3) & (dot.abs()[:, 0] > cos_tol) & torch.isfinite(fit).all(-1)  # |dot|: fit . up
         cur = torch.where(good[:, None], fit, cur)
         ok = ok | good
@@ -310,15 +311,16 @@ def _support(
 ) -> tuple[Tensor, Tensor, Tensor]:
     """:func:`horizon_support` on segments already in camera coordinates (:func:`_camera_segments`)."""
     B, H, _ = ups.shape
-    kz = _kernel(cam, (ups if zenith_ups is None else zenith_ups)[:, :, None], kernel_deg) * mask[:, None]
+    kz = _kernel(cam, (ups if zenith_ups is None else zenith_ups)[:, :, None], kernel_deg, mask)  # (B, H, N)
     e1, e2 = _horizontal_basis(ups)
     # each segment's line meets the horizon in the horizontal direction n x u; with (e1, e2, u) right-handed its
     # coordinates are (n . e2, -n . e1), and |n x u|^2 = 1 - (n . u)^2
     nt = cam.normals_t
-    psi = torch.atan2(-(e1 @ nt), e2 @ nt).remainder(math.pi)  # (B, H, N)
-    meets = 1.0 - (ups @ nt).square() > 1e-12
+    with torch.no_grad():  # integer bins and a bool: no gradient, so in place (-x + 1 is 1 - x)
+        psi = torch.atan2((e1 @ nt).neg_(), e2 @ nt).remainder_(math.pi)  # (B, H, N)
+        index = psi.div_(math.pi).mul_(bins).long().clamp_(0, bins - 1)
+        meets = (ups @ nt).square_().neg_().add_(1.0) > 1e-12
     weight = lengths[:, None] * (1.0 - kz) * meets
-    index = (psi / math.pi * bins).long().clamp(0, bins - 1)
     hist = torch.zeros(B, H, bins, dtype=ups.dtype, device=ups.device).scatter_add_(-1, index, weight)
     # smooth (circular) and keep separated local maxima
     wrap = _wrap(hist, 2)  # wrap[..., 2 + i - k] is hist rolled by k
@@ -330,7 +332,7 @@ def _support(
     value, idx = peaks.topk(min(num_peaks, bins), dim=-1)
     angle = (idx.to(ups) + 0.5) * (math.pi / bins)
     dirs = torch.cos(angle)[..., None] * e1[:, :, None] + torch.sin(angle)[..., None] * e2[:, :, None]  # (B,H,P,3)
-    kh = _kernel(cam, dirs, kernel_deg, value > 0) * mask[:, None]  # (B, H, N)
+    kh = _kernel(cam, dirs, kernel_deg, mask, value > 0)  # (B, H, N)
     explained = torch.maximum(kz, kh)
     total = lengths.sum(-1, keepdim=True)
     support = (explained * lengths[:, None]).sum(-1) / total.clamp_min(torch.finfo(total.dtype).tiny ** 0.5)
@@ -345,7 +347,7 @@ def _wrap(x: Tensor, k: int) -> Tensor:
 _CONSTANTS: dict[tuple, tuple[Tensor, ...]] = {}
 
 
-def _constants(key: tuple, like: Tensor, *rows: list[float]) -> tuple[Tensor, ...]:
+def _constants(key: tuple, like: Tensor, *rows: list) -> tuple[Tensor, ...]:
     """Per-call constant vectors, built once per ``key``, dtype and device (building them costs more than the
     arithmetic that uses them)."""
     key = (*key, like.dtype, like.device)
@@ -357,11 +359,11 @@ def _constants(key: tuple, like: Tensor, *rows: list[float]) -> tuple[Tensor, ..
 def _horizontal_basis(ups: Tensor) -> tuple[Tensor, Tensor]:
     """A basis ``e1, e2`` (B, H, 3) of each horizontal plane, ``(e1, e2, u)`` right-handed: ``e1`` along
     ``u x z`` (``u x x`` where ``u`` is the optical axis)."""
-    ref, alt = _constants(("axes",), ups, [0.0, 0.0, 1.0], [1.0, 0.0, 0.0])
-    e1 = torch.linalg.cross(ups, ref.expand_as(ups))
+    ref, alt = _constants(("axes",), ups, [[[0.0, 0.0, 1.0]]], [[[1.0, 0.0, 0.0]]])  # (1, 1, 3): broadcast
+    e1 = torch.linalg.cross(ups, ref)
     norm = e1.norm(dim=-1, keepdim=True)
     if not bool((norm > 1e-6).all()):
-        e1 = torch.where(norm > 1e-6, e1, torch.linalg.cross(ups, alt.expand_as(ups)))
+        e1 = torch.where(norm > 1e-6, e1, torch.linalg.cross(ups, alt))
         norm = e1.norm(dim=-1, keepdim=True)
     e1 = e1 / norm.clamp_min(torch.finfo(e1.dtype).tiny ** 0.5)  # _normalize
     return e1, torch.linalg.cross(ups, e1)
@@ -521,8 +523,8 @@ class _Coarse(NamedTuple):
 def _pitch_grid(up_frame, cam, lengths, mask, pitch_range, pitch_step, zenith_tol, frame_roll) -> _Grid:
     """The coarse hypotheses: the frame's own first, then the refined zenith's roll with every pitch offset."""
     up_ref, _ = _refine_up(up_frame, cam, lengths, mask, zenith_tol, 2)
-    pitch0, roll0 = pitch_roll_from_up(up_frame)
-    _, roll1 = pitch_roll_from_up(up_ref)
+    pitch, roll = pitch_roll_from_up(torch.stack([up_frame, up_ref]))
+    pitch0, roll0, roll1 = pitch[0], roll[0], roll[1]
     n = int(round(pitch_range / pitch_step))
     offsets = _pitch_offsets(n, pitch_step, up_frame)
     if frame_roll:  # the frame's and the refined roll, each with every pitch

@@ -91,16 +91,15 @@ def up_from_pitch_roll(pitch: Tensor, roll: Tensor) -> Tensor:
 class _Cam(NamedTuple):
     """Segments in normalised camera coordinates (:func:`_cam`): midpoints (B, N, 2), directions (B, N, 2) and
     unit interpretation-plane normals (B, N, 3); the terms every hypothesis is scored with, built once: each
-    segment's line through its midpoint (unit normal, :func:`_line`), the midpoints and the normals as (B, 3 or 2,
-    N) matrices, and the midpoints' squared lengths (B, 1, N)."""
+    segment's line through its midpoint (unit normal, :func:`_line`) and the normals as (B, 3, N) matrices, and
+    the midpoint terms ``(1, m_x, m_y, |m|^2)`` (B, 4, N) of :func:`_ratio`."""
 
     mid: Tensor
     direction: Tensor
     normals: Tensor
     line_t: Tensor
-    mid_t: Tensor
+    mid_terms: Tensor
     normals_t: Tensor
-    mid_sq: Tensor
 
     def rows(self, index: Tensor) -> _Cam:
         return _Cam(*(t[index] for t in self))
@@ -110,7 +109,8 @@ def _cam(mid: Tensor, direction: Tensor, normals: Tensor) -> _Cam:
     def t(x: Tensor) -> Tensor:
         return x.transpose(-1, -2).contiguous()
 
-    return _Cam(mid, direction, normals, t(_line(mid, direction)), t(mid), t(normals), mid.square().sum(-1)[:, None])
+    terms = torch.cat([torch.ones_like(mid[..., :1]), mid, mid.square().sum(-1, keepdim=True)], -1)
+    return _Cam(mid, direction, normals, t(_line(mid, direction)), t(terms), t(normals))
 
 
 def _line(mid: Tensor, direction: Tensor) -> Tensor:
@@ -136,15 +136,13 @@ def _camera_segments(segments: Tensor, K: Tensor) -> _Cam:
 def _ratio(cam: _Cam, vps: Tensor, inplace: bool = False) -> tuple[Tensor, Tensor]:
     """Numerator ``(|s x d| / |s|)^2`` and denominator ``|d|^2`` (B, V, N) of the squared sine of :func:`_sin2`,
     with ``d = v_xy - m v_z`` the ray from each midpoint ``m`` to each VP ``v`` (B, V, 3); ``inplace`` (no
-    autograd) reuses the products' memory."""
+    autograd) reuses the products' memory. ``|d|^2`` is one product of per-VP terms ``(|v_xy|^2, -2 v_z v_x,
+    -2 v_z v_y, v_z^2)`` with per-segment terms ``(1, m_x, m_y, |m|^2)`` (:class:`_Cam`)."""
     num = vps @ cam.line_t
     num = torch.square(num, out=num if inplace else None)
-    vz = vps[..., 2:]
-    den = vps[..., :2] @ cam.mid_t
-    out = den if inplace else None
-    den = torch.mul(2.0 * vz, den, out=out)
-    den = torch.sub(vps[..., :2].square().sum(-1, keepdim=True), den, out=out)
-    return num, torch.add(den, vz.square() * cam.mid_sq, out=out)
+    vxy, vz = vps[..., :2], vps[..., 2:]
+    terms = torch.cat([vxy.square().sum(-1, keepdim=True), -2.0 * vz * vxy, vz.square()], -1)
+    return num, terms @ cam.mid_terms
 
 
 def _sin2(cam: _Cam, vps: Tensor) -> Tensor:
@@ -182,7 +180,7 @@ def _kernel(cam: _Cam, vps: Tensor, kernel_deg: float, mask: Tensor, keep: Tenso
     B, H, P, _ = vps.shape
     tiny = torch.finfo(vps.dtype).tiny ** 0.5
     v = vps.reshape(B, H * P, 3)
-    grad = torch.is_grad_enabled() and (v.requires_grad or cam.line_t.requires_grad or cam.mid_t.requires_grad)
+    grad = torch.is_grad_enabled() and (v.requires_grad or cam.line_t.requires_grad or cam.mid_terms.requires_grad)
     num, den = _ratio(cam, v, not grad)
     if bool(den.amin() > tiny):
         sin2 = torch.div(num, den, out=None if grad else num)

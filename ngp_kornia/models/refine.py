@@ -85,7 +85,8 @@ def up_from_pitch_roll(pitch: Tensor, roll: Tensor) -> Tensor:
         tensor([[ 0., -1.,  0.]])
     """
     p, r = torch.deg2rad(pitch), torch.deg2rad(roll)
-    return torch.stack([torch.cos(p) * torch.sin(r), -torch.cos(p) * torch.cos(r), torch.sin(p)], -1)
+    cos_p = torch.cos(p)
+    return torch.stack([cos_p * torch.sin(r), -cos_p * torch.cos(r), torch.sin(p)], -1)
 
 
 class _Cam(NamedTuple):

@@ -2,7 +2,7 @@
 the horizon (one or two per building block, not only the frame's two) and move the horizon where the lines
 support it best.
 
-Method (all batched over B with the segment mask; no loop over images; about 6 ms of one CPU core per image with
+Method (all batched over B with the segment mask; no loop over images; about 4 ms of one CPU core per image with
 512 segments):
 
 1. **Zenith.** The up vector is refined by least squares on its inlier segments (those pointing at the zenith
@@ -85,52 +85,117 @@ def up_from_pitch_roll(pitch: Tensor, roll: Tensor) -> Tensor:
         tensor([[ 0., -1.,  0.]])
     """
     p, r = torch.deg2rad(pitch), torch.deg2rad(roll)
-    return torch.stack([torch.cos(p) * torch.sin(r), -torch.cos(p) * torch.cos(r), torch.sin(p)], -1)
+    cos_p = torch.cos(p)
+    return torch.stack([cos_p * torch.sin(r), -cos_p * torch.cos(r), torch.sin(p)], -1)
 
 
-def _camera_segments(segments: Tensor, K: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-    """Segments in normalised camera coordinates ``K^-1 p``: midpoints (B, N, 2), directions (B, N, 2) and unit
-    interpretation-plane normals (B, N, 3). ``K^-1`` is a similarity for square pixels, so image angles are kept."""
+class _Cam(NamedTuple):
+    """Segments in normalised camera coordinates (:func:`_cam`): midpoints (B, N, 2), directions (B, N, 2) and
+    unit interpretation-plane normals (B, N, 3); the terms every hypothesis is scored with, built once: each
+    segment's line through its midpoint (unit normal, :func:`_line`) and the normals as (B, 3, N) matrices, and
+    the midpoint terms ``(1, m_x, m_y, |m|^2)`` (B, 4, N) of :func:`_ratio`."""
+
+    mid: Tensor
+    direction: Tensor
+    normals: Tensor
+    line_t: Tensor
+    mid_terms: Tensor
+    normals_t: Tensor
+
+    def rows(self, index: Tensor) -> _Cam:
+        return _Cam(*(t[index] for t in self))
+
+
+def _cam(mid: Tensor, direction: Tensor, normals: Tensor) -> _Cam:
+    def t(x: Tensor) -> Tensor:
+        return x.transpose(-1, -2).contiguous()
+
+    terms = torch.cat([torch.ones_like(mid[..., :1]), mid, mid.square().sum(-1, keepdim=True)], -1)
+    return _Cam(mid, direction, normals, t(_line(mid, direction)), t(terms), t(normals))
+
+
+def _line(mid: Tensor, direction: Tensor) -> Tensor:
+    """The line through each midpoint along its direction, ``(-s_y, s_x, s_y m_x - s_x m_y) / |s|`` (B, N, 3)."""
+    tiny = torch.finfo(mid.dtype).tiny ** 0.5
+    sx, sy = direction[..., 0], direction[..., 1]
+    line = torch.stack([-sy, sx, sy * mid[..., 0] - sx * mid[..., 1]], -1)
+    return line / direction.norm(dim=-1, keepdim=True).clamp_min(tiny)
+
+
+def _camera_segments(segments: Tensor, K: Tensor) -> _Cam:
+    """Segments in normalised camera coordinates ``K^-1 p`` (:class:`_Cam`). ``K^-1`` is a similarity for square
+    pixels, so image angles are kept."""
     ones = segments.new_ones(*segments.shape[:-1], 1)
     pts = torch.cat([segments, ones], -1)  # (B, N, 2, 3)
-    cam = torch.einsum("bij,bnkj->bnki", torch.linalg.inv(K), pts)
-    cam = cam[..., :2] / cam[..., 2:]
-    mid, direction = cam.mean(-2), cam[..., 1, :] - cam[..., 0, :]
-    p0 = torch.cat([cam[..., 0, :], ones[..., 0, :]], -1)
-    p1 = torch.cat([cam[..., 1, :], ones[..., 0, :]], -1)
-    return mid, direction, _normalize(torch.linalg.cross(p0, p1))
+    cam = (pts.flatten(1, 2) @ torch.linalg.inv(K).transpose(-1, -2)).view_as(pts)
+    cam = cam / cam[..., 2:]  # (x, y, 1): z / z is exactly 1
+    xy = cam[..., :2]
+    mid, direction = xy.mean(-2), xy[..., 1, :] - xy[..., 0, :]
+    return _cam(mid, direction, _normalize(torch.linalg.cross(cam[..., 0, :], cam[..., 1, :])))
 
 
-def _sin2(mid: Tensor, direction: Tensor, vps: Tensor) -> Tensor:
+def _ratio(cam: _Cam, vps: Tensor, inplace: bool = False) -> tuple[Tensor, Tensor]:
+    """Numerator ``(|s x d| / |s|)^2`` and denominator ``|d|^2`` (B, V, N) of the squared sine of :func:`_sin2`,
+    with ``d = v_xy - m v_z`` the ray from each midpoint ``m`` to each VP ``v`` (B, V, 3); ``inplace`` (no
+    autograd) reuses the products' memory. ``|d|^2`` is one product of per-VP terms ``(|v_xy|^2, -2 v_z v_x,
+    -2 v_z v_y, v_z^2)`` with per-segment terms ``(1, m_x, m_y, |m|^2)`` (:class:`_Cam`)."""
+    num = vps @ cam.line_t
+    num = torch.square(num, out=num if inplace else None)
+    vxy, vz = vps[..., :2], vps[..., 2:]
+    terms = torch.cat([vxy.square().sum(-1, keepdim=True), -2.0 * vz * vxy, vz.square()], -1)
+    return num, terms @ cam.mid_terms
+
+
+def _sin2(cam: _Cam, vps: Tensor) -> Tensor:
     """Squared sine of the image angle between every segment and the ray from its midpoint to every VP
     (normalised camera coordinates).
 
     Args:
-        mid: (B, N, 2) midpoints; direction: (B, N, 2); vps: (B, ..., 3) directions (VPs at infinity allowed).
+        cam: the segments (:class:`_Cam`); vps: (B, ..., 3) directions (VPs at infinity allowed).
 
     Returns:
         (B, ..., N) in [0, 1]; a VP at the midpoint gives 1, a zero-length segment 0 (padding: mask it).
     """
-    shape = vps.shape[:-1]
-    v = vps.reshape(vps.shape[0], -1, 3)  # (B, V, 3)
-    tiny = torch.finfo(mid.dtype).tiny ** 0.5
-    # the segment's line through its midpoint, unit normal: (-s_y, s_x, s_y m_x - s_x m_y) / |s|
-    sx, sy = direction[..., 0], direction[..., 1]
-    line = torch.stack([-sy, sx, sy * mid[..., 0] - sx * mid[..., 1]], -1)
-    line = line / direction.norm(dim=-1, keepdim=True).clamp_min(tiny)
-    num = (v @ line.transpose(-1, -2)).square()  # (B, V, N): (|s x d| / |s|)^2 with d = v_xy - mid v_z
-    vz = v[..., 2:]
-    den = v[..., :2].square().sum(-1, keepdim=True) - 2.0 * vz * (v[..., :2] @ mid.transpose(-1, -2))
-    den = den + vz.square() * mid.square().sum(-1)[:, None]  # |d|^2
-    sin2 = torch.where(den > tiny, num / den.clamp_min(tiny), torch.ones_like(den)).clamp_max(1.0)
-    return sin2.reshape(*shape, mid.shape[1])
+    tiny = torch.finfo(vps.dtype).tiny ** 0.5
+    num, den = _ratio(cam, vps.reshape(vps.shape[0], -1, 3))
+    sin2 = torch.where(den > tiny, num / den.clamp_min(tiny), 1.0).clamp_max(1.0)
+    return sin2.reshape(*vps.shape[:-1], -1)
 
 
-def _kernel(mid: Tensor, direction: Tensor, vps: Tensor, kernel_deg: float) -> Tensor:
-    """Closeness ``max(0, 1 - sin^2 theta / (4 sin^2 sigma))`` of every segment to every VP (``theta`` as in
-    :func:`_sin2`, ``sigma`` = ``kernel_deg``): 1 on the VP, 3/4 at ``sigma``, 0 beyond ``2 sigma`` (a cheap
-    stand-in for a Gaussian of width ``sigma``). Shapes as :func:`_sin2`."""
-    return (1.0 - _sin2(mid, direction, vps) / (4.0 * math.sin(math.radians(kernel_deg)) ** 2)).clamp_min(0.0)
+def _kernel(cam: _Cam, vps: Tensor, kernel_deg: float, mask: Tensor, keep: Tensor | None = None) -> Tensor:
+    """Closeness ``max(0, 1 - sin^2 theta / (4 sin^2 sigma))`` of every segment to the nearest of a group of VPs
+    (``theta`` as in :func:`_sin2`, ``sigma`` = ``kernel_deg``): 1 on the VP, 3/4 at ``sigma``, 0 beyond
+    ``2 sigma`` (a cheap stand-in for a Gaussian of width ``sigma``).
+
+    Args:
+        cam: the segments (:class:`_Cam`); vps: (B, H, P, 3), P VPs per group; mask: (B, N) bool, the segments
+            that count; keep: (B, H, P) bool, the VPs that count (all when omitted).
+
+    Returns:
+        (B, H, N): the largest closeness over each group's kept VPs (0 where none is kept or masked).
+
+    The values of :func:`_sin2` and the closeness taken VP by VP, with fewer full-size passes (this dominates the
+    search's time): the closeness falls with ``sin^2``, so the largest is that of the smallest ``sin^2``; the
+    guard against a VP on a midpoint runs only where one is that close, and without autograd the arithmetic runs
+    in place."""
+    B, H, P, _ = vps.shape
+    tiny = torch.finfo(vps.dtype).tiny ** 0.5
+    v = vps.reshape(B, H * P, 3)
+    grad = torch.is_grad_enabled() and (v.requires_grad or cam.line_t.requires_grad or cam.mid_terms.requires_grad)
+    num, den = _ratio(cam, v, not grad)
+    if bool(den.amin() > tiny):
+        sin2 = torch.div(num, den, out=None if grad else num)
+    else:
+        sin2 = torch.where(den > tiny, num / den.clamp_min(tiny), 1.0)
+    if keep is not None and not bool(keep.all()):
+        sin2 = sin2.masked_fill(~keep.reshape(B, H * P, 1), math.inf)
+    sin2 = sin2.view(B, H, P, -1).amin(2) if P > 1 else sin2.view(B, H, -1)
+    c = 4.0 * math.sin(math.radians(kernel_deg)) ** 2
+    if c > 1.0:  # below, a clamped 1 and anything above 1 both give 0
+        sin2 = sin2.clamp_max(1.0)
+    if grad:
+        return (1.0 - sin2 / c).clamp_min(0.0) * mask[:, None]
+    return sin2.div_(c).neg_().add_(1.0).clamp_min_(0.0).mul_(mask[:, None])  # 1 - x as -x + 1: the same value
 
 
 def refine_up(
@@ -171,20 +236,20 @@ def _lengths(segments: Tensor, mask: Tensor) -> Tensor:
 
 
 def _refine_up(
-    up: Tensor, cam: tuple[Tensor, Tensor, Tensor], lengths: Tensor, mask: Tensor, zenith_tol: float, iterations: int
+    up: Tensor, cam: _Cam, lengths: Tensor, mask: Tensor, zenith_tol: float, iterations: int
 ) -> tuple[Tensor, Tensor]:
     """:func:`refine_up` on segments already in camera coordinates."""
-    mid, direction, normals = cam
     cos_tol = math.cos(math.radians(10.0))
     cur, ok = up, torch.zeros(len(up), dtype=torch.bool, device=up.device)
     for _ in range(iterations):
-        inlier = (_sin2(mid, direction, cur[:, None])[:, 0] <= math.sin(math.radians(zenith_tol)) ** 2) & mask
+        inlier = (_sin2(cam, cur[:, None])[:, 0] <= math.sin(math.radians(zenith_tol)) ** 2) & mask
         w = lengths * inlier
-        M = torch.einsum("bn,bni,bnj->bij", w, normals, normals)
+        M = (w[:, None] * cam.normals_t) @ cam.normals  # sum_i w_i n_i n_i^T
         _, vecs = torch.linalg.eigh(M)
         fit = vecs[..., 0].detach()  # no gradient through eigh (unstable for close eigenvalues)
-        fit = fit * torch.where((fit * up).sum(-1, keepdim=True) < 0, -1.0, 1.0).to(fit)
-        good = (inlier.sum(-1) >= 3) & ((fit * up).sum(-1) > cos_tol) & torch.isfinite(fit).all(-1)
+        dot = (fit * up).sum(-1, keepdim=True)
+        fit = torch.where(dot < 0, -fit, fit)
+        good = (inlier.sum(-1) >= 3) & (dot.abs()[:, 0] > cos_tol) & torch.isfinite(fit).all(-1)  # |dot|: fit . up
         cur = torch.where(good[:, None], fit, cur)
         ok = ok | good
     return _normalize(cur), ok
@@ -245,38 +310,62 @@ def _support(
 ) -> tuple[Tensor, Tensor, Tensor]:
     """:func:`horizon_support` on segments already in camera coordinates (:func:`_camera_segments`)."""
     B, H, _ = ups.shape
-    mid, direction, normals = cam
-    kz = _kernel(mid, direction, ups if zenith_ups is None else zenith_ups, kernel_deg) * mask[:, None]  # (B, H, N)
-    # a basis of each horizontal plane; psi is the angle of a horizontal direction in it
-    ref = torch.tensor([0.0, 0.0, 1.0]).to(ups).expand_as(ups)
-    alt = torch.tensor([1.0, 0.0, 0.0]).to(ups).expand_as(ups)
-    e1 = torch.linalg.cross(ups, ref)
-    e1 = _normalize(torch.where(e1.norm(dim=-1, keepdim=True) > 1e-6, e1, torch.linalg.cross(ups, alt)))
-    e2 = torch.linalg.cross(ups, e1)
+    kz = _kernel(cam, (ups if zenith_ups is None else zenith_ups)[:, :, None], kernel_deg, mask)  # (B, H, N)
+    e1, e2 = _horizontal_basis(ups)
     # each segment's line meets the horizon in the horizontal direction n x u; with (e1, e2, u) right-handed its
     # coordinates are (n . e2, -n . e1), and |n x u|^2 = 1 - (n . u)^2
-    nt = normals.transpose(-1, -2)
-    psi = torch.atan2(-(e1 @ nt), e2 @ nt).remainder(math.pi)  # (B, H, N)
-    meets = 1.0 - (ups @ nt).square() > 1e-12
+    nt = cam.normals_t
+    with torch.no_grad():  # integer bins and a bool: no gradient, so in place (-x + 1 is 1 - x)
+        psi = torch.atan2((e1 @ nt).neg_(), e2 @ nt).remainder_(math.pi)  # (B, H, N)
+        index = psi.div_(math.pi).mul_(bins).long().clamp_(0, bins - 1)
+        meets = (ups @ nt).square_().neg_().add_(1.0) > 1e-12
     weight = lengths[:, None] * (1.0 - kz) * meets
-    index = (psi / math.pi * bins).long().clamp(0, bins - 1)
     hist = torch.zeros(B, H, bins, dtype=ups.dtype, device=ups.device).scatter_add_(-1, index, weight)
     # smooth (circular) and keep separated local maxima
-    near = hist.roll(1, -1) + hist.roll(-1, -1)
-    hist = (3.0 * hist + 2.0 * near + hist.roll(2, -1) + hist.roll(-2, -1)) / 9.0
+    wrap = _wrap(hist, 2)  # wrap[..., 2 + i - k] is hist rolled by k
+    near = wrap[..., 1 : bins + 1] + wrap[..., 3 : bins + 3]
+    hist = (3.0 * hist + 2.0 * near + wrap[..., :bins] + wrap[..., 4:]) / 9.0
     half = max(1, round(separation_deg / 180.0 * bins))
-    padded = F.pad(hist.reshape(B * H, 1, bins), (half, half), mode="circular")
-    local_max = F.max_pool1d(padded, 2 * half + 1, stride=1).reshape(B, H, bins)
-    peaks = torch.where(hist >= local_max, hist, torch.zeros_like(hist))
-    p = min(num_peaks, bins)
-    value, idx = peaks.topk(p, dim=-1)
+    local_max = F.max_pool1d(_wrap(hist, half).reshape(B * H, 1, -1), 2 * half + 1, stride=1).reshape(B, H, bins)
+    peaks = torch.where(hist >= local_max, hist, 0.0)
+    value, idx = peaks.topk(min(num_peaks, bins), dim=-1)
     angle = (idx.to(ups) + 0.5) * (math.pi / bins)
     dirs = torch.cos(angle)[..., None] * e1[:, :, None] + torch.sin(angle)[..., None] * e2[:, :, None]  # (B,H,P,3)
-    kh = _kernel(mid, direction, dirs, kernel_deg) * (value > 0)[..., None] * mask[:, None, None]  # (B, H, P, N)
-    explained = torch.maximum(kz, kh.amax(2))
+    kh = _kernel(cam, dirs, kernel_deg, mask, value > 0)  # (B, H, N)
+    explained = torch.maximum(kz, kh)
     total = lengths.sum(-1, keepdim=True)
     support = (explained * lengths[:, None]).sum(-1) / total.clamp_min(torch.finfo(total.dtype).tiny ** 0.5)
     return support, dirs, value
+
+
+def _wrap(x: Tensor, k: int) -> Tensor:
+    """``x`` circularly padded by ``k`` on both sides of its last dimension (``k`` at most its length)."""
+    return torch.cat([x[..., -k:], x, x[..., :k]], -1)
+
+
+_CONSTANTS: dict[tuple, tuple[Tensor, ...]] = {}
+
+
+def _constants(key: tuple, like: Tensor, *rows: list) -> tuple[Tensor, ...]:
+    """Per-call constant vectors, built once per ``key``, dtype and device (building them costs more than the
+    arithmetic that uses them)."""
+    key = (*key, like.dtype, like.device)
+    if key not in _CONSTANTS:
+        _CONSTANTS[key] = tuple(torch.tensor(r, dtype=like.dtype, device=like.device) for r in rows)
+    return _CONSTANTS[key]
+
+
+def _horizontal_basis(ups: Tensor) -> tuple[Tensor, Tensor]:
+    """A basis ``e1, e2`` (B, H, 3) of each horizontal plane, ``(e1, e2, u)`` right-handed: ``e1`` along
+    ``u x z`` (``u x x`` where ``u`` is the optical axis)."""
+    ref, alt = _constants(("axes",), ups, [[[0.0, 0.0, 1.0]]], [[[1.0, 0.0, 0.0]]])  # (1, 1, 3): broadcast
+    e1 = torch.linalg.cross(ups, ref)
+    norm = e1.norm(dim=-1, keepdim=True)
+    if not bool((norm > 1e-6).all()):
+        e1 = torch.where(norm > 1e-6, e1, torch.linalg.cross(ups, alt))
+        norm = e1.norm(dim=-1, keepdim=True)
+    e1 = e1 / norm.clamp_min(torch.finfo(e1.dtype).tiny ** 0.5)  # _normalize
+    return e1, torch.linalg.cross(ups, e1)
 
 
 #: the frame's focal length is also tried times each of these (chosen on York Urban, ECD and renders together)
@@ -393,7 +482,7 @@ def search_horizon(
     coarse = _coarse_search(cal.K, cam, lengths, mask, grid, scales, search)
     up, horizontal, support, peaks = _fine_search(cam, lengths, mask, grid, coarse, pitch_step, fine_step, search)
     total = lengths.sum(-1, keepdim=True).clamp_min(torch.finfo(lengths.dtype).tiny ** 0.5)
-    scale = torch.tensor(scales, dtype=cal.K.dtype, device=cal.K.device)[coarse.best // grid.ups.shape[1]]
+    scale = _scale_constants(scales, cal.K)[0][coarse.best // grid.ups.shape[1]]
     return Refinement(
         up,
         horizontal,
@@ -424,7 +513,7 @@ class _Grid(NamedTuple):
 class _Coarse(NamedTuple):
     support: Tensor  # (B, S * H), scale-major; column 0 is the frame's own hypothesis
     dirs: Tensor  # (B, S * H, P, 3) horizontal VP directions
-    cam: tuple  # the camera-coordinate segments of every scale, scale-major rows
+    cam: _Cam  # the camera-coordinate segments of every scale, scale-major rows
     best: Tensor  # (B,) index into the S * H hypotheses
     K: Tensor  # (B, 3, 3) K with the best hypothesis' focal scale
     peaks: Tensor  # (B, S * H, P) histogram weights of the horizontal VPs
@@ -432,13 +521,11 @@ class _Coarse(NamedTuple):
 
 def _pitch_grid(up_frame, cam, lengths, mask, pitch_range, pitch_step, zenith_tol, frame_roll) -> _Grid:
     """The coarse hypotheses: the frame's own first, then the refined zenith's roll with every pitch offset."""
-    dtype, device = up_frame.dtype, up_frame.device
     up_ref, _ = _refine_up(up_frame, cam, lengths, mask, zenith_tol, 2)
-    pitch0, roll0 = pitch_roll_from_up(up_frame)
-    _, roll1 = pitch_roll_from_up(up_ref)
+    pitch, roll = pitch_roll_from_up(torch.stack([up_frame, up_ref]))
+    pitch0, roll0, roll1 = pitch[0], roll[0], roll[1]
     n = int(round(pitch_range / pitch_step))
-    offsets = torch.arange(-n, n + 1, dtype=dtype, device=device) * pitch_step
-    offsets = torch.cat([offsets.new_zeros(1), offsets[offsets != 0]])  # the frame's pitch first
+    offsets = _pitch_offsets(n, pitch_step, up_frame)
     if frame_roll:  # the frame's and the refined roll, each with every pitch
         pitches = (pitch0[:, None] + offsets).repeat(1, 2)
         rolls = torch.cat([roll0[:, None].expand(-1, len(offsets)), roll1[:, None].expand(-1, len(offsets))], 1)
@@ -450,15 +537,23 @@ def _pitch_grid(up_frame, cam, lengths, mask, pitch_range, pitch_step, zenith_to
     return _Grid(pitches, rolls, zen, up_from_pitch_roll(pitches, rolls), up_ref)
 
 
+def _pitch_offsets(n: int, step: float, like: Tensor) -> Tensor:
+    """``step`` times 0, then -n..n without 0 (the frame's pitch first), as :func:`torch.arange` would give them."""
+    key = ("pitch", n, step, like.dtype, like.device)
+    if key not in _CONSTANTS:
+        offsets = torch.arange(-n, n + 1, dtype=like.dtype, device=like.device) * step
+        _CONSTANTS[key] = (torch.cat([offsets.new_zeros(1), offsets[offsets != 0]]),)
+    return _CONSTANTS[key][0]
+
+
 def _coarse_search(K, cam, lengths, mask, grid: _Grid, scales: list[float], search: _Search) -> _Coarse:
     """Support of every hypothesis at every focal scale, in one pass (each scale its own batch rows)."""
     S, B, Hn = len(scales), len(K), grid.ups.shape[1]
     # K^-1 with f times x maps the centred points to p / x: midpoints and directions scale by 1 / x, and the plane
     # normal (n_x, n_y, n_z) becomes (x n_x, x n_y, n_z) up to its length
-    inv = torch.tensor([1.0 / x for x in scales]).to(K).repeat_interleave(B)[:, None, None]
-    mid, direction, normals = (t.repeat(S, 1, 1) for t in cam)
-    stretch = torch.cat([1.0 / inv, 1.0 / inv, torch.ones_like(inv)], -1)
-    cam_s = (mid * inv, direction * inv, _normalize(normals * stretch))
+    scale, inv, stretch = _scale_constants(scales, K)
+    mid, direction = (cam.mid * inv).flatten(0, 1), (cam.direction * inv).flatten(0, 1)
+    cam_s = _cam(mid, direction, _normalize((cam.normals * stretch).flatten(0, 1)))
     sup, d, v = _support(
         grid.ups.repeat(S, 1, 1),
         cam_s,
@@ -474,8 +569,17 @@ def _coarse_search(K, cam, lengths, mask, grid: _Grid, scales: list[float], sear
     dirs = d.view(S, B, Hn, -1, 3).transpose(0, 1).reshape(B, S * Hn, -1, 3)
     peaks = v.view(S, B, Hn, -1).transpose(0, 1).reshape(B, S * Hn, -1)
     best = support.argmax(-1)
-    scale = torch.tensor(scales, dtype=K.dtype, device=K.device)[best // Hn]
-    return _Coarse(support, dirs, cam if S == 1 else cam_s, best, _scaled_focal(K, scale), peaks)
+    return _Coarse(support, dirs, cam if S == 1 else cam_s, best, _scaled_focal(K, scale[best // Hn]), peaks)
+
+
+def _scale_constants(scales: list[float], like: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """The focal scales (S,), their inverses (S, 1, 1, 1) and the stretch of the plane normals (S, 1, 1, 3)."""
+    key = ("scales", *scales, like.dtype, like.device)
+    if key not in _CONSTANTS:
+        inv = torch.tensor([1.0 / x for x in scales]).to(like)[:, None, None, None]
+        stretch = torch.cat([1.0 / inv, 1.0 / inv, torch.ones_like(inv)], -1)
+        _CONSTANTS[key] = (torch.tensor(scales, dtype=like.dtype, device=like.device), inv, stretch)
+    return _CONSTANTS[key]
 
 
 def _fine_search(cam, lengths, mask, grid: _Grid, coarse: _Coarse, pitch_step, fine_step, search: _Search):
@@ -486,17 +590,16 @@ def _fine_search(cam, lengths, mask, grid: _Grid, coarse: _Coarse, pitch_step, f
     rows = torch.arange(B, device=coarse.best.device)
     hyp, best = coarse.best % Hn, coarse.best
     m = max(1, int(round(pitch_step / fine_step)))
-    fine = torch.arange(-m + 1, m, dtype=grid.ups.dtype, device=grid.ups.device) * fine_step
-    fine = fine[fine != 0]
-    fine_p = grid.pitches[rows, hyp][:, None] + fine
-    fine_r = grid.rolls[rows, hyp][:, None].expand_as(fine_p)
-    all_p = torch.cat([grid.pitches[rows, hyp][:, None], fine_p], 1)
-    all_r = torch.cat([grid.rolls[rows, hyp][:, None], fine_r], 1)
+    fine = _pitch_offsets(m - 1, fine_step, grid.ups)[1:]
+    pitch, roll = grid.pitches[rows, hyp][:, None], grid.rolls[rows, hyp][:, None]
+    fine_p = pitch + fine
+    fine_r = roll.expand_as(fine_p)
+    all_p, all_r = torch.cat([pitch, fine_p], 1), torch.cat([roll, fine_r], 1)
     cand_support, cand_dirs = coarse.support[rows, best][:, None], coarse.dirs[rows, best][:, None]
     cand_peaks = coarse.peaks[rows, best][:, None]
     if len(fine):
         fine_zen = grid.zen[rows, hyp][:, None].expand(-1, len(fine), 3)
-        cam_best = coarse.cam if len(coarse.cam[0]) == B else tuple(t[(best // Hn) * B + rows] for t in coarse.cam)
+        cam_best = coarse.cam if len(coarse.cam[0]) == B else coarse.cam.rows((best // Hn) * B + rows)
         fine_support, fine_dirs, fine_peaks = _support(
             up_from_pitch_roll(fine_p, fine_r),
             cam_best,
@@ -519,6 +622,8 @@ def _fine_search(cam, lengths, mask, grid: _Grid, coarse: _Coarse, pitch_step, f
 def _with_up(cal: Calibration, use: Tensor, K: Tensor, up: Tensor, horizontal: Tensor) -> Calibration:
     """The calibration with, where ``use``, the up vector ``up``, the rotation from it and the horizontal VP
     direction, and ``K``; every other field follows, so the horizon is the polar of the zenith."""
+    if not bool(use.any()):  # every frame kept (the common case): the fields the choice below would give
+        return replace(cal, K=K, focal=K[:, 0, 0], up=-cal.R[..., :, 1])
     down = -up
     h = _normalize(horizontal - (horizontal * up).sum(-1, keepdim=True) * up)
     R = canonical_manhattan_rotation(torch.stack([h, down, torch.linalg.cross(h, down)], -1))

@@ -242,3 +242,40 @@ def test_search_horizon_frame_support_is_the_support_of_the_frames_horizon():
     assert torch.allclose(found.frame_support, support[:, 0], atol=1e-5)
     total = (seg[..., 1, :] - seg[..., 0, :]).norm(dim=-1).sum()
     assert torch.allclose(found.frame_peaks, weight[:, 0] / total, atol=1e-5)
+
+
+def test_support_with_autograd_matches_the_in_place_path_and_has_gradients():
+    K, R = camera(6.0, -1.0)
+    seg, mask = atlanta_segments(K, R, clutter=15, seed=10)
+    mask[:, -3:] = False  # padding
+    ups = up_from_pitch_roll(torch.tensor([[6.0, 4.0, 8.0]]), torch.tensor([[-1.0, -1.0, 0.5]]))
+    with torch.no_grad():
+        plain = horizon_support(ups, seg, mask, K.float())
+    seg_g, ups_g = seg.clone().requires_grad_(), ups.clone().requires_grad_()
+    tracked = horizon_support(ups_g, seg_g, mask, K.float())
+    for a, b in zip(plain, tracked, strict=True):
+        assert torch.allclose(a, b.detach(), atol=1e-6)
+    (tracked[0].sum() + tracked[1].sum()).backward()
+    for g in (seg_g.grad, ups_g.grad):
+        assert g is not None and bool(torch.isfinite(g).all()) and float(g.abs().sum()) > 0
+
+
+def test_kernel_is_the_largest_closeness_over_kept_vps_even_on_a_midpoint():
+    from ngp_kornia.models.refine import _camera_segments, _kernel, _sin2
+
+    K, R = camera(3.0, 1.0)
+    seg, mask = atlanta_segments(K, R, n=10, seed=11)
+    K = K.float()
+    cam = _camera_segments(seg, K)
+    g = torch.Generator().manual_seed(0)
+    vps = torch.randn(1, 3, 4, 3, generator=g)
+    vps[0, 0, 1] = torch.cat([cam.mid[0, 0], torch.ones(1)])  # a VP on a midpoint (up to rounding)
+    vps[0, 1, 0] = 0.0  # a degenerate VP: |d| = 0 for every segment
+    keep = torch.tensor([[[True, True, True, True], [True, True, False, False], [False, False, False, False]]])
+    mask[:, :2] = False
+    c = 4.0 * math.sin(math.radians(1.5)) ** 2
+    expected = ((1.0 - _sin2(cam, vps) / c).clamp_min(0.0) * keep[..., None] * mask[:, None, None]).amax(2)
+    for grad in (False, True):
+        with torch.set_grad_enabled(grad):
+            v = vps.clone().requires_grad_(grad)
+            assert torch.equal(_kernel(cam, v, 1.5, mask, keep).detach(), expected)

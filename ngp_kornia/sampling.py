@@ -20,7 +20,6 @@ from kornia.core.check import KORNIA_CHECK_SHAPE
 from torch import Tensor
 
 from ngp_kornia.geometry import (
-    focal_from_orthogonal_vps,
     intersect_lines,
     is_near_vertical,
     normalize,
@@ -318,22 +317,36 @@ def frames_from_vps(
     """
     KORNIA_CHECK_SHAPE(first, ["B", "F", "3"])
     KORNIA_CHECK_SHAPE(second, ["B", "F", "3"])
+    pair = torch.stack([first, second])  # both VPs through each step at once
     if focal is None:
-        focal, ok = focal_from_orthogonal_vps(first, second, first.new_zeros(2))
+        focal, ok = _focal_from_pair(pair)
         ok = ok & valid & (focal >= focal_range[0]) & (focal <= focal_range[1])
     else:
         focal, ok = torch.full_like(first[..., 0], focal), valid
-    f = torch.where(ok, focal, torch.ones_like(focal))
+    f = torch.where(ok, focal, 1.0)
     scale = torch.stack([f, f, torch.ones_like(f)], -1)  # K = diag(f, f, 1)
-    a = normalize(first / scale)
-    b = normalize(second / scale)
+    a, b = normalize(pair / scale).unbind(0)
     b = b - (b * a).sum(-1, keepdim=True) * a
-    ok = ok & (b.norm(dim=-1) > 1e-6)  # a second VP along the first has no orthogonal part
-    b = normalize(b)
-    R = _vertical_axis_first(torch.stack([b, a, torch.linalg.cross(b, a)], -1))
+    b_norm = b.norm(dim=-1, keepdim=True)
+    ok = ok & (b_norm[..., 0] > 1e-6)  # a second VP along the first has no orthogonal part
+    b = b / b_norm.clamp_min(torch.finfo(b.dtype).eps)  # normalize(b), reusing its norm
+    R = _vertical_axis_first(b, a)
     vps = normalize(R.transpose(-1, -2) * scale[..., None, :])
     zenith, horizontal = vps[..., 1, :], vps[..., 0, :]
-    return FrameCandidates(zenith, horizontal, torch.where(ok, focal, torch.zeros_like(focal)), R, vps, ok)
+    return FrameCandidates(zenith, horizontal, torch.where(ok, focal, 0.0), R, vps, ok)
+
+
+def _focal_from_pair(pair: Tensor) -> tuple[Tensor, Tensor]:
+    """:func:`~ngp_kornia.geometry.focal_from_orthogonal_vps` for the pseudo camera's principal point (0, 0), on
+    the stacked (2, ..., 3) VPs: the same focal lengths and validity with fewer operations."""
+    v = normalize(pair)
+    prod = v[0] * v[1]
+    num = -prod[..., :2].sum(-1)
+    ww = prod[..., 2]
+    tiny = 1e-12 if pair.dtype == torch.float64 else 1e-9
+    valid = (ww.abs() > tiny) & (num * torch.sign(ww) > 0)
+    f2 = torch.where(valid, num / torch.where(valid, ww, 1.0), 1.0)
+    return torch.where(valid, f2.clamp_min(torch.finfo(f2.dtype).eps).sqrt(), 0.0), valid
 
 
 def cat_frames(*frames: FrameCandidates) -> FrameCandidates:
@@ -343,18 +356,19 @@ def cat_frames(*frames: FrameCandidates) -> FrameCandidates:
     )
 
 
-def _vertical_axis_first(R: Tensor) -> Tensor:
-    """Relabel a frame's axes so the down axis (column 1) is the one closest to the image's y axis.
+def _vertical_axis_first(b: Tensor, a: Tensor) -> Tensor:
+    """The rotation whose columns are the orthonormal axes ``b``, ``a``, ``b x a``, relabelled so the down axis
+    (column 1) is the one closest to the image's y axis.
 
     Three orthogonal VPs do not say which one is vertical: a candidate whose "zenith" came from two steep lines
     meeting at a horizontal VP is still a valid frame, only mislabelled. Taking the most image-vertical axis as the
     vertical assumes |roll| and |pitch| below about 45 degrees, the range of hand-held photos.
     """
-    axes = R.transpose(-1, -2)  # (..., 3 axes, 3)
+    axes = torch.stack([b, a, torch.linalg.cross(b, a)], -2)  # (..., 3 axes, 3)
     vertical = axes[..., 1].abs().argmax(-1)
     down = torch.gather(axes, -2, vertical[..., None, None].expand(*vertical.shape, 1, 3)).squeeze(-2)
-    down = down * torch.where(down[..., 1:2] < 0, -1.0, 1.0).to(down)
-    first = torch.where((vertical == 0)[..., None], axes[..., 1, :], axes[..., 0, :])
+    down = torch.where(down[..., 1:2] < 0, -down, down)
+    first = torch.where((vertical == 0)[..., None], a, b)
     return torch.stack([first, down, torch.linalg.cross(first, down)], -1)
 
 

@@ -26,6 +26,9 @@ from ngp_kornia.geometry import (
     segment_vp_angle,
 )
 
+#: ``torch.cdist`` switches to its matrix-product expansion when either point set is larger than this
+_CDIST_MM_ABOVE = 25
+
 #: a random generator, or one per image of the batch
 Generators = torch.Generator | Sequence[torch.Generator] | None
 
@@ -162,20 +165,36 @@ def horizontal_line_mask(
     angle = segment_vp_angle(segments, zenith[:, None])[:, 0]
     vertical = mask & (angle < vertical_tol_deg)
     other = mask & ~vertical
-    # distances from every endpoint to the endpoints of the vertical lines only, which are few
-    count = int(vertical.sum(-1).max()) if vertical.numel() else 0
-    order = vertical.to(torch.uint8).argsort(dim=-1, descending=True, stable=True)[:, :count]  # vertical lines first
-    vert_ends = _gather(segments.flatten(2), order).reshape(len(order), 2 * count, 2)  # (B, 2V, 2)
-    vert_ok = _gather(vertical[..., None], order)[..., 0].repeat_interleave(2, 1)  # (B, 2V)
-    dist = torch.cdist(segments.flatten(1, 2), vert_ends)  # (B, 2N, 2V)
-    if not bool(vert_ok.all()):  # padding of images with fewer vertical lines than the batch's most
-        dist = dist.masked_fill(~vert_ok[:, None, :], float("inf"))
-    # the nearest vertical endpoint decides (one pass over the distances instead of a compare and an any)
-    nearest = dist.amin(-1) if count > 0 else dist.new_full(dist.shape[:2], float("inf"))
-    at_junction = (nearest < junction_radius).reshape(*mask.shape, 2).any(-1)
-    selected = other & at_junction
+    at_junction = _nearest_vertical_endpoint(segments, vertical) < junction_radius
+    selected = other & at_junction.reshape(*mask.shape, 2).any(-1)
     enough = selected.sum(-1, keepdim=True) >= min_lines
     return torch.where(enough, selected, other)
+
+
+def _nearest_vertical_endpoint(segments: Tensor, vertical: Tensor) -> Tensor:
+    """Distance from every endpoint (B, N, 2, 2) to the nearest endpoint of a ``vertical`` (B, N) line: (B, 2N),
+    infinite without one. The values of ``torch.cdist``'s minimum, computed from the endpoints of the vertical
+    lines only, which are few, and square-rooting only the minima."""
+    counts = vertical.sum(-1)
+    count = int(counts.max()) if vertical.numel() else 0
+    ends = segments.flatten(1, 2)  # (B, 2N, 2)
+    if count == 0:
+        return ends.new_full(ends.shape[:2], float("inf"))
+    order = vertical.to(torch.uint8).argsort(dim=-1, descending=True, stable=True)[:, :count]  # vertical lines first
+    vert_ends = _gather(segments.flatten(2), order).reshape(len(order), 2 * count, 2)  # (B, 2V, 2)
+    small = ends.shape[1] <= _CDIST_MM_ABOVE and vert_ends.shape[1] <= _CDIST_MM_ABOVE
+    if small:  # cdist subtracts directly at this size: use its distances
+        dist = torch.cdist(ends, vert_ends)
+    else:  # cdist's matrix-product expansion, |x|^2 - 2 x.y + |y|^2, before its clamp and square root
+        x_sq, y_sq = ends.square().sum(-1, keepdim=True), vert_ends.square().sum(-1, keepdim=True)
+        x = torch.cat([ends * -2, x_sq, torch.ones_like(x_sq)], -1)
+        y = torch.cat([vert_ends, torch.ones_like(y_sq), y_sq], -1)
+        dist = x @ y.transpose(-1, -2)  # (B, 2N, 2V) squared distances
+    if not bool((counts == count).all()):  # padding of images with fewer vertical lines than the batch's most
+        vert_ok = _gather(vertical[..., None], order)[..., 0].repeat_interleave(2, 1)  # (B, 2V)
+        dist = dist.masked_fill(~vert_ok[:, None, :], float("inf"))
+    # the clamp and the square root are monotonic: applied to the minima only, they give the same values
+    return dist.amin(-1) if small else dist.amin(-1).clamp_min_(0.0).sqrt_()
 
 
 def split_by_pseudo_horizon(lines: Tensor, zenith: Tensor) -> Tensor:
@@ -331,9 +350,25 @@ def frames_from_vps(
     ok = ok & (b_norm[..., 0] > 1e-6)  # a second VP along the first has no orthogonal part
     b = b / b_norm.clamp_min(torch.finfo(b.dtype).eps)  # normalize(b), reusing its norm
     R = _vertical_axis_first(b, a)
-    vps = normalize(R.transpose(-1, -2) * scale[..., None, :])
+    scaled = R.transpose(-1, -2) * scale[..., None, :]  # rows: the VPs, not contiguous in memory
+    vps = scaled / _strided_norm(scaled).clamp_min(torch.finfo(scaled.dtype).eps)  # normalize(scaled)
     zenith, horizontal = vps[..., 1, :], vps[..., 0, :]
     return FrameCandidates(zenith, horizontal, torch.where(ok, focal, 0.0), R, vps, ok)
+
+
+def _strided_norm(v: Tensor) -> Tensor:
+    """``v.norm(dim=-1, keepdim=True)`` of float vectors (..., 3), with the same values at a tenth of the cost when
+    the last dim is not contiguous in memory.
+
+    PyTorch reduces such a dim in a generic loop, one vector at a time (about 0.1 us each): it sums the squares in
+    order and takes a correctly rounded square root. The elementwise operations below do the same; the root is
+    taken in float64, because PyTorch's vectorised float32 ``sqrt`` can differ from the correctly rounded one in the
+    last bit, while a float64 root rounded to float32 cannot.
+    """
+    if v.dtype != torch.float32 or v.shape[-1] != 3 or v.stride(-1) == 1:
+        return v.norm(dim=-1, keepdim=True)
+    x, y, z = v.unbind(-1)
+    return (x * x + y * y + z * z).double().sqrt_().float()[..., None]
 
 
 def _focal_from_pair(pair: Tensor) -> tuple[Tensor, Tensor]:

@@ -69,15 +69,20 @@ def sample_pairs(
         (True, True)
     """
     KORNIA_CHECK_SHAPE(weights, ["B", "N"])
-    B, N = weights.shape
-    if N == 0:
-        empty = torch.zeros(B, count, dtype=torch.long, device=weights.device)
-        return empty, empty, torch.zeros(B, count, dtype=torch.bool, device=weights.device)
-    usable = (weights > 0).sum(-1, keepdim=True) >= 2
-    w = torch.where(usable, weights.clamp_min(0), torch.ones_like(weights)).float()
-    draws = _multinomial(w.cpu(), 2 * count, generator).to(weights.device)
+    usable, (draws,) = _pair_draws(weights, (count,), generator)
     first, second = draws[:, :count], draws[:, count:]
     return first, second, usable & (first != second)
+
+
+def _pair_draws(weights: Tensor, counts: Sequence[int], generator: Generators) -> tuple[Tensor, list[Tensor]]:
+    """The draws of :func:`sample_pairs` for each of ``counts`` in turn, from the same (B, N) weights: (B, 1) bool
+    rows with two drawable items and, per count c, (B, 2c) indices (the first items, then the second ones)."""
+    B, N = weights.shape
+    usable = (weights > 0).sum(-1, keepdim=True) >= 2
+    if N == 0:
+        return usable, [torch.zeros(B, 2 * c, dtype=torch.long, device=weights.device) for c in counts]
+    w = torch.where(usable, weights.clamp_min(0), 1.0).float().cpu()
+    return usable, [_multinomial(w, 2 * c, generator).to(weights.device) for c in counts]
 
 
 def _multinomial(weights: Tensor, count: int, generator: Generators) -> Tensor:
@@ -127,13 +132,13 @@ def sample_zenith_candidates(
     """
     KORNIA_CHECK_SHAPE(lines, ["B", "N", "3"])
     vertical = mask & is_near_vertical(lines, threshold_deg)
-    weights = lengths * vertical.to(lengths)
-    idx, _, _ = sample_pairs(weights, num_lines, generator)
+    usable, (idx, pairs) = _pair_draws(lengths * vertical.to(lengths), (num_lines, num_candidates), generator)
     line_mask = (vertical.sum(-1, keepdim=True) >= 2).expand(-1, num_lines)
-    i, j, ok = sample_pairs(weights, num_candidates, generator)
-    zenith = intersect_lines(_gather(lines, i), _gather(lines, j))
+    ends = _gather(lines, pairs)  # both lines of every pair in one gather
+    zenith = intersect_lines(ends[:, :num_candidates], ends[:, num_candidates:])
+    ok = usable & (pairs[:, :num_candidates] != pairs[:, num_candidates:])
     ok = ok & (zenith.norm(dim=-1) > 0.5)  # identical lines have no intersection
-    return _gather(lines, idx), line_mask, zenith, ok
+    return _gather(lines, idx[:, :num_lines]), line_mask, zenith, ok
 
 
 def horizontal_line_mask(
@@ -245,13 +250,16 @@ def sample_horizontal_vps(
     Returns:
         (B, 2 * (count // 2), 3) unit homogeneous VPs, the right-hand group first, and their mask.
     """
-    vps, valid = [], []
+    half = count // 2
+    draws, valid = [], []
     for group in (horizontal & right, horizontal & ~right):
-        i, j, ok = sample_pairs(lengths * group.to(lengths), count // 2, generator)
-        v = intersect_lines(_gather(lines, i), _gather(lines, j))
-        vps.append(v)
-        valid.append(ok & (v.norm(dim=-1) > 0.5))
-    return torch.cat(vps, 1), torch.cat(valid, 1)
+        usable, (pairs,) = _pair_draws(lengths * group.to(lengths), (half,), generator)
+        draws.append(pairs)
+        valid.append(usable & (pairs[:, :half] != pairs[:, half:]))
+    # both groups' first lines, then both groups' second lines, in one gather and one intersection
+    ends = _gather(lines, torch.cat([d[:, :half] for d in draws] + [d[:, half:] for d in draws], 1))
+    vps = intersect_lines(ends[:, : 2 * half], ends[:, 2 * half :])
+    return vps, torch.cat(valid, 1) & (vps.norm(dim=-1) > 0.5)
 
 
 @dataclass
@@ -350,25 +358,25 @@ def frames_from_vps(
     ok = ok & (b_norm[..., 0] > 1e-6)  # a second VP along the first has no orthogonal part
     b = b / b_norm.clamp_min(torch.finfo(b.dtype).eps)  # normalize(b), reusing its norm
     R = _vertical_axis_first(b, a)
-    scaled = R.transpose(-1, -2) * scale[..., None, :]  # rows: the VPs, not contiguous in memory
-    vps = scaled / _strided_norm(scaled).clamp_min(torch.finfo(scaled.dtype).eps)  # normalize(scaled)
+    columns = R * scale[..., :, None]  # K R: its columns are the VPs
+    vps = (columns / _column_norm(columns).clamp_min(torch.finfo(R.dtype).eps)).transpose(-1, -2)  # unit rows
     zenith, horizontal = vps[..., 1, :], vps[..., 0, :]
     return FrameCandidates(zenith, horizontal, torch.where(ok, focal, 0.0), R, vps, ok)
 
 
-def _strided_norm(v: Tensor) -> Tensor:
-    """``v.norm(dim=-1, keepdim=True)`` of float vectors (..., 3), with the same values at a tenth of the cost when
-    the last dim is not contiguous in memory.
+def _column_norm(m: Tensor) -> Tensor:
+    """``m.norm(dim=-2, keepdim=True)`` of (..., 3, 3) matrices: the norms of their columns, (..., 1, 3), with the
+    same values at a tenth of the cost.
 
-    PyTorch reduces such a dim in a generic loop, one vector at a time (about 0.1 us each): it sums the squares in
-    order and takes a correctly rounded square root. The elementwise operations below do the same; the root is
-    taken in float64, because PyTorch's vectorised float32 ``sqrt`` can differ from the correctly rounded one in the
-    last bit, while a float64 root rounded to float32 cannot.
+    PyTorch reduces a dim that is not the innermost one in a generic loop, one vector at a time (about 0.1 us
+    each): it sums the squares in order and takes a correctly rounded square root. The elementwise operations
+    below do the same; the root is taken in float64 because PyTorch's vectorised float32 ``sqrt`` can differ from
+    the correctly rounded one in the last bit, while a float64 root rounded to float32 cannot.
     """
-    if v.dtype != torch.float32 or v.shape[-1] != 3 or v.stride(-1) == 1:
-        return v.norm(dim=-1, keepdim=True)
-    x, y, z = v.unbind(-1)
-    return (x * x + y * y + z * z).double().sqrt_().float()[..., None]
+    if m.dtype != torch.float32:
+        return m.norm(dim=-2, keepdim=True)
+    sq = m * m
+    return (sq[..., 0, :] + sq[..., 1, :] + sq[..., 2, :]).double().sqrt_().float()[..., None, :]
 
 
 def _focal_from_pair(pair: Tensor) -> tuple[Tensor, Tensor]:

@@ -93,9 +93,11 @@ def _multinomial(weights: Tensor, count: int, generator: Generators) -> Tensor:
     generators = list(generator)
     if len(generators) != len(weights):
         raise ValueError(f"got {len(generators)} generators for a batch of {len(weights)}; give one per image")
-    pairs = zip(weights, generators, strict=True)
-    rows = [torch.multinomial(w[None], count, replacement=True, generator=g) for w, g in pairs]
-    return torch.cat(rows) if rows else weights.new_zeros(0, count, dtype=torch.long)
+    pairs = zip(weights.split(1), generators, strict=True)
+    rows = [torch.multinomial(w, count, replacement=True, generator=g) for w, g in pairs]
+    if len(rows) <= 1:  # a single image needs no concatenation
+        return rows[0] if rows else weights.new_zeros(0, count, dtype=torch.long)
+    return torch.cat(rows)
 
 
 def _gather(x: Tensor, index: Tensor) -> Tensor:
@@ -383,9 +385,8 @@ def _focal_from_pair(pair: Tensor) -> tuple[Tensor, Tensor]:
     """:func:`~ngp_kornia.geometry.focal_from_orthogonal_vps` for the pseudo camera's principal point (0, 0), on
     the stacked (2, ..., 3) VPs: the same focal lengths and validity with fewer operations."""
     v = normalize(pair)
-    prod = v[0] * v[1]
-    num = -prod[..., :2].sum(-1)
-    ww = prod[..., 2]
+    px, py, ww = (v[0] * v[1]).unbind(-1)
+    num = -(px + py)  # the sum over x and y, up to the sign of a zero, which decides nothing below
     tiny = 1e-12 if pair.dtype == torch.float64 else 1e-9
     valid = (ww.abs() > tiny) & (num * torch.sign(ww) > 0)
     f2 = torch.where(valid, num / torch.where(valid, ww, 1.0), 1.0)

@@ -25,6 +25,7 @@ from ngp_kornia.geometry import (
     normalize,
     segment_vp_angle,
 )
+from ngp_kornia.geometry.vp import true_positions
 
 #: ``torch.cdist`` switches to its matrix-product expansion when either point set is larger than this
 _CDIST_MM_ABOVE = 25
@@ -187,7 +188,7 @@ def _nearest_vertical_endpoint(segments: Tensor, vertical: Tensor) -> Tensor:
     ends = segments.flatten(1, 2)  # (B, 2N, 2)
     if count == 0:
         return ends.new_full(ends.shape[:2], float("inf"))
-    order = vertical.to(torch.uint8).argsort(dim=-1, descending=True, stable=True)[:, :count]  # vertical lines first
+    order = true_positions(vertical, count)  # the vertical lines
     vert_ends = _gather(segments.flatten(2), order).reshape(len(order), 2 * count, 2)  # (B, 2V, 2)
     small = ends.shape[1] <= _CDIST_MM_ABOVE and vert_ends.shape[1] <= _CDIST_MM_ABOVE
     if small:  # cdist subtracts directly at this size: use its distances

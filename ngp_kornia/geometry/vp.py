@@ -222,6 +222,19 @@ def manhattan_score(closeness_to_vps: Tensor, lengths: Tensor, mask: Tensor) -> 
     return (best * w[:, None]).sum(-1) / w.sum(-1, keepdim=True).clamp_min(torch.finfo(w.dtype).eps)
 
 
+def true_positions(mask: Tensor, count: int) -> Tensor:
+    """Indices (B, count) of the True entries of each row of a (B, M) bool ``mask``, in order, then (where a row has
+    fewer than ``count``) of False ones: a stable descending argsort, or for one row its nonzero positions.
+
+    Example:
+        >>> true_positions(torch.tensor([[False, True, False, True]]), 2)
+        tensor([[1, 3]])
+    """
+    if len(mask) == 1 and count == int(mask.sum()):  # one row: no sort needed
+        return mask[0].nonzero()[:count, 0][None]
+    return mask.to(torch.uint8).argsort(dim=-1, descending=True, stable=True)[:, :count]
+
+
 def frame_manhattan_scores(
     lines: Tensor, vps: Tensor, lengths: Tensor, mask: Tensor, angle_deg: float = 89.0, valid: Tensor | None = None
 ) -> Tensor:
@@ -259,7 +272,7 @@ def frame_manhattan_scores(
         if count == 0:
             return lines.new_zeros(valid.shape)
         if count < vps.shape[1]:  # score each image's valid frames (moved to the front) and scatter them back
-            order = valid.to(torch.uint8).argsort(dim=-1, descending=True, stable=True)[:, :count]  # (B, count)
+            order = true_positions(valid, count)  # (B, count)
             picked = vps.gather(1, order[..., None, None].expand(*order.shape, *vps.shape[2:]))
             scores = frame_manhattan_scores(lines, picked, lengths, mask, angle_deg)
             scattered = scores.new_zeros(valid.shape).scatter(1, order, scores)

@@ -20,12 +20,15 @@ from kornia.core.check import KORNIA_CHECK_SHAPE
 from torch import Tensor
 
 from ngp_kornia.geometry import (
-    focal_from_orthogonal_vps,
     intersect_lines,
     is_near_vertical,
     normalize,
     segment_vp_angle,
 )
+from ngp_kornia.geometry.vp import true_positions
+
+#: ``torch.cdist`` switches to its matrix-product expansion when either point set is larger than this
+_CDIST_MM_ABOVE = 25
 
 #: a random generator, or one per image of the batch
 Generators = torch.Generator | Sequence[torch.Generator] | None
@@ -67,15 +70,20 @@ def sample_pairs(
         (True, True)
     """
     KORNIA_CHECK_SHAPE(weights, ["B", "N"])
-    B, N = weights.shape
-    if N == 0:
-        empty = torch.zeros(B, count, dtype=torch.long, device=weights.device)
-        return empty, empty, torch.zeros(B, count, dtype=torch.bool, device=weights.device)
-    usable = (weights > 0).sum(-1, keepdim=True) >= 2
-    w = torch.where(usable, weights.clamp_min(0), torch.ones_like(weights)).float()
-    draws = _multinomial(w.cpu(), 2 * count, generator).to(weights.device)
+    usable, (draws,) = _pair_draws(weights, (count,), generator)
     first, second = draws[:, :count], draws[:, count:]
     return first, second, usable & (first != second)
+
+
+def _pair_draws(weights: Tensor, counts: Sequence[int], generator: Generators) -> tuple[Tensor, list[Tensor]]:
+    """The draws of :func:`sample_pairs` for each of ``counts`` in turn, from the same (B, N) weights: (B, 1) bool
+    rows with two drawable items and, per count c, (B, 2c) indices (the first items, then the second ones)."""
+    B, N = weights.shape
+    usable = (weights > 0).sum(-1, keepdim=True) >= 2
+    if N == 0:
+        return usable, [torch.zeros(B, 2 * c, dtype=torch.long, device=weights.device) for c in counts]
+    w = torch.where(usable, weights.clamp_min(0), 1.0).float().cpu()
+    return usable, [_multinomial(w, 2 * c, generator).to(weights.device) for c in counts]
 
 
 def _multinomial(weights: Tensor, count: int, generator: Generators) -> Tensor:
@@ -86,9 +94,11 @@ def _multinomial(weights: Tensor, count: int, generator: Generators) -> Tensor:
     generators = list(generator)
     if len(generators) != len(weights):
         raise ValueError(f"got {len(generators)} generators for a batch of {len(weights)}; give one per image")
-    pairs = zip(weights, generators, strict=True)
-    rows = [torch.multinomial(w[None], count, replacement=True, generator=g) for w, g in pairs]
-    return torch.cat(rows) if rows else weights.new_zeros(0, count, dtype=torch.long)
+    pairs = zip(weights.split(1), generators, strict=True)
+    rows = [torch.multinomial(w, count, replacement=True, generator=g) for w, g in pairs]
+    if len(rows) <= 1:  # a single image needs no concatenation
+        return rows[0] if rows else weights.new_zeros(0, count, dtype=torch.long)
+    return torch.cat(rows)
 
 
 def _gather(x: Tensor, index: Tensor) -> Tensor:
@@ -125,13 +135,13 @@ def sample_zenith_candidates(
     """
     KORNIA_CHECK_SHAPE(lines, ["B", "N", "3"])
     vertical = mask & is_near_vertical(lines, threshold_deg)
-    weights = lengths * vertical.to(lengths)
-    idx, _, _ = sample_pairs(weights, num_lines, generator)
+    usable, (idx, pairs) = _pair_draws(lengths * vertical.to(lengths), (num_lines, num_candidates), generator)
     line_mask = (vertical.sum(-1, keepdim=True) >= 2).expand(-1, num_lines)
-    i, j, ok = sample_pairs(weights, num_candidates, generator)
-    zenith = intersect_lines(_gather(lines, i), _gather(lines, j))
+    ends = _gather(lines, pairs)  # both lines of every pair in one gather
+    zenith = intersect_lines(ends[:, :num_candidates], ends[:, num_candidates:])
+    ok = usable & (pairs[:, :num_candidates] != pairs[:, num_candidates:])
     ok = ok & (zenith.norm(dim=-1) > 0.5)  # identical lines have no intersection
-    return _gather(lines, idx), line_mask, zenith, ok
+    return _gather(lines, idx[:, :num_lines]), line_mask, zenith, ok
 
 
 def horizontal_line_mask(
@@ -163,20 +173,36 @@ def horizontal_line_mask(
     angle = segment_vp_angle(segments, zenith[:, None])[:, 0]
     vertical = mask & (angle < vertical_tol_deg)
     other = mask & ~vertical
-    # distances from every endpoint to the endpoints of the vertical lines only, which are few
-    count = int(vertical.sum(-1).max()) if vertical.numel() else 0
-    order = vertical.to(torch.uint8).argsort(dim=-1, descending=True, stable=True)[:, :count]  # vertical lines first
-    vert_ends = _gather(segments.flatten(2), order).reshape(len(order), 2 * count, 2)  # (B, 2V, 2)
-    vert_ok = _gather(vertical[..., None], order)[..., 0].repeat_interleave(2, 1)  # (B, 2V)
-    dist = torch.cdist(segments.flatten(1, 2), vert_ends)  # (B, 2N, 2V)
-    if not bool(vert_ok.all()):  # padding of images with fewer vertical lines than the batch's most
-        dist = dist.masked_fill(~vert_ok[:, None, :], float("inf"))
-    # the nearest vertical endpoint decides (one pass over the distances instead of a compare and an any)
-    nearest = dist.amin(-1) if count > 0 else dist.new_full(dist.shape[:2], float("inf"))
-    at_junction = (nearest < junction_radius).reshape(*mask.shape, 2).any(-1)
-    selected = other & at_junction
+    at_junction = _nearest_vertical_endpoint(segments, vertical) < junction_radius
+    selected = other & at_junction.reshape(*mask.shape, 2).any(-1)
     enough = selected.sum(-1, keepdim=True) >= min_lines
     return torch.where(enough, selected, other)
+
+
+def _nearest_vertical_endpoint(segments: Tensor, vertical: Tensor) -> Tensor:
+    """Distance from every endpoint (B, N, 2, 2) to the nearest endpoint of a ``vertical`` (B, N) line: (B, 2N),
+    infinite without one. The values of ``torch.cdist``'s minimum, computed from the endpoints of the vertical
+    lines only, which are few, and square-rooting only the minima."""
+    counts = vertical.sum(-1)
+    count = int(counts.max()) if vertical.numel() else 0
+    ends = segments.flatten(1, 2)  # (B, 2N, 2)
+    if count == 0:
+        return ends.new_full(ends.shape[:2], float("inf"))
+    order = true_positions(vertical, count)  # the vertical lines
+    vert_ends = _gather(segments.flatten(2), order).reshape(len(order), 2 * count, 2)  # (B, 2V, 2)
+    small = ends.shape[1] <= _CDIST_MM_ABOVE and vert_ends.shape[1] <= _CDIST_MM_ABOVE
+    if small:  # cdist subtracts directly at this size: use its distances
+        dist = torch.cdist(ends, vert_ends)
+    else:  # cdist's matrix-product expansion, |x|^2 - 2 x.y + |y|^2, before its clamp and square root
+        x_sq, y_sq = ends.square().sum(-1, keepdim=True), vert_ends.square().sum(-1, keepdim=True)
+        x = torch.cat([ends * -2, x_sq, torch.ones_like(x_sq)], -1)
+        y = torch.cat([vert_ends, torch.ones_like(y_sq), y_sq], -1)
+        dist = x @ y.transpose(-1, -2)  # (B, 2N, 2V) squared distances
+    if not bool((counts == count).all()):  # padding of images with fewer vertical lines than the batch's most
+        vert_ok = _gather(vertical[..., None], order)[..., 0].repeat_interleave(2, 1)  # (B, 2V)
+        dist = dist.masked_fill(~vert_ok[:, None, :], float("inf"))
+    # the clamp and the square root are monotonic: applied to the minima only, they give the same values
+    return dist.amin(-1) if small else dist.amin(-1).clamp_min_(0.0).sqrt_()
 
 
 def split_by_pseudo_horizon(lines: Tensor, zenith: Tensor) -> Tensor:
@@ -227,13 +253,16 @@ def sample_horizontal_vps(
     Returns:
         (B, 2 * (count // 2), 3) unit homogeneous VPs, the right-hand group first, and their mask.
     """
-    vps, valid = [], []
+    half = count // 2
+    draws, valid = [], []
     for group in (horizontal & right, horizontal & ~right):
-        i, j, ok = sample_pairs(lengths * group.to(lengths), count // 2, generator)
-        v = intersect_lines(_gather(lines, i), _gather(lines, j))
-        vps.append(v)
-        valid.append(ok & (v.norm(dim=-1) > 0.5))
-    return torch.cat(vps, 1), torch.cat(valid, 1)
+        usable, (pairs,) = _pair_draws(lengths * group.to(lengths), (half,), generator)
+        draws.append(pairs)
+        valid.append(usable & (pairs[:, :half] != pairs[:, half:]))
+    # both groups' first lines, then both groups' second lines, in one gather and one intersection
+    ends = _gather(lines, torch.cat([d[:, :half] for d in draws] + [d[:, half:] for d in draws], 1))
+    vps = intersect_lines(ends[:, : 2 * half], ends[:, 2 * half :])
+    return vps, torch.cat(valid, 1) & (vps.norm(dim=-1) > 0.5)
 
 
 @dataclass
@@ -318,22 +347,51 @@ def frames_from_vps(
     """
     KORNIA_CHECK_SHAPE(first, ["B", "F", "3"])
     KORNIA_CHECK_SHAPE(second, ["B", "F", "3"])
+    pair = torch.stack([first, second])  # both VPs through each step at once
     if focal is None:
-        focal, ok = focal_from_orthogonal_vps(first, second, first.new_zeros(2))
+        focal, ok = _focal_from_pair(pair)
         ok = ok & valid & (focal >= focal_range[0]) & (focal <= focal_range[1])
     else:
         focal, ok = torch.full_like(first[..., 0], focal), valid
-    f = torch.where(ok, focal, torch.ones_like(focal))
+    f = torch.where(ok, focal, 1.0)
     scale = torch.stack([f, f, torch.ones_like(f)], -1)  # K = diag(f, f, 1)
-    a = normalize(first / scale)
-    b = normalize(second / scale)
+    a, b = normalize(pair / scale).unbind(0)
     b = b - (b * a).sum(-1, keepdim=True) * a
-    ok = ok & (b.norm(dim=-1) > 1e-6)  # a second VP along the first has no orthogonal part
-    b = normalize(b)
-    R = _vertical_axis_first(torch.stack([b, a, torch.linalg.cross(b, a)], -1))
-    vps = normalize(R.transpose(-1, -2) * scale[..., None, :])
+    b_norm = b.norm(dim=-1, keepdim=True)
+    ok = ok & (b_norm[..., 0] > 1e-6)  # a second VP along the first has no orthogonal part
+    b = b / b_norm.clamp_min(torch.finfo(b.dtype).eps)  # normalize(b), reusing its norm
+    R = _vertical_axis_first(b, a)
+    columns = R * scale[..., :, None]  # K R: its columns are the VPs
+    vps = (columns / _column_norm(columns).clamp_min(torch.finfo(R.dtype).eps)).transpose(-1, -2)  # unit rows
     zenith, horizontal = vps[..., 1, :], vps[..., 0, :]
-    return FrameCandidates(zenith, horizontal, torch.where(ok, focal, torch.zeros_like(focal)), R, vps, ok)
+    return FrameCandidates(zenith, horizontal, torch.where(ok, focal, 0.0), R, vps, ok)
+
+
+def _column_norm(m: Tensor) -> Tensor:
+    """``m.norm(dim=-2, keepdim=True)`` of (..., 3, 3) matrices: the norms of their columns, (..., 1, 3), with the
+    same values at a tenth of the cost.
+
+    PyTorch reduces a dim that is not the innermost one in a generic loop, one vector at a time (about 0.1 us
+    each): it sums the squares in order and takes a correctly rounded square root. The elementwise operations
+    below do the same; the root is taken in float64 because PyTorch's vectorised float32 ``sqrt`` can differ from
+    the correctly rounded one in the last bit, while a float64 root rounded to float32 cannot.
+    """
+    if m.dtype != torch.float32:
+        return m.norm(dim=-2, keepdim=True)
+    sq = m * m
+    return (sq[..., 0, :] + sq[..., 1, :] + sq[..., 2, :]).double().sqrt_().float()[..., None, :]
+
+
+def _focal_from_pair(pair: Tensor) -> tuple[Tensor, Tensor]:
+    """:func:`~ngp_kornia.geometry.focal_from_orthogonal_vps` for the pseudo camera's principal point (0, 0), on
+    the stacked (2, ..., 3) VPs: the same focal lengths and validity with fewer operations."""
+    v = normalize(pair)
+    px, py, ww = (v[0] * v[1]).unbind(-1)
+    num = -(px + py)  # the sum over x and y, up to the sign of a zero, which decides nothing below
+    tiny = 1e-12 if pair.dtype == torch.float64 else 1e-9
+    valid = (ww.abs() > tiny) & (num * torch.sign(ww) > 0)
+    f2 = torch.where(valid, num / torch.where(valid, ww, 1.0), 1.0)
+    return torch.where(valid, f2.clamp_min(torch.finfo(f2.dtype).eps).sqrt(), 0.0), valid
 
 
 def cat_frames(*frames: FrameCandidates) -> FrameCandidates:
@@ -343,18 +401,19 @@ def cat_frames(*frames: FrameCandidates) -> FrameCandidates:
     )
 
 
-def _vertical_axis_first(R: Tensor) -> Tensor:
-    """Relabel a frame's axes so the down axis (column 1) is the one closest to the image's y axis.
+def _vertical_axis_first(b: Tensor, a: Tensor) -> Tensor:
+    """The rotation whose columns are the orthonormal axes ``b``, ``a``, ``b x a``, relabelled so the down axis
+    (column 1) is the one closest to the image's y axis.
 
     Three orthogonal VPs do not say which one is vertical: a candidate whose "zenith" came from two steep lines
     meeting at a horizontal VP is still a valid frame, only mislabelled. Taking the most image-vertical axis as the
     vertical assumes |roll| and |pitch| below about 45 degrees, the range of hand-held photos.
     """
-    axes = R.transpose(-1, -2)  # (..., 3 axes, 3)
+    axes = torch.stack([b, a, torch.linalg.cross(b, a)], -2)  # (..., 3 axes, 3)
     vertical = axes[..., 1].abs().argmax(-1)
     down = torch.gather(axes, -2, vertical[..., None, None].expand(*vertical.shape, 1, 3)).squeeze(-2)
-    down = down * torch.where(down[..., 1:2] < 0, -1.0, 1.0).to(down)
-    first = torch.where((vertical == 0)[..., None], axes[..., 1, :], axes[..., 0, :])
+    down = torch.where(down[..., 1:2] < 0, -down, down)
+    first = torch.where((vertical == 0)[..., None], a, b)
     return torch.stack([first, down, torch.linalg.cross(first, down)], -1)
 
 

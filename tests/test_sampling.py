@@ -535,3 +535,47 @@ def test_sample_horizontal_pair_frames():
     # an empty group: no valid frame
     fc = sample_horizontal_pair_frames(horizontal, hmask & torch.tensor([True] * 4 + [False] * 4), count=8)
     assert not fc.valid.any() and torch.isfinite(fc.R).all()
+
+
+# the fast paths of frame building and the junction filter give the values of the plain operations
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_column_norm_equals_torch_norm_bitwise(dtype):
+    from ngp_kornia.sampling import _column_norm
+
+    g = _gen(3)
+    m = torch.randn(2, 5000, 3, 3, generator=g, dtype=dtype) * torch.rand(2, 5000, 1, 3, generator=g, dtype=dtype) ** 6
+    m[0, :3] = 0.0  # zero columns stay zero
+    assert torch.equal(_column_norm(m * 1e3), (m * 1e3).norm(dim=-2, keepdim=True))
+    assert torch.equal(_column_norm(m), m.transpose(-1, -2).norm(dim=-1)[..., None, :])
+
+
+@pytest.mark.parametrize("n", [3, 12, 40, 300])
+@pytest.mark.parametrize("b", [1, 3])
+def test_nearest_vertical_endpoint_equals_cdist_minimum(b, n):
+    from ngp_kornia.sampling import _nearest_vertical_endpoint
+
+    g = _gen(n + b)
+    for dtype in (torch.float32, torch.float64):
+        seg = torch.rand(b, n, 2, 2, generator=g, dtype=dtype) * 2 - 1
+        vertical = torch.rand(b, n, generator=g) < 0.4
+        vertical[0, 0] = True
+        ends = seg.flatten(1, 2)
+        dist = torch.cdist(ends, ends).masked_fill(~vertical.repeat_interleave(2, 1)[:, None], float("inf"))
+        assert torch.equal(_nearest_vertical_endpoint(seg, vertical), dist.amin(-1))
+    assert torch.isinf(_nearest_vertical_endpoint(seg, torch.zeros_like(vertical))).all()
+
+
+def test_frames_from_vps_rows_and_layout_of_vps():
+    """The VPs are the unit rows of (K R)^T, stored as the transpose of a contiguous K R (its columns)."""
+    g = _gen(4)
+    a = torch.randn(2, 300, 3, generator=g)
+    b = torch.randn(2, 300, 3, generator=g)
+    fr = frames_from_vps(a, b, torch.ones(2, 300, dtype=torch.bool), (0.1, 50.0))
+    f = torch.where(fr.valid, fr.focal, 1.0)
+    K = torch.diag_embed(torch.stack([f, f, torch.ones_like(f)], -1))
+    expected = K @ fr.R
+    expected = expected.transpose(-1, -2) / expected.transpose(-1, -2).norm(dim=-1, keepdim=True)
+    assert torch.equal(fr.vps, expected)
+    assert fr.vps.transpose(-1, -2).is_contiguous()

@@ -63,8 +63,12 @@ def segments_to_lines(segments: Tensor) -> Tensor:
 def _exact_zero(cross: Tensor, u: Tensor, v: Tensor) -> Tensor:
     """Zero a cross product that is only rounding residue of (anti)parallel inputs, so it is not normalised into a
     random direction (fused multiply-adds leave about eps * |u| |v| where exact arithmetic gives 0)."""
-    tol = 64.0 * torch.finfo(cross.dtype).eps * u.norm(dim=-1, keepdim=True) * v.norm(dim=-1, keepdim=True)
-    return torch.where(cross.norm(dim=-1, keepdim=True) <= tol, torch.zeros_like(cross), cross)
+    return torch.where(cross.norm(dim=-1, keepdim=True) <= _residue_tolerance(u, v), torch.zeros_like(cross), cross)
+
+
+def _residue_tolerance(u: Tensor, v: Tensor) -> Tensor:
+    """The largest cross product of ``u`` and ``v`` (..., 3) that :func:`_exact_zero` takes for rounding residue."""
+    return 64.0 * torch.finfo(u.dtype).eps * u.norm(dim=-1, keepdim=True) * v.norm(dim=-1, keepdim=True)
 
 
 def intersect_lines(l0: Tensor, l1: Tensor) -> Tensor:
@@ -86,7 +90,11 @@ def intersect_lines(l0: Tensor, l1: Tensor) -> Tensor:
     KORNIA_CHECK_SHAPE(l0, ["*", "3"])
     KORNIA_CHECK_SHAPE(l1, ["*", "3"])
     l0, l1 = torch.broadcast_tensors(l0, l1)
-    return normalize(_exact_zero(torch.linalg.cross(l0, l1), l0, l1))
+    cross = torch.linalg.cross(l0, l1)
+    norm = cross.norm(dim=-1, keepdim=True)
+    # normalize(_exact_zero(cross, l0, l1)) with the norm computed once: a zeroed row divides to zero either way
+    residue = norm <= _residue_tolerance(l0, l1)
+    return torch.where(residue, 0.0, cross / norm.clamp_min(torch.finfo(cross.dtype).eps))
 
 
 def is_near_vertical(lines: Tensor, threshold_deg: float = 67.5) -> Tensor:

@@ -508,3 +508,33 @@ def test_frame_manhattan_scores_of_valid_frames_only():
     everything = torch.ones(2, 30, dtype=torch.bool)
     assert torch.equal(frame_manhattan_scores(lines, vps, lengths, mask, valid=everything), full)
     assert torch.equal(frame_manhattan_scores(lines, vps, lengths, mask, valid=~everything), torch.zeros(2, 30))
+
+
+@pytest.mark.parametrize("frames", [5, 256, 700])
+@pytest.mark.parametrize("lines", [8, 40])
+def test_frame_manhattan_scores_equal_the_single_product_bitwise(frames, lines):
+    """One product per VP (many frames and lines) and one over all VPs give the same scores, bit for bit."""
+    from ngp_kornia.geometry.vp import frame_manhattan_scores
+
+    g = torch.Generator().manual_seed(frames + lines)
+    ln = normalize(torch.randn(1, lines, 3, generator=g))
+    vps = normalize(torch.randn(1, frames, 3, 3, generator=g))
+    lengths = torch.rand(1, lines, generator=g)
+    mask = torch.ones(1, lines, dtype=torch.bool)
+    scale = -1.0 / (2.0 * math.cos(math.radians(89.0)) ** 2)
+    unit_vps, unit_lines = normalize(vps).reshape(1, frames * 3, 3), normalize(ln).transpose(-1, -2)
+    nearest = (unit_vps @ unit_lines).square().reshape(1, frames, 3, lines).amin(2)
+    kernel = (nearest * scale).clamp_min(-80.0).exp()
+    expected = (kernel @ lengths[..., None])[..., 0] / lengths.sum(-1, keepdim=True)
+    assert torch.equal(frame_manhattan_scores(ln, vps, lengths, mask), expected)
+
+
+def test_true_positions_matches_stable_argsort():
+    from ngp_kornia.geometry.vp import true_positions
+
+    g = torch.Generator().manual_seed(0)
+    for b in (1, 2, 3):
+        mask = torch.rand(b, 50, generator=g) < 0.3
+        count = int(mask.sum(-1).max())
+        expected = mask.to(torch.uint8).argsort(dim=-1, descending=True, stable=True)[:, :count]
+        assert torch.equal(true_positions(mask, count), expected)

@@ -24,6 +24,7 @@ still passed (one interface) but ignored.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import NamedTuple
 
@@ -40,7 +41,6 @@ from ngp_kornia.geometry import (
     rasterize_segments,
     segment_lengths,
     segments_to_lines,
-    sharp_kernel,
     to_pseudo_camera,
 )
 from ngp_kornia.models.resnet import LAYOUTS, ResNet
@@ -67,6 +67,7 @@ SUPPORT_ANGLES = (0.25, 0.5, 1.0, 2.0, 4.0)
 NUM_SUPPORT = 4 * len(SUPPORT_ANGLES)
 VARIANTS = ("faithful", "shared")
 _MIN_CLOSENESS = 1e-6  # smaller closeness values are drawn as 0
+_MIN_EXPONENT = -30.0  # exp(-30) < 1e-14: closeness that is drawn as 0
 _DEFAULT_LAYOUT = {"faithful": LAYOUTS["resnet18"], "shared": LAYOUTS["resnet18-half-s16"]}
 _DEFAULT_NORM = {"faithful": "batch", "shared": "group"}
 
@@ -263,8 +264,14 @@ def frame_closeness(lines: Tensor, vps: Tensor, kernel_angle: float | None = 88.
         tensor([1., 0., 0.])
     """
     cosine = line_vp_cosine(lines, vps)  # (B, F, 3, N)
-    values = 1.0 - cosine if kernel_angle is None else sharp_kernel(cosine, kernel_angle)
-    return torch.where(values < _MIN_CLOSENESS, torch.zeros_like(values), values)
+    if kernel_angle is None:
+        values = 1.0 - cosine
+    else:
+        # sharp_kernel's exponent, floored where the kernel is far below _MIN_CLOSENESS anyway: the exponential of
+        # large negative numbers underflows to subnormals, which the CPU computes slowly
+        exponent = -(cosine**2) / (2.0 * math.cos(math.radians(kernel_angle)) ** 2)
+        values = exponent.clamp_min(_MIN_EXPONENT).exp()
+    return values.masked_fill(values < _MIN_CLOSENESS, 0.0)
 
 
 def _draw_maps(

@@ -391,6 +391,8 @@ class FSNet(nn.Module):
             self.in_channels = image_ch + (1 if use_maps else 0)
         if backbone is None and self.in_channels > 0:
             backbone = ResNet(self.in_channels, self.widths, self.depths, self.norm)
+            if variant == "shared":  # its trunk runs channels-last (_trunk): so do its weights, sparing a conversion
+                backbone = backbone.to(memory_format=torch.channels_last)
         if backbone is not None:
             got = getattr(backbone, "in_channels", self.in_channels)
             KORNIA_CHECK(got == self.in_channels, f"the backbone takes {got} channels, FSNet feeds {self.in_channels}")

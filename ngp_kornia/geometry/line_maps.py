@@ -7,9 +7,11 @@ differentiable with respect to the per-segment values (so closeness maps pass gr
 
 from __future__ import annotations
 
+import math
 from functools import lru_cache
 
 import torch
+import torch.nn.functional as F
 from kornia.core.check import KORNIA_CHECK, KORNIA_CHECK_SHAPE
 from torch import Tensor
 
@@ -104,47 +106,49 @@ def line_map_and_pooled_maps(
     pooled = values.new_zeros(B * rows * cols, C)
     if N > 0 and C > 0 and bool(mask.any()):
         seg, key = _segment_pixels(segments, mask, height, width)
-        # where segments overlap, a pixel keeps the largest value (as drawn), then each cell sums its pixels in the
-        # order of their index; a dense mark per pixel lists the pixels in that order without sorting the pairs
-        count = torch.bincount(key, minlength=B * area)  # segments through each pixel
-        drawn = count > 0
+        # a dense mark per pixel lists the drawn pixels in the order of their index (each cell sums its pixels in
+        # that order), without sorting the pairs
+        drawn = torch.zeros(B * area, dtype=torch.bool, device=key.device).index_fill_(0, key, True)
         lines = drawn.to(values.dtype)
         pixels = drawn.nonzero().squeeze(1)
-        which = (drawn.cumsum(0) - 1).index_select(0, key)  # each pair's position in pixels
-        shared = (count.index_select(0, key) > 1).nonzero().squeeze(1)
-        per_pixel = _pixel_max(values.reshape(B * N, C).contiguous(), seg, which, shared, len(pixels))
-        cells = _cell_index(height, width, cell, values.device).index_select(0, pixels % area)
-        pooled = pooled.index_add(0, cells + pixels // area * (rows * cols), per_pixel)
+        per_pixel = _pixel_max(values.reshape(B * N, C).contiguous(), seg, key, pixels, B * area)
+        cells = _cell_index(B, height, width, cell, key.device).index_select(0, pixels)
+        pooled = pooled.index_add(0, cells, per_pixel)
     pooled = (pooled / (cell * cell)).view(B, rows, cols, C).permute(0, 3, 1, 2)
     return lines.view(B, 1, height, width), pooled
 
 
-def _pixel_max(values: Tensor, seg: Tensor, which: Tensor, shared: Tensor, size: int) -> Tensor:
-    """(size, C) per pixel the largest ``values`` (M, C) row of the segments through it, from the (segment, pixel)
-    pairs ``seg`` and ``which`` and the positions ``shared`` of the pairs whose pixel lies on several segments."""
+def _pixel_max(values: Tensor, seg: Tensor, key: Tensor, pixels: Tensor, size: int) -> Tensor:
+    """(len(pixels), C) per drawn pixel the largest ``values`` (M, C) row of the segments through it, from the
+    (segment, pixel) pairs ``seg``, ``key``; ``pixels``: the drawn pixels, sorted, of maps of ``size`` pixels."""
     # most pixels lie on one segment and take its values: the maximum is taken only where segments share a pixel
-    owner = seg.new_zeros(size).index_copy_(0, which, seg)  # any one segment through each pixel
-    per_pixel = values.index_select(0, owner)
-    if len(shared) == 0:
+    owner = seg.new_zeros(size).index_copy_(0, key, seg)  # one of the segments through each pixel
+    per_pixel = values.index_select(0, owner.index_select(0, pixels))
+    others = (owner.index_select(0, key) != seg).nonzero().squeeze(1)  # the pairs of the other segments
+    if len(others) == 0:
         return per_pixel
-    index = which.index_select(0, shared)[:, None].expand(-1, values.shape[1])
-    return per_pixel.scatter_reduce(0, index, values.index_select(0, seg.index_select(0, shared)), "amax")
+    rank = owner.index_put_((pixels,), torch.arange(len(pixels), device=pixels.device))  # each pixel's position
+    which = rank.index_select(0, key.index_select(0, others))[:, None].expand(-1, values.shape[1])
+    return per_pixel.scatter_reduce(0, which, values.index_select(0, seg.index_select(0, others)), "amax")
 
 
 def _steps(counts: list[int], like: Tensor) -> Tensor:
     """(B, S) positions ``linspace(0, 1, counts[b])`` padded with 1 to the longest: padding repeats the last point."""
-    size = max(counts)
-    t = like.new_ones(len(counts), size)
+    if len(set(counts)) == 1:
+        return torch.linspace(0.0, 1.0, counts[0], device=like.device, dtype=like.dtype).expand(len(counts), -1)
+    t = like.new_ones(len(counts), max(counts))
     for b, n in enumerate(counts):
         t[b, :n] = torch.linspace(0.0, 1.0, n, device=like.device, dtype=like.dtype)
     return t
 
 
 @lru_cache(maxsize=16)
-def _cell_index(height: int, width: int, cell: int, device: torch.device) -> Tensor:
-    """(height * width,) the index of the ``cell`` x ``cell`` cell (row-major) each pixel of a map falls in."""
+def _cell_index(batch: int, height: int, width: int, cell: int, device: torch.device) -> Tensor:
+    """(batch * height * width,) the index of the ``cell`` x ``cell`` cell (row-major, image after image) each pixel
+    of a batch of maps falls in."""
     y, x = torch.arange(height, device=device) // cell, torch.arange(width, device=device) // cell
-    return (y[:, None] * (width // cell) + x).flatten()
+    index = (y[:, None] * (width // cell) + x).flatten()
+    return (torch.arange(batch, device=device)[:, None] * ((height // cell) * (width // cell)) + index).flatten()
 
 
 def _segment_pixels(segments: Tensor, mask: Tensor, height: int, width: int) -> tuple[Tensor, Tensor]:
@@ -154,39 +158,42 @@ def _segment_pixels(segments: Tensor, mask: Tensor, height: int, width: int) -> 
     B, N = mask.shape
     length = (segments[..., 1, :] - segments[..., 0, :]).norm(dim=-1).detach()
     # sample points per image, by its own longest segment: an image's map does not depend on the rest of its batch
-    longest = torch.where(mask, length, torch.zeros_like(length)).amax(-1).ceil().long() + 2  # (B,)
+    longest = torch.where(mask, length, 0.0).amax(-1).ceil().long() + 2  # (B,)
     t = _steps(longest.tolist(), segments)  # (B, S)
     seg = mask.flatten().nonzero().squeeze(1)  # only the drawn segments are sampled
     image = seg // N
     ends = segments.detach().reshape(B * N, 2, 2).index_select(0, seg)  # (M, 2, 2)
     p0 = ends[:, None, 0]
-    xy = torch.addcmul(p0, ends[:, None, 1] - p0, t.index_select(0, image)[..., None]).round_()  # (M, S, 2)
-    x, y = xy.unbind(-1)
+    steps = t[:, :, None] if B == 1 else t.index_select(0, image)[..., None]
+    xy = torch.addcmul(p0, ends[:, None, 1] - p0, steps).round_()  # (M, S, 2)
     # rounded coordinates are whole numbers below 2^24, so the flat index is exact; a row length of at least 2
     # keeps neighbouring samples apart
-    pixel = torch.add(x, y, alpha=max(width, 2))  # (M, S)
+    row_length = max(width, 2)
+    pixel = torch.add(xy[..., 0], xy[..., 1], alpha=row_length)  # (M, S)
     # along a straight segment both rounded coordinates are monotone and move at most one pixel a step, so a
     # pixel's samples are consecutive (padding repeats the last): keeping the first of each run gives every
     # (segment, pixel) once
-    keep = torch.ones_like(pixel, dtype=torch.bool)
-    keep[:, 1:] = pixel[:, 1:] != pixel[:, :-1]
+    keep = F.pad(pixel, (1, 0), value=math.nan)[:, :-1] != pixel
     # the samples lie between the segment's first and last (monotone), so only segments with an end outside the
     # map need a test per sample
-    ends = xy[:, [0, -1]]
-    outside = ~_within(ends, height, width).all(-1)
+    outside = _outside(xy[:, :: t.shape[1] - 1], height, width).any(-1)
     if bool(outside.any()):
-        keep[outside] &= _within(xy[outside], height, width)
+        keep[outside] &= ~_outside(xy[outside], height, width)
     flat = keep.flatten().nonzero().squeeze(1)
     row = flat // t.shape[1]
-    x, y = xy.flatten(0, 1).index_select(0, flat).long().unbind(-1)
-    return seg.index_select(0, row), image.index_select(0, row) * (height * width) + y * width + x
+    key = pixel.flatten().index_select(0, flat).long()
+    if row_length != width:  # a single column: x is 0
+        key = key // row_length
+    if B > 1:
+        key = key + image.index_select(0, row) * (height * width)
+    return seg.index_select(0, row), key
 
 
-def _within(xy: Tensor, height: int, width: int) -> Tensor:
-    """(..., 2) rounded pixel coordinates -> (...) bool: inside a ``height`` x ``width`` map."""
+def _outside(xy: Tensor, height: int, width: int) -> Tensor:
+    """(..., 2) rounded pixel coordinates -> (...) bool: outside a ``height`` x ``width`` map."""
     # whole numbers: inside iff within half the map's size (less one) of its middle
     half = torch.tensor([(width - 1) / 2, (height - 1) / 2], device=xy.device, dtype=xy.dtype)
-    return (xy - half).abs_().le_(half).all(-1)
+    return ((xy - half).abs_() > half).any(-1)
 
 
 def line_map(segments: Tensor, mask: Tensor, height: int, width: int) -> Tensor:

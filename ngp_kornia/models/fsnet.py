@@ -118,8 +118,8 @@ def canonical_frame_vps(frames: FrameCandidates) -> Tensor:
     KORNIA_CHECK_SHAPE(frames.R, ["B", "F", "3", "3"])
     KORNIA_CHECK_SHAPE(frames.focal, ["B", "F"])
     R = canonical_manhattan_rotation(frames.R)
-    f = torch.where(frames.focal > 0, frames.focal, torch.ones_like(frames.focal))
-    scale = torch.stack([f, f, torch.ones_like(f)], -1)
+    f = torch.where(frames.focal > 0, frames.focal, 1.0)
+    scale = F.pad(f[..., None].expand(*f.shape, 2), (0, 1), value=1.0)  # (f, f, 1)
     return normalize(R.transpose(-1, -2) * scale[..., None, :]) + 0.0
 
 
@@ -269,7 +269,7 @@ def frame_closeness(lines: Tensor, vps: Tensor, kernel_angle: float | None = 88.
     else:
         # sharp_kernel's exponent, floored where the kernel is far below _MIN_CLOSENESS anyway: the exponential of
         # large negative numbers underflows to subnormals, which the CPU computes slowly
-        exponent = -(cosine**2) / (2.0 * math.cos(math.radians(kernel_angle)) ** 2)
+        exponent = cosine.square() / (-2.0 * math.cos(math.radians(kernel_angle)) ** 2)  # -(c^2) / (2 cos^2 a)
         values = exponent.clamp_min(_MIN_EXPONENT).exp()
     return values.masked_fill(values < _MIN_CLOSENESS, 0.0)
 

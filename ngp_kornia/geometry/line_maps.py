@@ -7,11 +7,9 @@ differentiable with respect to the per-segment values (so closeness maps pass gr
 
 from __future__ import annotations
 
-import math
 from functools import lru_cache
 
 import torch
-import torch.nn.functional as F
 from kornia.core.check import KORNIA_CHECK, KORNIA_CHECK_SHAPE
 from torch import Tensor
 
@@ -162,23 +160,27 @@ def _segment_pixels(segments: Tensor, mask: Tensor, height: int, width: int) -> 
     t = _steps(longest.tolist(), segments)  # (B, S)
     seg = mask.flatten().nonzero().squeeze(1)  # only the drawn segments are sampled
     image = seg // N
-    ends = segments.detach().reshape(B * N, 2, 2).index_select(0, seg)  # (M, 2, 2)
-    p0 = ends[:, None, 0]
-    steps = t[:, :, None] if B == 1 else t.index_select(0, image)[..., None]
-    xy = torch.addcmul(p0, ends[:, None, 1] - p0, steps).round_()  # (M, S, 2)
+    ends = segments.detach().reshape(B * N, 4).index_select(0, seg)  # (M, 4): x0, y0, x1, y1
+    steps = t if B == 1 else t.index_select(0, image)
+    # x and y as separate (M, S) grids: the same arithmetic as on points, on contiguous rows
+    x0, y0, x1, y1 = ends[:, :, None].unbind(1)
+    x = torch.addcmul(x0, x1 - x0, steps).round_()
+    y = torch.addcmul(y0, y1 - y0, steps).round_()
     # rounded coordinates are whole numbers below 2^24, so the flat index is exact; a row length of at least 2
     # keeps neighbouring samples apart
     row_length = max(width, 2)
-    pixel = torch.add(xy[..., 0], xy[..., 1], alpha=row_length)  # (M, S)
+    pixel = torch.add(x, y, alpha=row_length)  # (M, S)
     # along a straight segment both rounded coordinates are monotone and move at most one pixel a step, so a
     # pixel's samples are consecutive (padding repeats the last): keeping the first of each run gives every
     # (segment, pixel) once
-    keep = F.pad(pixel, (1, 0), value=math.nan)[:, :-1] != pixel
+    keep = torch.ones_like(pixel, dtype=torch.bool)
+    torch.ne(pixel[:, 1:], pixel[:, :-1], out=keep[:, 1:])
     # the samples lie between the segment's first and last (monotone), so only segments with an end outside the
     # map need a test per sample
-    outside = _outside(xy[:, :: t.shape[1] - 1], height, width).any(-1)
+    last = t.shape[1] - 1
+    outside = _outside(torch.stack([x[:, ::last], y[:, ::last]], -1), height, width).any(-1)
     if bool(outside.any()):
-        keep[outside] &= ~_outside(xy[outside], height, width)
+        keep[outside] &= ~_outside(torch.stack([x[outside], y[outside]], -1), height, width)
     flat = keep.flatten().nonzero().squeeze(1)
     row = flat // t.shape[1]
     key = pixel.flatten().index_select(0, flat).long()

@@ -427,13 +427,14 @@ class NeuralGeometricParser(nn.Module):
         pitch, roll = pitch_roll_from_up(up)
         _, _, yaw = angles_from_rotation(R)
         f = K[:, 0, 0]
-        size = torch.tensor([height, width], device=K.device).expand(len(f), 2)
+        size = torch.tensor([height, width], device=K.device)
+        fov_v, fov_h = fov_from_focal(f[:, None], size).unbind(-1)  # both sides at once, the same values
         return Calibration(
             K=K,
             R=R,
             focal=f,
-            fov_v=fov_from_focal(f, height),
-            fov_h=fov_from_focal(f, width),
+            fov_v=fov_v,
+            fov_h=fov_h,
             pitch=pitch,
             roll=roll,
             yaw=yaw,
@@ -443,7 +444,7 @@ class NeuralGeometricParser(nn.Module):
             vps=vanishing_points_from_rotation(K, R),
             score=score,
             valid=valid,
-            image_size=size,
+            image_size=size.expand(len(f), 2),
             exif_orientation=torch.ones(len(f), dtype=torch.long, device=K.device),  # tensors are taken as they are
         )
 

@@ -127,7 +127,10 @@ def _pixel_max(values: Tensor, seg: Tensor, key: Tensor, pixels: Tensor, size: i
         return per_pixel
     rank = owner.index_put_((pixels,), torch.arange(len(pixels), device=pixels.device))  # each pixel's position
     which = rank.index_select(0, key.index_select(0, others))[:, None].expand(-1, values.shape[1])
-    return per_pixel.scatter_reduce(0, which, values.index_select(0, seg.index_select(0, others)), "amax")
+    src = values.index_select(0, seg.index_select(0, others))
+    if torch.is_grad_enabled() and per_pixel.requires_grad:  # amax's backward needs the untouched rows
+        return per_pixel.scatter_reduce(0, which, src, "amax")
+    return per_pixel.scatter_reduce_(0, which, src, "amax")
 
 
 def _steps(counts: list[int], like: Tensor) -> Tensor:

@@ -136,12 +136,13 @@ def calibrate(
     if isinstance(image, Tensor) and image.dim() == 4:
         return result
     result = result[0]
-    return result if orientation is None else with_orientation(result, orientation)
+    # the parser's results already say 1 (nothing turned): only other orientations need a new result
+    return result if orientation in (None, 1) else with_orientation(result, orientation)
 
 
 def _call_config(config: ParserConfig | None, seed: int, focal, fov_v, exif: bool) -> ParserConfig:
     """The settings of one call: the caller's config with the call's seed and priors."""
-    cfg = replace(config or ParserConfig(), seed=seed)
+    cfg = ParserConfig(seed=seed) if config is None else replace(config, seed=seed)
     if exif:
         cfg = replace(cfg, exif=True)
     if focal is not None or fov_v is not None:
@@ -156,7 +157,7 @@ def _inputs(image, cfg: ParserConfig) -> tuple:
     if isinstance(image, Tensor):
         return as_batch(image)[0], None, None, None, cfg
     rgb, orientation = read_rgb_oriented(image)
-    batch = torch.from_numpy(rgb).permute(2, 0, 1)[None].float().div(255.0)
+    batch = torch.from_numpy(rgb).permute(2, 0, 1)[None].float().div_(255.0)  # in place: one image-sized buffer
     segments, mask = detect_segments(rgb, cfg)
     if cfg.exif and cfg.focal is None and cfg.fov_v is None and isinstance(image, (str, Path)):
         cfg = replace(cfg, focal=exif_focal(image, *rgb.shape[:2]))

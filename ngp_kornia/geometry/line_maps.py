@@ -7,6 +7,8 @@ differentiable with respect to the per-segment values (so closeness maps pass gr
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import torch
 from kornia.core.check import KORNIA_CHECK, KORNIA_CHECK_SHAPE
 from torch import Tensor
@@ -51,9 +53,9 @@ def rasterize_segments(
     out = values.new_zeros(B, C, height, width)
     if N == 0 or C == 0 or not bool(mask.any()):
         return out
-    b, n, pix = _segment_pixels(segments, mask, height, width)
-    src = values[b, n]  # (P, C)
-    base = b * (C * area) + pix  # position of channel 0 in out's (B, C, H, W) layout
+    seg, key = _segment_pixels(segments, mask, height, width)
+    src = values.reshape(B * N, C).index_select(0, seg)  # (P, C)
+    base = key + (seg // N) * ((C - 1) * area)  # position of channel 0 in out's (B, C, H, W) layout
     flat = out.view(-1)
     if torch.is_grad_enabled() and src.requires_grad:  # amax's backward needs its output: no in-place chunks
         chunk_channels = C
@@ -101,46 +103,102 @@ def line_map_and_pooled_maps(
     lines = values.new_zeros(B * area)
     pooled = values.new_zeros(B * rows * cols, C)
     if N > 0 and C > 0 and bool(mask.any()):
-        b, n, pix = _segment_pixels(segments, mask, height, width)
-        # where segments overlap, a pixel keeps the largest value (as drawn), then each cell sums its pixels
-        pixels, which = torch.unique(b * area + pix, return_inverse=True)
-        lines[pixels] = 1.0
-        per_pixel = values.new_zeros(len(pixels), C).scatter_reduce(
-            0, which[:, None].expand(-1, C), values[b, n], "amax"
-        )
-        image, pix = pixels // area, pixels % area
-        pooled = pooled.index_add(0, (image * rows + pix // width // cell) * cols + pix % width // cell, per_pixel)
+        seg, key = _segment_pixels(segments, mask, height, width)
+        # a dense mark per pixel lists the drawn pixels in the order of their index (each cell sums its pixels in
+        # that order), without sorting the pairs
+        drawn = torch.zeros(B * area, dtype=torch.bool, device=key.device).index_fill_(0, key, True)
+        lines = drawn.to(values.dtype)
+        pixels = drawn.nonzero().squeeze(1)
+        per_pixel = _pixel_max(values.reshape(B * N, C).contiguous(), seg, key, pixels, B * area)
+        cells = _cell_index(B, height, width, cell, key.device).index_select(0, pixels)
+        pooled = pooled.index_add(0, cells, per_pixel)
     pooled = (pooled / (cell * cell)).view(B, rows, cols, C).permute(0, 3, 1, 2)
     return lines.view(B, 1, height, width), pooled
 
 
-def _steps(counts: list[int], like: Tensor) -> tuple[Tensor, Tensor]:
-    """(B, S) positions ``linspace(0, 1, counts[b])`` padded to the longest, and (B, S) bool: which are real."""
-    size = max(counts)
-    t = like.new_zeros(len(counts), size)
+def _pixel_max(values: Tensor, seg: Tensor, key: Tensor, pixels: Tensor, size: int) -> Tensor:
+    """(len(pixels), C) per drawn pixel the largest ``values`` (M, C) row of the segments through it, from the
+    (segment, pixel) pairs ``seg``, ``key``; ``pixels``: the drawn pixels, sorted, of maps of ``size`` pixels."""
+    # most pixels lie on one segment and take its values: the maximum is taken only where segments share a pixel
+    owner = seg.new_zeros(size).index_copy_(0, key, seg)  # one of the segments through each pixel
+    per_pixel = values.index_select(0, owner.index_select(0, pixels))
+    others = (owner.index_select(0, key) != seg).nonzero().squeeze(1)  # the pairs of the other segments
+    if len(others) == 0:
+        return per_pixel
+    rank = owner.index_put_((pixels,), torch.arange(len(pixels), device=pixels.device))  # each pixel's position
+    which = rank.index_select(0, key.index_select(0, others))[:, None].expand(-1, values.shape[1])
+    src = values.index_select(0, seg.index_select(0, others))
+    if torch.is_grad_enabled() and per_pixel.requires_grad:  # amax's backward needs the untouched rows
+        return per_pixel.scatter_reduce(0, which, src, "amax")
+    return per_pixel.scatter_reduce_(0, which, src, "amax")
+
+
+def _steps(counts: list[int], like: Tensor) -> Tensor:
+    """(B, S) positions ``linspace(0, 1, counts[b])`` padded with 1 to the longest: padding repeats the last point."""
+    if len(set(counts)) == 1:
+        return torch.linspace(0.0, 1.0, counts[0], device=like.device, dtype=like.dtype).expand(len(counts), -1)
+    t = like.new_ones(len(counts), max(counts))
     for b, n in enumerate(counts):
         t[b, :n] = torch.linspace(0.0, 1.0, n, device=like.device, dtype=like.dtype)
-    sampled = torch.arange(size, device=like.device) < torch.tensor(counts, device=like.device)[:, None]
-    return t, sampled
+    return t
 
 
-def _segment_pixels(segments: Tensor, mask: Tensor, height: int, width: int) -> tuple[Tensor, Tensor, Tensor]:
-    """Every (segment, pixel) pair a drawn segment covers, once: image index, segment index and flat pixel index
-    (``y * width + x``), from points sampled about one pixel apart and rounded to the nearest pixel."""
+@lru_cache(maxsize=16)
+def _cell_index(batch: int, height: int, width: int, cell: int, device: torch.device) -> Tensor:
+    """(batch * height * width,) the index of the ``cell`` x ``cell`` cell (row-major, image after image) each pixel
+    of a batch of maps falls in."""
+    y, x = torch.arange(height, device=device) // cell, torch.arange(width, device=device) // cell
+    index = (y[:, None] * (width // cell) + x).flatten()
+    return (torch.arange(batch, device=device)[:, None] * ((height // cell) * (width // cell)) + index).flatten()
+
+
+def _segment_pixels(segments: Tensor, mask: Tensor, height: int, width: int) -> tuple[Tensor, Tensor]:
+    """Every (segment, pixel) pair a drawn segment covers, once: the segment's index in the flattened (B * N)
+    segments and the pixel's index in the flattened (B, H, W) maps, from points sampled about one pixel apart and
+    rounded to the nearest pixel."""
+    B, N = mask.shape
     length = (segments[..., 1, :] - segments[..., 0, :]).norm(dim=-1).detach()
     # sample points per image, by its own longest segment: an image's map does not depend on the rest of its batch
-    longest = torch.where(mask, length, torch.zeros_like(length)).amax(-1).ceil().long() + 2  # (B,)
-    t, sampled = _steps(longest.tolist(), segments)  # (B, S)
-    p0, p1 = segments[..., 0, :].detach(), segments[..., 1, :].detach()
-    ij = (p0[:, :, None] + (p1 - p0)[:, :, None] * t[:, None, :, None]).round().long()  # (B, N, S, 2)
-    inside = (ij[..., 0] >= 0) & (ij[..., 0] < width) & (ij[..., 1] >= 0) & (ij[..., 1] < height)
-    inside &= mask[:, :, None] & sampled[:, None]
-    # along a straight segment both rounded coordinates are monotone, so a pixel's samples are consecutive: keeping
-    # the first of each run gives every (segment, pixel) once, without sorting all the samples
-    inside[..., 1:] &= (ij[..., 1:, :] != ij[..., :-1, :]).any(-1)
-    pixel = ij[..., 1] * width + ij[..., 0]
-    b, n, s = inside.nonzero(as_tuple=True)
-    return b, n, pixel[b, n, s]
+    longest = torch.where(mask, length, 0.0).amax(-1).ceil().long() + 2  # (B,)
+    t = _steps(longest.tolist(), segments)  # (B, S)
+    seg = mask.flatten().nonzero().squeeze(1)  # only the drawn segments are sampled
+    image = seg // N
+    ends = segments.detach().reshape(B * N, 4).index_select(0, seg)  # (M, 4): x0, y0, x1, y1
+    steps = t if B == 1 else t.index_select(0, image)
+    # x and y as separate (M, S) grids: the same arithmetic as on points, on contiguous rows
+    x0, y0, x1, y1 = ends[:, :, None].unbind(1)
+    x = torch.addcmul(x0, x1 - x0, steps).round_()
+    y = torch.addcmul(y0, y1 - y0, steps).round_()
+    # rounded coordinates are whole numbers below 2^24, so the flat index is exact; a row length of at least 2
+    # keeps neighbouring samples apart
+    row_length = max(width, 2)
+    pixel = torch.add(x, y, alpha=row_length)  # (M, S)
+    # along a straight segment both rounded coordinates are monotone and move at most one pixel a step, so a
+    # pixel's samples are consecutive (padding repeats the last): keeping the first of each run gives every
+    # (segment, pixel) once
+    keep = torch.ones_like(pixel, dtype=torch.bool)
+    torch.ne(pixel[:, 1:], pixel[:, :-1], out=keep[:, 1:])
+    # the samples lie between the segment's first and last (monotone), so only segments with an end outside the
+    # map need a test per sample
+    last = t.shape[1] - 1
+    outside = _outside(torch.stack([x[:, ::last], y[:, ::last]], -1), height, width).any(-1)
+    if bool(outside.any()):
+        keep[outside] &= ~_outside(torch.stack([x[outside], y[outside]], -1), height, width)
+    flat = keep.flatten().nonzero().squeeze(1)
+    row = flat // t.shape[1]
+    key = pixel.flatten().index_select(0, flat).long()
+    if row_length != width:  # a single column: x is 0
+        key = key // row_length
+    if B > 1:
+        key = key + image.index_select(0, row) * (height * width)
+    return seg.index_select(0, row), key
+
+
+def _outside(xy: Tensor, height: int, width: int) -> Tensor:
+    """(..., 2) rounded pixel coordinates -> (...) bool: outside a ``height`` x ``width`` map."""
+    # whole numbers: inside iff within half the map's size (less one) of its middle
+    half = torch.tensor([(width - 1) / 2, (height - 1) / 2], device=xy.device, dtype=xy.dtype)
+    return ((xy - half).abs_() > half).any(-1)
 
 
 def line_map(segments: Tensor, mask: Tensor, height: int, width: int) -> Tensor:

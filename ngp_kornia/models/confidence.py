@@ -95,9 +95,9 @@ def _border_heights(lines: Tensor, height: int, width: int) -> Tensor:
     """(..., 3) pixel lines -> (..., 2) their y at the left and right borders, in image heights (finite)."""
     ab = lines[..., :2].norm(dim=-1).clamp_min(1e-12)
     sign = torch.where(lines[..., 1] < 0, -1.0, 1.0).to(lines) / ab
-    a, b, c = lines[..., 0] * sign, lines[..., 1] * sign, lines[..., 2] * sign
+    a, b, c = (lines * sign[..., None]).unbind(-1)
     b = b.clamp_min(1e-6)
-    xs = torch.tensor([-0.5, width - 0.5]).to(lines)
+    (xs,) = _constants(((-0.5, width - 0.5),), lines.dtype, lines.device)
     y = -(a[..., None] * xs + c[..., None]) / b[..., None]
     return (y / height).clamp(-100.0, 100.0)
 
@@ -106,11 +106,19 @@ def _frame_horizons(frames: FrameCandidates, height: int, width: int) -> Tensor:
     """Pixel horizon lines (B, F, 3) of pseudo-camera frames: ``K_p^-T diag(1/f^2, 1/f^2, 1) z``."""
     f = frames.focal.clamp_min(1e-6)
     z = frames.zenith
-    line = torch.stack([z[..., 0] / f**2, z[..., 1] / f**2, z[..., 2]], -1)
+    ab = z[..., :2] / (f**2)[..., None]
     pf = pseudo_focal(height, width)
     cx, cy = (width - 1) / 2.0, (height - 1) / 2.0
-    a, b, c = line.unbind(-1)
-    return torch.stack([a / pf, b / pf, c - (cx * a + cy * b) / pf], -1)
+    a, b = ab.unbind(-1)
+    return torch.cat([ab / pf, (z[..., 2] - (cx * a + cy * b) / pf)[..., None]], -1)
+
+
+def _answer_and_frame_heights(answer: Tensor, frames: Tensor, height: int, width: int) -> tuple[Tensor, Tensor]:
+    """:func:`_border_heights` of the (B, 3) answer's horizon, as (B, 1, 2), and of the (B, F, 3) frames'."""
+    if answer.dtype != frames.dtype:
+        return _border_heights(answer, height, width)[:, None], _border_heights(frames, height, width)
+    heights = _border_heights(torch.cat([answer[:, None], frames], 1), height, width)  # one pass for both
+    return heights[:, :1], heights[:, 1:]
 
 
 def _weighted_std(values: Tensor, weights: Tensor) -> Tensor:
@@ -141,38 +149,37 @@ def trust_features(
     Returns:
         :class:`TrustFeatures`, every field (B,), finite.
     """
-    height, width = (int(v) for v in result.image_size[0])
+    height, width = (int(v) for v in result.image_size[0].tolist())
     valid = frames.valid
-    scores = torch.where(valid, scores, torch.zeros_like(scores))
+    scores = torch.where(valid, scores, 0.0)
     best_score, best = scores.max(-1)
-    rows = torch.arange(len(best), device=best.device)
     # horizons: every frame's against the answer's, worse border, image heights
-    mine = _border_heights(result.horizon, height, width)  # (B, 2)
-    theirs = _border_heights(_frame_horizons(frames, height, width), height, width)  # (B, F, 2)
-    gap = (theirs - mine[:, None]).abs().amax(-1)  # (B, F)
-    rival = torch.where(valid & (gap > DIFFERENT_HORIZON), scores, torch.zeros_like(scores)).amax(-1)
+    mine, theirs = _answer_and_frame_heights(result.horizon, _frame_horizons(frames, height, width), height, width)
+    gap = (theirs - mine).abs().amax(-1)  # (B, F)
+    rival = torch.where(valid & (gap > DIFFERENT_HORIZON), scores, 0.0).amax(-1)
     ambiguity = rival / best_score.clamp_min(1e-9)
     _, w = topk_weighted_average(scores, frames.focal, top_k, valid)
     horizon_spread = (w * gap.square()).sum(-1).sqrt()
-    pitch, roll, fov = _frame_angles(frames, height, width)
-    shares, manhattan = _line_support(frames.vps[rows, best], segments, mask, height, width, kernel_angle)
-    any_valid = valid.any(-1)
-
-    def clean(t: Tensor) -> Tensor:
-        t = torch.nan_to_num(t.to(result.focal), nan=0.0, posinf=0.0, neginf=0.0)
-        return torch.where(any_valid, t, torch.zeros_like(t))
-
+    spreads = _weighted_std(torch.stack(_frame_angles(frames, height, width), 1), w[:, None])  # (B, 3)
+    best_vps = frames.vps.gather(1, best[:, None, None, None].expand(-1, 1, 3, 3))[:, 0]
+    shares, manhattan = _line_support(best_vps, segments, mask, height, width, kernel_angle)
+    # every feature but the counts is cleaned at once: finite, and 0 for an image without a valid frame
+    raw = [best_score, manhattan, ambiguity, horizon_spread, *spreads.unbind(1), shares[:, 1]]
+    raw.append(torch.minimum(shares[:, 0], shares[:, 2]))
+    cleaned = torch.nan_to_num(torch.stack(raw, 1).to(result.focal), nan=0.0, posinf=0.0, neginf=0.0)
+    cleaned = torch.where(valid.any(-1, keepdim=True), cleaned, 0.0)
+    score, manhattan, ambiguity, horizon_spread, pitch, roll, fov, vertical, horizontal = cleaned.unbind(1)
     return TrustFeatures(
-        score=clean(best_score),
-        manhattan=clean(manhattan),
-        ambiguity=clean(ambiguity),
-        horizon_spread=clean(horizon_spread),
-        pitch_spread=clean(_weighted_std(pitch, w)),
-        roll_spread=clean(_weighted_std(roll, w)),
-        fov_spread=clean(_weighted_std(fov, w)),
+        score=score,
+        manhattan=manhattan,
+        ambiguity=ambiguity,
+        horizon_spread=horizon_spread,
+        pitch_spread=pitch,
+        roll_spread=roll,
+        fov_spread=fov,
         lines=mask.sum(-1).to(result.focal),
-        vertical_share=clean(shares[:, 1]),
-        horizontal_share=clean(torch.minimum(shares[:, 0], shares[:, 2])),
+        vertical_share=vertical,
+        horizontal_share=horizontal,
         valid_share=valid.to(result.focal).mean(-1),
     )
 
@@ -181,7 +188,7 @@ def _frame_angles(frames: FrameCandidates, height: int, width: int) -> tuple[Ten
     """(B, F) pitch, roll and vertical field of view of every frame, degrees."""
     f = frames.focal.clamp_min(1e-6)
     z = frames.zenith
-    up = torch.stack([z[..., 0] / f, z[..., 1] / f, z[..., 2]], -1)
+    up = torch.cat([z[..., :2] / f[..., None], z[..., 2:]], -1)
     up = up * torch.where(up[..., 1:2] > 0, -1.0, 1.0).to(up)
     pitch, roll = pitch_roll_from_up(up)
     return pitch, roll, fov_from_focal(f * pseudo_focal(height, width), height)
@@ -274,7 +281,7 @@ class TrustModel:
     def confidence(self, features: TrustFeatures) -> Tensor:
         """(B,) probability that the horizon error is below :attr:`threshold`."""
         x = confidence_inputs(features)
-        mean, scale, weights = (torch.tensor(v).to(x) for v in (self.mean, self.scale, self.weights))
+        mean, scale, weights = _constants((self.mean, self.scale, self.weights), x.dtype, x.device)
         return torch.sigmoid(((x - mean) / scale) @ weights + self.bias)
 
     def stds(
@@ -290,13 +297,15 @@ class TrustModel:
         """
         p = confidence.clamp(1e-4, 1 - 1e-4)
         logit = torch.log(p) - torch.log1p(-p)
-        out = {}
-        for name, spread in STD_SPREADS.items():
-            a, b, c = self.std[name]
-            out[name] = torch.exp(a + b * torch.log(getattr(features, spread) + 0.01) + c * logit)
-            if floor is not None:
-                out[name] = torch.hypot(out[name], self.principal_point[name] * floor[name])
-        return out
+        # the three parameters side by side, (B, 3): the same arithmetic per element as one at a time
+        spread = torch.stack([getattr(features, spread) for spread in STD_SPREADS.values()], -1)
+        coefficients = tuple(zip(*(self.std[name] for name in STD_SPREADS), strict=True))
+        a, b, c = _constants(coefficients, spread.dtype, spread.device)
+        out = torch.exp(a + b * torch.log(spread + 0.01) + c * logit[:, None])
+        if floor is not None:
+            (gain,) = _constants((tuple(self.principal_point[name] for name in STD_SPREADS),), out.dtype, out.device)
+            out = torch.hypot(out, gain * torch.stack([floor[name] for name in STD_SPREADS], -1))
+        return dict(zip(STD_SPREADS, out.unbind(-1), strict=True))
 
 
 def principal_point_terms(
@@ -335,6 +344,12 @@ def principal_point_terms(
         "roll": ray * tilt,
         "fov_v": torch.rad2deg(sigma * height / (f.square() + height**2 / 4.0)),
     }
+
+
+@lru_cache(maxsize=32)
+def _constants(values: tuple[tuple[float, ...], ...], dtype: torch.dtype, device: torch.device) -> list[Tensor]:
+    """The model's coefficient vectors as tensors, built once per model, dtype and device (read only)."""
+    return [torch.tensor(v).to(device=device, dtype=dtype) for v in values]
 
 
 @lru_cache(maxsize=1)
@@ -381,14 +396,14 @@ def attach_trust(
         frames = FrameCandidates(**{k: v.detach() for k, v in frames.__dict__.items()})
         features = trust_features(result, frames, scores.detach(), segments.detach(), mask, top_k, kernel_angle)
         conf = model.confidence(features)
-        height = int(result.image_size[0, 0])
+        height = int(result.image_size[0, 0].item())
         floor = principal_point_terms(principal_point_std, result.focal.detach(), height, result.pitch.detach())
         stds = model.stds(features, conf, floor)
     valid = result.valid
-    conf = torch.where(valid, conf, torch.zeros_like(conf))
-    pitch_std = torch.where(valid, stds["pitch"], torch.full_like(conf, 90.0))
-    roll_std = torch.where(valid, stds["roll"], torch.full_like(conf, 90.0))
-    fov_std = torch.where(valid, stds["fov_v"], torch.full_like(conf, 180.0))
+    conf = torch.where(valid, conf, 0.0)
+    pitch_std = torch.where(valid, stds["pitch"], 90.0)
+    roll_std = torch.where(valid, stds["roll"], 90.0)
+    fov_std = torch.where(valid, stds["fov_v"], 180.0)
     if known_focal:
         fov_std = torch.zeros_like(fov_std)
     return replace(result, confidence=conf, pitch_std=pitch_std, roll_std=roll_std, fov_v_std=fov_std)

@@ -24,6 +24,7 @@ still passed (one interface) but ignored.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import NamedTuple
 
@@ -40,7 +41,6 @@ from ngp_kornia.geometry import (
     rasterize_segments,
     segment_lengths,
     segments_to_lines,
-    sharp_kernel,
     to_pseudo_camera,
 )
 from ngp_kornia.models.resnet import LAYOUTS, ResNet
@@ -67,6 +67,7 @@ SUPPORT_ANGLES = (0.25, 0.5, 1.0, 2.0, 4.0)
 NUM_SUPPORT = 4 * len(SUPPORT_ANGLES)
 VARIANTS = ("faithful", "shared")
 _MIN_CLOSENESS = 1e-6  # smaller closeness values are drawn as 0
+_MIN_EXPONENT = -30.0  # exp(-30) < 1e-14: closeness that is drawn as 0
 _DEFAULT_LAYOUT = {"faithful": LAYOUTS["resnet18"], "shared": LAYOUTS["resnet18-half-s16"]}
 _DEFAULT_NORM = {"faithful": "batch", "shared": "group"}
 
@@ -117,8 +118,8 @@ def canonical_frame_vps(frames: FrameCandidates) -> Tensor:
     KORNIA_CHECK_SHAPE(frames.R, ["B", "F", "3", "3"])
     KORNIA_CHECK_SHAPE(frames.focal, ["B", "F"])
     R = canonical_manhattan_rotation(frames.R)
-    f = torch.where(frames.focal > 0, frames.focal, torch.ones_like(frames.focal))
-    scale = torch.stack([f, f, torch.ones_like(f)], -1)
+    f = torch.where(frames.focal > 0, frames.focal, 1.0)
+    scale = F.pad(f[..., None].expand(*f.shape, 2), (0, 1), value=1.0)  # (f, f, 1)
     return normalize(R.transpose(-1, -2) * scale[..., None, :]) + 0.0
 
 
@@ -263,8 +264,14 @@ def frame_closeness(lines: Tensor, vps: Tensor, kernel_angle: float | None = 88.
         tensor([1., 0., 0.])
     """
     cosine = line_vp_cosine(lines, vps)  # (B, F, 3, N)
-    values = 1.0 - cosine if kernel_angle is None else sharp_kernel(cosine, kernel_angle)
-    return torch.where(values < _MIN_CLOSENESS, torch.zeros_like(values), values)
+    if kernel_angle is None:
+        values = 1.0 - cosine
+    else:
+        # sharp_kernel's exponent, floored where the kernel is far below _MIN_CLOSENESS anyway: the exponential of
+        # large negative numbers underflows to subnormals, which the CPU computes slowly
+        exponent = cosine.square() / (-2.0 * math.cos(math.radians(kernel_angle)) ** 2)  # -(c^2) / (2 cos^2 a)
+        values = exponent.clamp_min(_MIN_EXPONENT).exp()
+    return values.masked_fill(values < _MIN_CLOSENESS, 0.0)
 
 
 def _draw_maps(
@@ -384,6 +391,8 @@ class FSNet(nn.Module):
             self.in_channels = image_ch + (1 if use_maps else 0)
         if backbone is None and self.in_channels > 0:
             backbone = ResNet(self.in_channels, self.widths, self.depths, self.norm)
+            if variant == "shared":  # its trunk runs channels-last (_trunk): so do its weights, sparing a conversion
+                backbone = backbone.to(memory_format=torch.channels_last)
         if backbone is not None:
             got = getattr(backbone, "in_channels", self.in_channels)
             KORNIA_CHECK(got == self.in_channels, f"the backbone takes {got} channels, FSNet feeds {self.in_channels}")

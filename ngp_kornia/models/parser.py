@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 import numbers
 from dataclasses import dataclass
+from functools import lru_cache
 
 import torch
 from torch import Tensor, nn
@@ -400,19 +401,19 @@ class NeuralGeometricParser(nn.Module):
         cfg = self.config
         valid = frames.valid.any(-1)
         focal, top_k_weights = topk_weighted_average(scores, frames.focal, cfg.top_k, frames.valid)
-        st, _ = topk_weighted_average(scores, structure_tensor(frames.zenith), cfg.top_k, frames.valid)
-        zenith = dominant_eigenvector(st)
+        # the zenith's average has the same weights: the top-k average of the structure tensors, without ranking again
+        zenith = dominant_eigenvector((top_k_weights[..., None, None] * structure_tensor(frames.zenith)).sum(1))
         best = scores.argmax(-1)
         if stages is not None:
             stages.update(final_frames=frames, final_scores=scores, top_k_weights=top_k_weights, best=best)
-        horizontal = frames.horizontal[torch.arange(len(best)), best]
+        horizontal = frames.horizontal.gather(1, best[:, None, None].expand(-1, 1, 3))[:, 0]
         fallback = prior_focal(cfg, height, width) or 1.0 / math.tan(math.radians(cfg.fallback_fov) / 2.0)
-        focal = torch.where(valid, focal, torch.full_like(focal, fallback))
-        level = torch.tensor([0.0, 1.0, 0.0]).to(zenith)
+        focal = torch.where(valid, focal, fallback)
+        level, ahead = _constant(((0.0, 1.0, 0.0), (1.0, 0.0, 0.0)), zenith.dtype, zenith.device)
         zenith = torch.where(valid[:, None], zenith, level)
-        horizontal = torch.where(valid[:, None], horizontal, torch.tensor([1.0, 0.0, 0.0]).to(zenith))
+        horizontal = torch.where(valid[:, None], horizontal, ahead)
         # the pseudo camera has K = diag(f, f, 1); pixels need K_p = [[f_p, 0, c], [0, f_p, c], [0, 0, 1]]
-        K_unit = intrinsics_matrix(focal, zenith.new_zeros(2))
+        K_unit = intrinsics_matrix(focal, _constant(((0.0, 0.0),), focal.dtype, focal.device)[0])
         R = canonical_manhattan_rotation(rotation_from_vps(K_unit, zenith, horizontal))
         f_px = focal * pseudo_focal(height, width)
         K = intrinsics_matrix(f_px, image_center(height, width, like=f_px))
@@ -426,13 +427,14 @@ class NeuralGeometricParser(nn.Module):
         pitch, roll = pitch_roll_from_up(up)
         _, _, yaw = angles_from_rotation(R)
         f = K[:, 0, 0]
-        size = torch.tensor([height, width], device=K.device).expand(len(f), 2)
+        size = torch.tensor([height, width], device=K.device)
+        fov_v, fov_h = fov_from_focal(f[:, None], size).unbind(-1)  # both sides at once, the same values
         return Calibration(
             K=K,
             R=R,
             focal=f,
-            fov_v=fov_from_focal(f, height),
-            fov_h=fov_from_focal(f, width),
+            fov_v=fov_v,
+            fov_h=fov_h,
             pitch=pitch,
             roll=roll,
             yaw=yaw,
@@ -442,9 +444,15 @@ class NeuralGeometricParser(nn.Module):
             vps=vanishing_points_from_rotation(K, R),
             score=score,
             valid=valid,
-            image_size=size,
+            image_size=size.expand(len(f), 2),
             exif_orientation=torch.ones(len(f), dtype=torch.long, device=K.device),  # tensors are taken as they are
         )
+
+
+@lru_cache(maxsize=32)
+def _constant(values: tuple[tuple[float, ...], ...], dtype: torch.dtype, device: torch.device) -> tuple[Tensor, ...]:
+    """Constant vectors built once per dtype and device (read only: every use makes a new tensor from them)."""
+    return tuple(torch.tensor(v).to(device=device, dtype=dtype) for v in values)
 
 
 def checked_segments(segments: Tensor, mask: Tensor | None, batch: int) -> tuple[Tensor, Tensor]:

@@ -248,3 +248,38 @@ def test_manhattan_score_maps_gradcheck():
     lm = line_map(seg, mask, 64, 64)
     vps = vps.requires_grad_()
     assert gradcheck(lambda v: manhattan_score_maps(lm, closeness_maps(seg, mask, closeness(lines, v), 64, 64)), (vps,))
+
+
+def _reference_pixels(segments, mask, height, width):
+    """The drawn pixels as first written: every image's segments sampled on one grid, duplicates removed by sorting."""
+    pairs = set()
+    for b in range(segments.shape[0]):
+        length = (segments[b, :, 1] - segments[b, :, 0]).norm(dim=-1)
+        count = int(torch.where(mask[b], length, torch.zeros_like(length)).amax().ceil()) + 2
+        t = torch.linspace(0.0, 1.0, count, dtype=segments.dtype)
+        for n in mask[b].nonzero().flatten().tolist():
+            p0, p1 = segments[b, n, 0], segments[b, n, 1]
+            for x, y in (p0 + (p1 - p0) * t[:, None]).round().long().tolist():
+                if 0 <= x < width and 0 <= y < height:
+                    pairs.add((b, n, y * width + x))
+    return pairs
+
+
+@pytest.mark.parametrize("size", [(16, 16), (9, 13), (5, 1), (1, 7)])
+def test_rasterize_segments_equal_reference_sampling(size):
+    # segments crossing the border, lying outside, of different lengths per image, with padding
+    height, width = size
+    g = torch.Generator().manual_seed(height * 31 + width)
+    segments = torch.rand(3, 12, 2, 2, generator=g) * torch.tensor([width + 6.0, height + 6.0]) - 3.0
+    segments[1] *= 0.3
+    mask = torch.rand(3, 12, generator=g) > 0.25
+    segments[~mask] = float("nan")  # padding is never sampled
+    values = torch.arange(1.0, 37.0).reshape(3, 12, 1)
+    out = rasterize_segments(segments, mask, values, height, width).flatten(1)
+    expected = torch.zeros(3, height * width)
+    for b, n, pix in _reference_pixels(segments, mask, height, width):
+        expected[b, pix] = max(float(expected[b, pix]), float(values[b, n, 0]))
+    assert torch.equal(out, expected)
+    lines, pooled = line_map_and_pooled_maps(segments, mask, values, height, width, 1)
+    assert torch.equal(lines.flatten(1), (expected > 0).float())
+    assert torch.equal(pooled.flatten(1), expected)

@@ -410,11 +410,12 @@ def _vertical_axis_first(b: Tensor, a: Tensor) -> Tensor:
     meeting at a horizontal VP is still a valid frame, only mislabelled. Taking the most image-vertical axis as the
     vertical assumes |roll| and |pitch| below about 45 degrees, the range of hand-held photos.
     """
-    axes = torch.stack([b, a, torch.linalg.cross(b, a)], -2)  # (..., 3 axes, 3)
-    vertical = axes[..., 1].abs().argmax(-1)
-    down = torch.gather(axes, -2, vertical[..., None, None].expand(*vertical.shape, 1, 3)).squeeze(-2)
+    third = torch.linalg.cross(b, a)
+    vertical = torch.stack([b[..., 1], a[..., 1], third[..., 1]], -1).abs().argmax(-1, keepdim=True)
+    # pick the down axis by two selections rather than stacking the three axes and gathering one
+    down = torch.where(vertical == 0, b, torch.where(vertical == 1, a, third))
     down = torch.where(down[..., 1:2] < 0, -down, down)
-    first = torch.where((vertical == 0)[..., None], a, b)
+    first = torch.where(vertical == 0, a, b)
     return torch.stack([first, down, torch.linalg.cross(first, down)], -1)
 
 

@@ -42,6 +42,7 @@ __all__ = [
     "horizontal_line_mask",
     "sample_frames",
     "sample_horizontal_vps",
+    "sample_candidate_frames",
     "sample_pairs",
     "sample_zenith_candidates",
     "select_frames",
@@ -409,11 +410,12 @@ def _vertical_axis_first(b: Tensor, a: Tensor) -> Tensor:
     meeting at a horizontal VP is still a valid frame, only mislabelled. Taking the most image-vertical axis as the
     vertical assumes |roll| and |pitch| below about 45 degrees, the range of hand-held photos.
     """
-    axes = torch.stack([b, a, torch.linalg.cross(b, a)], -2)  # (..., 3 axes, 3)
-    vertical = axes[..., 1].abs().argmax(-1)
-    down = torch.gather(axes, -2, vertical[..., None, None].expand(*vertical.shape, 1, 3)).squeeze(-2)
+    third = torch.linalg.cross(b, a)
+    vertical = torch.stack([b[..., 1], a[..., 1], third[..., 1]], -1).abs().argmax(-1, keepdim=True)
+    # pick the down axis by two selections rather than stacking the three axes and gathering one
+    down = torch.where(vertical == 0, b, torch.where(vertical == 1, a, third))
     down = torch.where(down[..., 1:2] < 0, -down, down)
-    first = torch.where((vertical == 0)[..., None], a, b)
+    first = torch.where(vertical == 0, a, b)
     return torch.stack([first, down, torch.linalg.cross(first, down)], -1)
 
 
@@ -445,9 +447,22 @@ def sample_frames(
     """
     KORNIA_CHECK_SHAPE(zenith_weights, ["B", "Z"])
     KORNIA_CHECK_SHAPE(horizontal_mask, ["B", "H"])
+    first, second, ok = _zenith_pairs(zenith, zenith_weights, horizontal, horizontal_mask, count, generator)
+    return frames_from_vps(first, second, ok, focal_range, focal)
+
+
+def _zenith_pairs(
+    zenith: Tensor,
+    zenith_weights: Tensor,
+    horizontal: Tensor,
+    horizontal_mask: Tensor,
+    count: int,
+    generator: Generators,
+) -> tuple[Tensor, Tensor, Tensor]:
+    """The draws of :func:`sample_frames`: zeniths (B, count, 3), horizontal VPs (B, count, 3), validity."""
     zi, zok = _draw(zenith_weights, count, generator)
     hi, hok = _draw(horizontal_mask.to(zenith_weights), count, generator)
-    return frames_from_vps(_gather(zenith, zi), _gather(horizontal, hi), zok & hok, focal_range, focal)
+    return _gather(zenith, zi), _gather(horizontal, hi), zok & hok
 
 
 def _draw(  # one weighted draw per frame, with replacement
@@ -488,9 +503,50 @@ def sample_horizontal_pair_frames(
         :class:`FrameCandidates` with F = ``count``.
     """
     KORNIA_CHECK_SHAPE(horizontal_mask, ["B", "H"])
+    return frames_from_vps(*_horizontal_pairs(horizontal, horizontal_mask, count, generator), focal_range, focal)
+
+
+def _horizontal_pairs(
+    horizontal: Tensor, horizontal_mask: Tensor, count: int, generator: Generators
+) -> tuple[Tensor, Tensor, Tensor]:
+    """The draws of :func:`sample_horizontal_pair_frames`: right-hand VPs (B, count, 3), left-hand VPs, validity."""
     half = horizontal.shape[1] // 2
     weights = horizontal_mask.to(horizontal)
     ri, rok = _draw(weights[:, :half], count, generator)
     li, lok = _draw(weights[:, half:], count, generator)
-    first, second = _gather(horizontal[:, :half], ri), _gather(horizontal[:, half:], li)
-    return frames_from_vps(first, second, rok & lok, focal_range, focal)
+    return _gather(horizontal[:, :half], ri), _gather(horizontal[:, half:], li), rok & lok
+
+
+def sample_candidate_frames(
+    zenith: Tensor,
+    zenith_weights: Tensor,
+    horizontal: Tensor,
+    horizontal_mask: Tensor,
+    count: int = 1024,
+    pair_count: int = 512,
+    focal_range: tuple[float, float] = (0.8, 4.0),
+    generator: Generators = None,
+    focal: float | None = None,
+) -> FrameCandidates:
+    """The parser's frame candidates: ``cat_frames(sample_frames(..., count, ...),
+    sample_horizontal_pair_frames(..., pair_count, ...))``, the same draws in the same order, with all the frames
+    built in one pass (fewer operations). Each frame depends on its own pair alone, so the frames are the same
+    (for counts that are not multiples of PyTorch's vector width, a focal length may differ in the last bit where
+    its square root moves between the vectorised loop and the scalar tail).
+
+    Args:
+        zenith, zenith_weights, horizontal, horizontal_mask: see :func:`sample_frames`.
+        count: frames from a zenith and a horizontal VP.
+        pair_count: frames from two horizontal VPs (none when 0).
+        focal_range, generator, focal: see :func:`sample_frames`.
+
+    Returns:
+        :class:`FrameCandidates` with F = ``count + pair_count``, the zenith-horizontal frames first.
+    """
+    KORNIA_CHECK_SHAPE(zenith_weights, ["B", "Z"])
+    KORNIA_CHECK_SHAPE(horizontal_mask, ["B", "H"])
+    first, second, ok = _zenith_pairs(zenith, zenith_weights, horizontal, horizontal_mask, count, generator)
+    if pair_count > 0:
+        pairs = _horizontal_pairs(horizontal, horizontal_mask, pair_count, generator)
+        first, second, ok = (torch.cat(both, 1) for both in zip((first, second, ok), pairs, strict=True))
+    return frames_from_vps(first, second, ok, focal_range, focal)

@@ -25,6 +25,7 @@ from ngp_kornia.sampling import (
     cat_frames,
     frames_from_vps,
     horizontal_line_mask,
+    sample_candidate_frames,
     sample_frames,
     sample_horizontal_pair_frames,
     sample_horizontal_vps,
@@ -535,6 +536,26 @@ def test_sample_horizontal_pair_frames():
     # an empty group: no valid frame
     fc = sample_horizontal_pair_frames(horizontal, hmask & torch.tensor([True] * 4 + [False] * 4), count=8)
     assert not fc.valid.any() and torch.isfinite(fc.R).all()
+
+
+@pytest.mark.parametrize("pair_count", [0, 64])
+@pytest.mark.parametrize("focal", [None, 1.5])
+def test_sample_candidate_frames_equals_both_samplers(pair_count, focal):
+    # the same draws in the same order and the same frames as the two samplers concatenated
+    zenith = torch.randn(2, 32, 3, generator=_gen(0))
+    zw = torch.rand(2, 32, generator=_gen(1)) * (torch.rand(2, 32, generator=_gen(2)) > 0.3)
+    horizontal = torch.randn(2, 64, 3, generator=_gen(3))
+    hmask = torch.rand(2, 64, generator=_gen(4)) > 0.2
+    gens = [_gen(5), _gen(5)]
+    out = sample_candidate_frames(zenith, zw, horizontal, hmask, 128, pair_count, generator=gens, focal=focal)
+    gens = [_gen(5), _gen(5)]
+    expected = sample_frames(zenith, zw, horizontal, hmask, 128, generator=gens, focal=focal)
+    if pair_count:
+        pairs = sample_horizontal_pair_frames(horizontal, hmask, pair_count, generator=gens, focal=focal)
+        expected = cat_frames(expected, pairs)
+    assert out.valid.shape == (2, 128 + pair_count) and out.valid.any()
+    for name in FrameCandidates.__dataclass_fields__:
+        assert torch.equal(getattr(out, name), getattr(expected, name)), name
 
 
 # the fast paths of frame building and the junction filter give the values of the plain operations

@@ -11,10 +11,12 @@ import math
 
 import torch
 from kornia.core.check import KORNIA_CHECK_SHAPE
-from kornia.geometry.conversions import convert_points_to_homogeneous
 from torch import Tensor
 
 from ngp_kornia.geometry.camera import image_center, normalize
+
+#: the largest cross product of u and v taken for rounding residue, in units of eps * |u| |v|
+_RESIDUE = 64.0
 
 __all__ = [
     "cossim",
@@ -55,20 +57,20 @@ def segments_to_lines(segments: Tensor) -> Tensor:
         tensor([[[ 0.,  1., -2.]]])
     """
     KORNIA_CHECK_SHAPE(segments, ["*", "2", "2"])
-    p = convert_points_to_homogeneous(segments)
-    line = _exact_zero(torch.linalg.cross(p[..., 0, :], p[..., 1, :]), p[..., 0, :], p[..., 1, :])
+    p = torch.nn.functional.pad(segments, (0, 1), value=1.0)  # homogeneous endpoints (x, y, 1)
+    cross = torch.linalg.cross(p[..., 0, :], p[..., 1, :])
+    # zero a cross product that is only rounding residue of (anti)parallel inputs, so it is not normalised into a
+    # random direction (fused multiply-adds leave about eps * |p0| |p1| where exact arithmetic gives 0); both
+    # endpoints' norms come from one reduction, row by row as from two
+    ends = p.norm(dim=-1, keepdim=True)
+    tolerance = _RESIDUE * torch.finfo(p.dtype).eps * ends[..., 0, :] * ends[..., 1, :]
+    line = torch.where(cross.norm(dim=-1, keepdim=True) <= tolerance, 0.0, cross)
     return line / line[..., :2].norm(dim=-1, keepdim=True).clamp_min(torch.finfo(line.dtype).eps)
 
 
-def _exact_zero(cross: Tensor, u: Tensor, v: Tensor) -> Tensor:
-    """Zero a cross product that is only rounding residue of (anti)parallel inputs, so it is not normalised into a
-    random direction (fused multiply-adds leave about eps * |u| |v| where exact arithmetic gives 0)."""
-    return torch.where(cross.norm(dim=-1, keepdim=True) <= _residue_tolerance(u, v), torch.zeros_like(cross), cross)
-
-
 def _residue_tolerance(u: Tensor, v: Tensor) -> Tensor:
-    """The largest cross product of ``u`` and ``v`` (..., 3) that :func:`_exact_zero` takes for rounding residue."""
-    return 64.0 * torch.finfo(u.dtype).eps * u.norm(dim=-1, keepdim=True) * v.norm(dim=-1, keepdim=True)
+    """The largest cross product of ``u`` and ``v`` (..., 3) taken for rounding residue (see :data:`_RESIDUE`)."""
+    return _RESIDUE * torch.finfo(u.dtype).eps * u.norm(dim=-1, keepdim=True) * v.norm(dim=-1, keepdim=True)
 
 
 def intersect_lines(l0: Tensor, l1: Tensor) -> Tensor:
@@ -92,7 +94,8 @@ def intersect_lines(l0: Tensor, l1: Tensor) -> Tensor:
     l0, l1 = torch.broadcast_tensors(l0, l1)
     cross = torch.linalg.cross(l0, l1)
     norm = cross.norm(dim=-1, keepdim=True)
-    # normalize(_exact_zero(cross, l0, l1)) with the norm computed once: a zeroed row divides to zero either way
+    # a cross product within the rounding residue is zeroed (as in segments_to_lines) before normalising, with the
+    # norm computed once: a zeroed row divides to zero either way
     residue = norm <= _residue_tolerance(l0, l1)
     return torch.where(residue, 0.0, cross / norm.clamp_min(torch.finfo(cross.dtype).eps))
 

@@ -25,6 +25,7 @@ __all__ = [
     "sharp_closeness",
     "sharp_kernel",
     "structure_tensor",
+    "symmetric_dominant_eigenvector",
     "topk_weighted_average",
     "weighted_structure_tensor",
 ]
@@ -94,15 +95,33 @@ def dominant_eigenvector(tensor: Tensor, fallback: Tensor | None = None) -> Tens
         tensor([[0., 0., 1.]])
     """
     KORNIA_CHECK_SHAPE(tensor, ["B", "3", "3"])
-    sym = 0.5 * (tensor + tensor.transpose(-1, -2))
+    return _dominant(0.5 * (tensor + tensor.transpose(-1, -2)), tensor, fallback)
+
+
+def symmetric_dominant_eigenvector(tensor: Tensor, fallback: Tensor | None = None) -> Tensor:
+    """:func:`dominant_eigenvector` of (B, 3, 3) tensors that are exactly symmetric, such as the weighted sums of
+    structure tensors (whose entries ``(i, j)`` and ``(j, i)`` are the same products summed in the same order):
+    the same vectors without symmetrising, which changes nothing then.
+
+    Example:
+        >>> symmetric_dominant_eigenvector(torch.diag(torch.tensor([0.1, 0.2, 0.7]))[None])
+        tensor([[0., 0., 1.]])
+    """
+    KORNIA_CHECK_SHAPE(tensor, ["B", "3", "3"])
+    return _dominant(tensor, tensor, fallback)
+
+
+def _dominant(sym: Tensor, tensor: Tensor, fallback: Tensor | None) -> Tensor:
     _, vecs = torch.linalg.eigh(sym)
     v = vecs[..., -1]
-    idx = v.abs().argmax(-1, keepdim=True)
-    v = v * torch.sign(torch.gather(v, -1, idx)).clamp_min(0.0).mul(2).sub(1)
-    if fallback is None:
-        fallback = torch.tensor([0.0, 1.0, 0.0], device=v.device, dtype=v.dtype)
+    # the sign that makes the largest-magnitude component positive (a zero one counts as negative, as sign() did)
+    v = torch.where(torch.gather(v, -1, v.abs().argmax(-1, keepdim=True)) > 0, v, -v)
     empty = tensor.flatten(1).abs().amax(-1, keepdim=True) <= torch.finfo(tensor.dtype).tiny ** 0.5
-    return torch.where(empty, fallback.to(v).expand_as(v), v)
+    return torch.where(empty, (_LEVEL_ZENITH if fallback is None else fallback).to(v).expand_as(v), v)
+
+
+#: the default fallback of :func:`dominant_eigenvector`, the zenith of a level camera, made once
+_LEVEL_ZENITH = torch.tensor([0.0, 1.0, 0.0])
 
 
 def line_vp_cosine(lines: Tensor, vps: Tensor) -> Tensor:

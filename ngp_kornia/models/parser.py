@@ -48,10 +48,8 @@ from ngp_kornia.models.zsnet import zenith_estimate, zenith_weights_from_scores
 from ngp_kornia.sampling import (
     FrameCandidates,
     Generators,
-    cat_frames,
     horizontal_line_mask,
-    sample_frames,
-    sample_horizontal_pair_frames,
+    sample_candidate_frames,
     sample_horizontal_vps,
     sample_zenith_candidates,
     select_frames,
@@ -350,14 +348,11 @@ class NeuralGeometricParser(nn.Module):
         right = split_by_pseudo_horizon(lines, z_est)
         h_vps, h_ok = sample_horizontal_vps(lines, lengths, horizontal, right, cfg.num_horizontal, generator)
         known = prior_focal(cfg, height, width)
-        frames = sample_frames(zenith, weights, h_vps, h_ok, cfg.num_frames, cfg.focal_range, generator, known)
-        if cfg.num_horizontal_frames > 0:
-            pairs = sample_horizontal_pair_frames(
-                h_vps, h_ok, cfg.num_horizontal_frames, cfg.focal_range, generator, known
-            )
-            frames = cat_frames(frames, pairs)
+        frames = sample_candidate_frames(
+            zenith, weights, h_vps, h_ok, cfg.num_frames, cfg.num_horizontal_frames, cfg.focal_range, generator, known
+        )
+        # zero for the invalid frames, which it does not score
         scores = frame_manhattan_scores(lines, frames.vps, lengths, mask, cfg.kernel_angle, frames.valid)
-        scores = torch.where(frames.valid, scores, torch.zeros_like(scores))
         if stages is not None:
             stages.update(lines=lines, zenith_lines=lines_z, zenith_lines_ok=lines_z_ok, zenith_candidates=zenith)
             stages.update(zenith_ok=zenith_ok, zenith_weights=weights, zenith_estimate=z_est, horizontal=horizontal)

@@ -8,10 +8,10 @@ from kornia.core.check import KORNIA_CHECK_SHAPE
 from torch import Tensor, nn
 
 from ngp_kornia.geometry import (
-    dominant_eigenvector,
     line_vp_cosine,
     normalize,
     sharp_kernel,
+    symmetric_dominant_eigenvector,
     weighted_structure_tensor,
 )
 
@@ -51,7 +51,7 @@ def zenith_estimate(candidates: Tensor, weights: Tensor) -> Tensor:
         >>> zenith_estimate(torch.tensor([[[0.0, 2.0, 0.0], [0.1, 1.0, 0.0]]]), torch.tensor([[1.0, 0.0]])).abs()
         tensor([[0., 1., 0.]])
     """
-    return dominant_eigenvector(weighted_structure_tensor(candidates, weights))
+    return symmetric_dominant_eigenvector(weighted_structure_tensor(candidates, weights))
 
 
 def canonical_homogeneous(v: Tensor, axis: int) -> Tensor:

@@ -97,6 +97,22 @@ def test_segments_to_lines_exception():
         segments_to_lines(torch.zeros(1, 3, 3, 2))
 
 
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_segments_to_lines_equals_plain_operations_bitwise(dtype):
+    # the endpoints' norms from one reduction are those of one reduction per endpoint
+    from ngp_kornia.geometry.line_algebra import _residue_tolerance
+
+    seg = torch.randn(3, 700, 2, 2, generator=torch.Generator().manual_seed(0), dtype=dtype) * 300.0
+    seg[:, :5, 1] = seg[:, :5, 0] * 2.0  # lines through the origin
+    seg[:, 5:9, 1] = seg[:, 5:9, 0]  # zero length
+    p0, p1 = (torch.cat([seg[..., i, :], torch.ones_like(seg[..., :1, 0])], -1) for i in (0, 1))
+    cross = torch.linalg.cross(p0, p1)
+    line = torch.where(cross.norm(dim=-1, keepdim=True) <= _residue_tolerance(p0, p1), torch.zeros_like(cross), cross)
+    expected = line / line[..., :2].norm(dim=-1, keepdim=True).clamp_min(torch.finfo(dtype).eps)
+    assert torch.equal(segments_to_lines(seg), expected)
+    assert (segments_to_lines(seg)[:, 5:9] == 0).all()
+
+
 def test_segments_to_lines_gradcheck():
     seg = _segments(2, 3).requires_grad_()
     assert gradcheck(segments_to_lines, (seg,))

@@ -19,6 +19,7 @@ from ngp_kornia.geometry.vp import (
     sharp_closeness,
     sharp_kernel,
     structure_tensor,
+    symmetric_dominant_eigenvector,
     topk_weighted_average,
     weighted_structure_tensor,
 )
@@ -136,6 +137,20 @@ def test_dominant_eigenvector_diag_and_fallback():
     torch.testing.assert_close(
         dominant_eigenvector(T, fallback=torch.tensor([1.0, 0, 0]))[0], torch.tensor([1.0, 0, 0])
     )
+
+
+@pytest.mark.parametrize("b", [1, 3])
+def test_symmetric_dominant_eigenvector_equals_dominant_eigenvector_bitwise(b, dtype):
+    # weighted sums of structure tensors are exactly symmetric: symmetrising them changes no bit
+    g = torch.Generator().manual_seed(b)
+    v = torch.randn(b, 300, 3, generator=g, dtype=dtype) * torch.rand(b, 300, 1, generator=g, dtype=dtype) ** 4
+    w = torch.rand(b, 300, generator=g, dtype=dtype) * (torch.rand(b, 300, generator=g) < 0.5)
+    w[0] = 0.0  # an empty tensor: the fallback
+    T = weighted_structure_tensor(v, w)
+    assert torch.equal(T, T.transpose(-1, -2))
+    assert torch.equal(symmetric_dominant_eigenvector(T), dominant_eigenvector(T))
+    fb = torch.tensor([1.0, 0.0, 0.0], dtype=dtype)
+    assert torch.equal(symmetric_dominant_eigenvector(T, fb), dominant_eigenvector(T, fb))
 
 
 def test_weighted_structure_tensor_recovers_point_from_noisy_samples(dtype):

@@ -408,6 +408,12 @@ class FSNet(nn.Module):
         self.conv1 = nn.Conv2d(d, d, 3, padding=1)
         self.conv2 = nn.Conv2d(d, d, 3, padding=1)
         self.scorer = _mlp([2 * d, d, 1])
+        if backbone is not None and not self.custom_backbone:
+            # the head adds every candidate's maps to the trunk's channels-last context map: channels-last weights
+            # give its convolutions channels-last outputs and spare a weight conversion per call (the same values)
+            for conv in (self.map_proj, self.conv1, self.conv2):
+                if conv is not None:
+                    conv.to(memory_format=torch.channels_last)
 
     def settings(self) -> dict:
         """The constructor arguments that rebuild this network (stored with its weights)."""

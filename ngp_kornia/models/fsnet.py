@@ -530,6 +530,9 @@ class FSNet(nn.Module):
         self, context: Tensor | None, low_l: Tensor | None, closeness: Tensor, params: Tensor, width: int
     ) -> Tensor:
         B, c = params.shape[:2]
+        # without autograd the sums and ReLUs reuse the fresh maps they read: allocating a new one (128 KB for 16
+        # candidates) costs more than the arithmetic
+        inplace = not torch.is_grad_enabled()
         x = self.param_mlp(params)[..., None, None]  # (B, c, D, 1, 1)
         if context is not None:
             x = x + context[:, None]
@@ -542,8 +545,12 @@ class FSNet(nn.Module):
             density = low_a * (width / w)  # about the length of line per cell, in cells
             mean = low_a / low_l[:, None].clamp_min(1e-6)  # mean closeness of the cell's line pixels (local Eq. 21)
             maps = torch.cat([density, mean], 2).flatten(0, 1)
-            x = x + self.map_proj(maps).reshape(B, c, -1, h, w)
-        x = torch.relu(x.flatten(0, 1))
-        y = torch.relu(self.conv2(torch.relu(self.conv1(x))) + x)
+            proj = self.map_proj(maps).reshape(B, c, -1, h, w)
+            x = proj.add_(x) if inplace else x + proj
+        x = x.flatten(0, 1).relu_() if inplace else torch.relu(x.flatten(0, 1))
+        if inplace:
+            y = self.conv2(self.conv1(x).relu_()).add_(x).relu_()
+        else:
+            y = torch.relu(self.conv2(torch.relu(self.conv1(x))) + x)
         pooled = torch.cat([y.mean((-2, -1)), y.amax((-2, -1))], -1)
         return self.scorer(pooled).reshape(B, c)

@@ -293,3 +293,12 @@ def test_shared_head_weights_are_channels_last_and_load_as_they_are():
     inputs = random_inputs(2, 5)
     with torch.no_grad():
         assert torch.equal(again(*inputs), net(*inputs))
+
+
+@pytest.mark.parametrize("kw", [{}, {"use_image": False}, {"use_image": False, "use_maps": False}])
+def test_shared_head_scores_the_same_without_autograd(kw):
+    net = tiny("shared", **kw).eval()
+    inputs = random_inputs(2, 5)
+    with torch.no_grad():
+        fast = net(*inputs)
+    assert torch.equal(fast, net(*inputs).detach())

@@ -408,6 +408,12 @@ class FSNet(nn.Module):
         self.conv1 = nn.Conv2d(d, d, 3, padding=1)
         self.conv2 = nn.Conv2d(d, d, 3, padding=1)
         self.scorer = _mlp([2 * d, d, 1])
+        if backbone is not None and not self.custom_backbone:
+            # the head adds every candidate's maps to the trunk's channels-last context map: channels-last weights
+            # give its convolutions channels-last outputs and spare a weight conversion per call (the same values)
+            for conv in (self.map_proj, self.conv1, self.conv2):
+                if conv is not None:
+                    conv.to(memory_format=torch.channels_last)
 
     def settings(self) -> dict:
         """The constructor arguments that rebuild this network (stored with its weights)."""
@@ -524,6 +530,9 @@ class FSNet(nn.Module):
         self, context: Tensor | None, low_l: Tensor | None, closeness: Tensor, params: Tensor, width: int
     ) -> Tensor:
         B, c = params.shape[:2]
+        # without autograd the sums and ReLUs reuse the fresh maps they read: allocating a new one (128 KB for 16
+        # candidates) costs more than the arithmetic
+        inplace = not torch.is_grad_enabled()
         x = self.param_mlp(params)[..., None, None]  # (B, c, D, 1, 1)
         if context is not None:
             x = x + context[:, None]
@@ -536,8 +545,12 @@ class FSNet(nn.Module):
             density = low_a * (width / w)  # about the length of line per cell, in cells
             mean = low_a / low_l[:, None].clamp_min(1e-6)  # mean closeness of the cell's line pixels (local Eq. 21)
             maps = torch.cat([density, mean], 2).flatten(0, 1)
-            x = x + self.map_proj(maps).reshape(B, c, -1, h, w)
-        x = torch.relu(x.flatten(0, 1))
-        y = torch.relu(self.conv2(torch.relu(self.conv1(x))) + x)
+            proj = self.map_proj(maps).reshape(B, c, -1, h, w)
+            x = proj.add_(x) if inplace else x + proj
+        x = x.flatten(0, 1).relu_() if inplace else torch.relu(x.flatten(0, 1))
+        if inplace:
+            y = self.conv2(self.conv1(x).relu_()).add_(x).relu_()
+        else:
+            y = torch.relu(self.conv2(torch.relu(self.conv1(x))) + x)
         pooled = torch.cat([y.mean((-2, -1)), y.amax((-2, -1))], -1)
         return self.scorer(pooled).reshape(B, c)

@@ -28,7 +28,6 @@ from ngp_kornia.geometry import (
     horizon_from_zenith,
     image_center,
     intrinsics_matrix,
-    pitch_roll_from_up,
     pseudo_focal,
     rotation_from_vps,
     segment_lengths,
@@ -419,8 +418,7 @@ class NeuralGeometricParser(nn.Module):
         up = -R[..., :, 1]
         zenith = zenith_from_up(K, up)
         zenith = zenith / zenith.norm(dim=-1, keepdim=True)
-        pitch, roll = pitch_roll_from_up(up)
-        _, _, yaw = angles_from_rotation(R)
+        pitch, roll, yaw = angles_from_rotation(R)  # its pitch and roll are those of up = -R[:, :, 1]
         f = K[:, 0, 0]
         size = torch.tensor([height, width], device=K.device)
         fov_v, fov_h = fov_from_focal(f[:, None], size).unbind(-1)  # both sides at once, the same values

@@ -127,7 +127,7 @@ def _camera_segments(segments: Tensor, K: Tensor) -> _Cam:
     pixels, so image angles are kept."""
     ones = segments.new_ones(*segments.shape[:-1], 1)
     pts = torch.cat([segments, ones], -1)  # (B, N, 2, 3)
-    cam = (pts.flatten(1, 2) @ torch.linalg.inv(K).transpose(-1, -2)).view_as(pts)
+    cam = torch.bmm(pts.flatten(1, 2), torch.linalg.inv(K).transpose(-1, -2)).view_as(pts)
     cam = cam / cam[..., 2:]  # (x, y, 1): z / z is exactly 1
     xy = cam[..., :2]
     mid, direction = xy.mean(-2), xy[..., 1, :] - xy[..., 0, :]
@@ -139,11 +139,11 @@ def _ratio(cam: _Cam, vps: Tensor, inplace: bool = False) -> tuple[Tensor, Tenso
     with ``d = v_xy - m v_z`` the ray from each midpoint ``m`` to each VP ``v`` (B, V, 3); ``inplace`` (no
     autograd) reuses the products' memory. ``|d|^2`` is one product of per-VP terms ``(|v_xy|^2, -2 v_z v_x,
     -2 v_z v_y, v_z^2)`` with per-segment terms ``(1, m_x, m_y, |m|^2)`` (:class:`_Cam`)."""
-    num = vps @ cam.line_t
+    num = torch.bmm(vps, cam.line_t)
     num = torch.square(num, out=num if inplace else None)
     vxy, vz = vps[..., :2], vps[..., 2:]
     terms = torch.cat([vxy.square().sum(-1, keepdim=True), -2.0 * vz * vxy, vz.square()], -1)
-    return num, terms @ cam.mid_terms
+    return num, torch.bmm(terms, cam.mid_terms)
 
 
 def _sin2(cam: _Cam, vps: Tensor) -> Tensor:
@@ -244,7 +244,7 @@ def _refine_up(
     for _ in range(iterations):
         inlier = (_sin2(cam, cur[:, None])[:, 0] <= math.sin(math.radians(zenith_tol)) ** 2) & mask
         w = lengths * inlier
-        M = (w[:, None] * cam.normals_t) @ cam.normals  # sum_i w_i n_i n_i^T
+        M = torch.bmm(w[:, None] * cam.normals_t, cam.normals)  # sum_i w_i n_i n_i^T
         _, vecs = torch.linalg.eigh(M)
         fit = vecs[..., 0].detach()  # no gradient through eigh (unstable for close eigenvalues)
         dot = (fit * up).sum(-1, keepdim=True)
@@ -316,9 +316,9 @@ def _support(
     # coordinates are (n . e2, -n . e1), and |n x u|^2 = 1 - (n . u)^2
     nt = cam.normals_t
     with torch.no_grad():  # integer bins and a bool: no gradient, so in place (-x + 1 is 1 - x)
-        psi = torch.atan2((e1 @ nt).neg_(), e2 @ nt).remainder_(math.pi)  # (B, H, N)
+        psi = torch.atan2(torch.bmm(e1, nt).neg_(), torch.bmm(e2, nt)).remainder_(math.pi)  # (B, H, N)
         index = psi.div_(math.pi).mul_(bins).long().clamp_(0, bins - 1)
-        meets = (ups @ nt).square_().neg_().add_(1.0) > 1e-12
+        meets = torch.bmm(ups, nt).square_().neg_().add_(1.0) > 1e-12
     weight = lengths[:, None] * (1.0 - kz) * meets
     hist = torch.zeros(B, H, bins, dtype=ups.dtype, device=ups.device).scatter_add_(-1, index, weight)
     # smooth (circular) and keep separated local maxima

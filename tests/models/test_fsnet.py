@@ -277,3 +277,28 @@ def test_support_network_takes_thirty_parameters_and_rebuilds():
     assert again.use_support and again.num_params == NUM_PARAMS + NUM_SUPPORT
     with pytest.raises(Exception, match="30"):
         net(images, lmap, close, params[..., :NUM_PARAMS])
+
+
+def test_shared_head_weights_are_channels_last_and_load_as_they_are():
+    net = tiny("shared").eval()
+    cl = torch.channels_last
+    assert all(getattr(net, n).weight.is_contiguous(memory_format=cl) for n in ("map_proj", "conv1", "conv2"))
+    # the layout is not part of the weights: a state dict in the default layout loads into it unchanged
+    state = {k: v.contiguous() for k, v in net.state_dict().items()}
+    again = FSNet(**net.settings()).eval()
+    again.load_state_dict(state)
+    assert again.state_dict().keys() == net.state_dict().keys()
+    assert all(torch.equal(a, b) for a, b in zip(again.state_dict().values(), net.state_dict().values(), strict=True))
+    assert again.conv1.weight.is_contiguous(memory_format=cl)
+    inputs = random_inputs(2, 5)
+    with torch.no_grad():
+        assert torch.equal(again(*inputs), net(*inputs))
+
+
+@pytest.mark.parametrize("kw", [{}, {"use_image": False}, {"use_image": False, "use_maps": False}])
+def test_shared_head_scores_the_same_without_autograd(kw):
+    net = tiny("shared", **kw).eval()
+    inputs = random_inputs(2, 5)
+    with torch.no_grad():
+        fast = net(*inputs)
+    assert torch.equal(fast, net(*inputs).detach())

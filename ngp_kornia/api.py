@@ -157,7 +157,9 @@ def _inputs(image, cfg: ParserConfig) -> tuple:
     if isinstance(image, Tensor):
         return as_batch(image)[0], None, None, None, cfg
     rgb, orientation = read_rgb_oriented(image)
-    batch = torch.from_numpy(rgb).permute(2, 0, 1)[None].float().div_(255.0)  # in place: one image-sized buffer
+    # numpy divides the 8-bit pixels straight into float32 (the same values as float() then / 255, in one pass
+    # over the image instead of two); the permuted view keeps the channels-last layout
+    batch = torch.from_numpy(np.divide(rgb, np.float32(255.0), dtype=np.float32)).permute(2, 0, 1)[None]
     segments, mask = detect_segments(rgb, cfg)
     if cfg.exif and cfg.focal is None and cfg.fov_v is None and isinstance(image, (str, Path)):
         cfg = replace(cfg, focal=exif_focal(image, *rgb.shape[:2]))

@@ -22,6 +22,7 @@ import json
 from dataclasses import dataclass, field, fields, replace
 from functools import lru_cache
 from pathlib import Path
+from typing import NamedTuple
 
 import torch
 from torch import Tensor
@@ -43,6 +44,7 @@ __all__ = [
     "TRUST_FILE",
     "TrustFeatures",
     "TrustModel",
+    "SharedInputs",
     "attach_trust",
     "principal_point_terms",
     "trust_features",
@@ -121,6 +123,21 @@ def _answer_and_frame_heights(answer: Tensor, frames: Tensor, height: int, width
     return heights[:, :1], heights[:, 1:]
 
 
+class SharedInputs(NamedTuple):
+    """Values the parser already computed in the same call, passed along so the trust fields do not compute them
+    again (each equal to what :func:`trust_features` would compute from its own arguments).
+
+    Attributes:
+        lines: (B, N, 3) the segments' lines in the pseudo camera.
+        lengths: (B, N) the segments' lengths in input pixels, zero where the mask is False.
+        top_k_weights: (B, F) the top-k weights of the frames' scores (:func:`topk_weighted_average`).
+    """
+
+    lines: Tensor
+    lengths: Tensor
+    top_k_weights: Tensor
+
+
 def _weighted_std(values: Tensor, weights: Tensor) -> Tensor:
     mean = (weights * values).sum(-1, keepdim=True)
     return ((weights * (values - mean).square()).sum(-1)).clamp_min(0.0).sqrt()
@@ -134,6 +151,7 @@ def trust_features(
     mask: Tensor,
     top_k: int = 8,
     kernel_angle: float = 89.0,
+    shared: SharedInputs | None = None,
 ) -> TrustFeatures:
     """The features of :class:`TrustFeatures` for a batch.
 
@@ -145,6 +163,7 @@ def trust_features(
         mask: (B, N) bool.
         top_k: k of the top-k average.
         kernel_angle: width of the Manhattan score's kernel, degrees.
+        shared: the same call's lines, lengths and top-k weights, when already computed; None computes them.
 
     Returns:
         :class:`TrustFeatures`, every field (B,), finite.
@@ -158,11 +177,11 @@ def trust_features(
     gap = (theirs - mine).abs().amax(-1)  # (B, F)
     rival = torch.where(valid & (gap > DIFFERENT_HORIZON), scores, 0.0).amax(-1)
     ambiguity = rival / best_score.clamp_min(1e-9)
-    _, w = topk_weighted_average(scores, frames.focal, top_k, valid)
+    w = topk_weighted_average(scores, frames.focal, top_k, valid)[1] if shared is None else shared.top_k_weights
     horizon_spread = (w * gap.square()).sum(-1).sqrt()
     spreads = _weighted_std(torch.stack(_frame_angles(frames, height, width), 1), w[:, None])  # (B, 3)
     best_vps = frames.vps.gather(1, best[:, None, None, None].expand(-1, 1, 3, 3))[:, 0]
-    shares, manhattan = _line_support(best_vps, segments, mask, height, width, kernel_angle)
+    shares, manhattan = _line_support(best_vps, segments, mask, height, width, kernel_angle, shared)
     # every feature but the counts is cleaned at once: finite, and 0 for an image without a valid frame
     raw = [best_score, manhattan, ambiguity, horizon_spread, *spreads.unbind(1), shares[:, 1]]
     raw.append(torch.minimum(shares[:, 0], shares[:, 2]))
@@ -195,11 +214,14 @@ def _frame_angles(frames: FrameCandidates, height: int, width: int) -> tuple[Ten
 
 
 def _line_support(
-    vps: Tensor, segments: Tensor, mask: Tensor, height: int, width: int, kernel_angle: float
+    vps: Tensor, segments: Tensor, mask: Tensor, height: int, width: int, kernel_angle: float, shared=None
 ) -> tuple[Tensor, Tensor]:
     """Line-length shares (B, 3) of each of the (B, 3, 3) VPs, and (B,) the Manhattan share of all three."""
-    lines = segments_to_lines(to_pseudo_camera(segments, height, width))
-    lengths = segment_lengths(segments) * mask.to(segments)
+    if shared is None:
+        lines = segments_to_lines(to_pseudo_camera(segments, height, width))
+        lengths = segment_lengths(segments) * mask.to(segments)
+    else:
+        lines, lengths = shared.lines, shared.lengths
     close = sharp_closeness(lines, vps, kernel_angle)  # (B, 3, N)
     total = lengths.sum(-1).clamp_min(1e-9)
     shares = (close * lengths[:, None]).sum(-1) / total[:, None]
@@ -368,6 +390,7 @@ def attach_trust(
     known_focal: bool = False,
     model: TrustModel | None = None,
     principal_point_std: float = 0.0,
+    shared: SharedInputs | None = None,
 ) -> Calibration:
     """The answer with ``confidence``, ``pitch_std``, ``roll_std`` and ``fov_v_std`` filled in.
 
@@ -387,6 +410,7 @@ def attach_trust(
         model: coefficients; None uses the shipped ones.
         principal_point_std: how uncertain the principal point is, a standard deviation per axis as a fraction of
             the image height (:attr:`ngp_kornia.models.ParserConfig.principal_point_std`); 0: at the centre.
+        shared: the same call's lines, lengths and top-k weights (:class:`SharedInputs`), when already computed.
 
     Returns:
         a new :class:`Calibration`.
@@ -394,7 +418,9 @@ def attach_trust(
     model = model or _shipped()
     with torch.no_grad():
         frames = FrameCandidates(**{k: v.detach() for k, v in frames.__dict__.items()})
-        features = trust_features(result, frames, scores.detach(), segments.detach(), mask, top_k, kernel_angle)
+        if shared is not None:
+            shared = SharedInputs(*(t.detach() for t in shared))
+        features = trust_features(result, frames, scores.detach(), segments.detach(), mask, top_k, kernel_angle, shared)
         conf = model.confidence(features)
         height = int(result.image_size[0, 0].item())
         floor = principal_point_terms(principal_point_std, result.focal.detach(), height, result.pitch.detach())

@@ -186,6 +186,7 @@ def fsnet_inputs(
     chunk_size: int = 32,
     support: bool = False,
     pool: int | None = None,
+    lines: Tensor | None = None,
 ) -> FSNetInputs:
     r"""Build FSNet's inputs for a batch of images and their frame candidates.
 
@@ -205,6 +206,7 @@ def fsnet_inputs(
         support: append each candidate's :func:`frame_support` (20 values) to its parameters.
         pool: give the closeness maps as means over cells of ``pool`` x ``pool`` pixels (the size must be a multiple
             of it), computed without drawing the full maps (:func:`~ngp_kornia.geometry.line_map_and_pooled_maps`).
+        lines: (B, N, 3) the segments' pseudo-camera lines in the images' dtype, when already computed, else None.
 
     Returns:
         :class:`FSNetInputs`. Invalid candidates get finite inputs (score them and mask the scores). The closeness
@@ -223,12 +225,11 @@ def fsnet_inputs(
     KORNIA_CHECK(chunk_size > 0, "chunk_size must be positive")
     H, W = images.shape[-2:]
     out_size = (size, size) if isinstance(size, int) else tuple(size)
-    resized = images
-    if (H, W) != out_size:
-        resized = F.interpolate(images, out_size, mode="bilinear", align_corners=False, antialias=True)
+    same = (H, W) == out_size
+    resized = images if same else F.interpolate(images, out_size, mode="bilinear", align_corners=False, antialias=True)
     segments = segments.to(images)
     vps = canonical_frame_vps(frames).to(images)  # (B, F, 3, 3)
-    lines = segments_to_lines(to_pseudo_camera(segments, H, W))
+    lines = segments_to_lines(to_pseudo_camera(segments, H, W)) if lines is None else lines
     values = frame_closeness(lines, vps, kernel_angle)
     lmap, closeness = _draw_maps(segments, mask, values, (H, W), out_size, chunk_size, pool)
     params = [vps.flatten(-2), frames.focal.to(images)[..., None]]
@@ -433,9 +434,12 @@ class FSNet(nn.Module):
             "chunk_size": self.chunk_size,
         }
 
-    def prepare_inputs(self, images: Tensor, segments: Tensor, mask: Tensor, frames: FrameCandidates) -> FSNetInputs:
+    def prepare_inputs(
+        self, images: Tensor, segments: Tensor, mask: Tensor, frames: FrameCandidates, lines: Tensor | None = None
+    ) -> FSNetInputs:
         """:func:`fsnet_inputs` at this network's input size and closeness kernel; the shared variant gets its
-        closeness maps already pooled to the trunk's resolution (the same scores, without the full maps)."""
+        closeness maps already pooled to the trunk's resolution (the same scores, without the full maps).
+        ``lines``: the segments' pseudo-camera lines when already computed."""
         size = self.input_size
         return fsnet_inputs(
             images,
@@ -447,6 +451,7 @@ class FSNet(nn.Module):
             self.chunk_size,
             self.use_support,
             pool=self.pool_cell(size, size),
+            lines=lines,
         )
 
     def pool_cell(self, height: int, width: int) -> int | None:

@@ -38,7 +38,7 @@ from ngp_kornia.geometry import (
     vanishing_points_from_rotation,
     zenith_from_up,
 )
-from ngp_kornia.models.confidence import attach_trust
+from ngp_kornia.models.confidence import SharedInputs, attach_trust
 from ngp_kornia.models.fsnet import frame_scores
 from ngp_kornia.models.refine import FOCAL_SCALES, refine_horizon
 from ngp_kornia.models.result import Calibration
@@ -310,16 +310,18 @@ class NeuralGeometricParser(nn.Module):
         # one generator per image, each seeded alike: an image's answer does not depend on its batch or position
         generators = [torch.Generator().manual_seed(cfg.seed) for _ in range(len(images))]
         stages = {"segments": segments, "mask": mask} if return_trace else None
-        frames, scores = self.score_frames(segments, mask, height, width, generators, stages)
+        # the segments' lines and lengths serve the scores, FSNet's inputs and the trust fields: computed once
+        pseudo = pseudo_lines(segments, mask, height, width)
+        frames, scores = self.score_frames(segments, mask, height, width, generators, stages, pseudo)
         if self.fsnet is not None:
-            frames, scores = self.rescore_frames(images, segments, mask, frames, scores, stages)
-        result = self.calibrate_from_frames(frames, scores, height, width, stages)
+            frames, scores = self.rescore_frames(images, segments, mask, frames, scores, stages, pseudo[1])
+        result, top_k_weights = self._calibrate(frames, scores, height, width, stages)
         known_focal = cfg.focal is not None or cfg.fov_v is not None
         if cfg.refine_horizon:  # with a known focal length only the horizon moves, never the focal length
             result = refine_horizon(result, segments, mask, focal_scales=() if known_focal else FOCAL_SCALES)
         result = attach_trust(
             result, frames, scores, segments, mask, cfg.top_k, cfg.kernel_angle, known_focal,
-            principal_point_std=cfg.principal_point_std,
+            principal_point_std=cfg.principal_point_std, shared=SharedInputs(*pseudo[1:], top_k_weights),
         )
         return (result, ParserTrace(**stages)) if return_trace else result
 
@@ -331,13 +333,13 @@ class NeuralGeometricParser(nn.Module):
         width: int,
         generator: Generators,
         stages: dict | None = None,
+        pseudo: tuple[Tensor, Tensor, Tensor] | None = None,
     ) -> tuple[FrameCandidates, Tensor]:
         """Sample frame candidates (pseudo camera) and score each one: (B, F) scores, zero for invalid frames.
-        ``stages``, a dict, receives the intermediate tensors (the fields of :class:`ParserTrace`)."""
+        ``stages``, a dict, receives the intermediate tensors (the fields of :class:`ParserTrace`); ``pseudo``,
+        the segments' :func:`pseudo_lines` when already computed."""
         cfg = self.config
-        seg = to_pseudo_camera(segments, height, width)
-        lines = segments_to_lines(seg)
-        lengths = segment_lengths(segments) * mask.to(segments)
+        seg, lines, lengths = pseudo_lines(segments, mask, height, width) if pseudo is None else pseudo
         lines_z, lines_z_ok, zenith, zenith_ok = sample_zenith_candidates(
             lines, lengths, mask, cfg.num_zenith_lines, cfg.num_zenith, cfg.vertical_threshold, generator
         )
@@ -366,15 +368,18 @@ class NeuralGeometricParser(nn.Module):
         frames: FrameCandidates,
         manhattan: Tensor,
         stages: dict | None = None,
+        lines: Tensor | None = None,
     ) -> tuple[FrameCandidates, Tensor]:
         """Keep the best ``num_scored`` frames by Manhattan score and score them with FSNet: ``s_vh * m_i`` (Eq. 22),
-        or ``s_vh`` alone without ``use_manhattan``. Returns the kept frames and their (B, K) scores."""
+        or ``s_vh`` alone without ``use_manhattan``. Returns the kept frames and their (B, K) scores. ``lines``: the
+        segments' pseudo-camera lines when already computed."""
         cfg = self.config
         index = top_frames(frames, manhattan, cfg.num_scored)
         frames, manhattan = select_frames(frames, index), manhattan.gather(1, index)
-        # FSNet runs in its own dtype (float32 weights on a float64 image, say)
+        # FSNet runs in its own dtype (float32 weights on a float64 image, say): lines in another dtype are redone
         dtype = next(self.fsnet.parameters()).dtype
-        inputs = self.fsnet.prepare_inputs(images.to(dtype), segments.to(dtype), mask, frames)
+        lines = lines if lines is not None and lines.dtype == dtype else None
+        inputs = self.fsnet.prepare_inputs(images.to(dtype), segments.to(dtype), mask, frames, lines)
         s_vh = torch.sigmoid(self.fsnet(*inputs)).to(manhattan)
         if stages is not None:
             stages.update(scored_index=index, fsnet_scores=s_vh)
@@ -392,6 +397,12 @@ class NeuralGeometricParser(nn.Module):
         self, frames: FrameCandidates, scores: Tensor, height: int, width: int, stages: dict | None = None
     ) -> Calibration:
         """Top-k average (Eq. 23) of focal and zenith, yaw from the best frame, everything mapped to pixels."""
+        return self._calibrate(frames, scores, height, width, stages)[0]
+
+    def _calibrate(
+        self, frames: FrameCandidates, scores: Tensor, height: int, width: int, stages: dict | None
+    ) -> tuple[Calibration, Tensor]:
+        """:meth:`calibrate_from_frames` and the (B, F) top-k weights of its average."""
         cfg = self.config
         valid = frames.valid.any(-1)
         focal, top_k_weights = topk_weighted_average(scores, frames.focal, cfg.top_k, frames.valid)
@@ -411,7 +422,7 @@ class NeuralGeometricParser(nn.Module):
         R = canonical_manhattan_rotation(rotation_from_vps(K_unit, zenith, horizontal))
         f_px = focal * pseudo_focal(height, width)
         K = intrinsics_matrix(f_px, image_center(height, width, like=f_px))
-        return self._result(K, R, scores.amax(-1), valid, height, width)
+        return self._result(K, R, scores.amax(-1), valid, height, width), top_k_weights
 
     @staticmethod
     def _result(K: Tensor, R: Tensor, score: Tensor, valid: Tensor, height: int, width: int) -> Calibration:
@@ -446,6 +457,13 @@ class NeuralGeometricParser(nn.Module):
 def _constant(values: tuple[tuple[float, ...], ...], dtype: torch.dtype, device: torch.device) -> tuple[Tensor, ...]:
     """Constant vectors built once per dtype and device (read only: every use makes a new tensor from them)."""
     return tuple(torch.tensor(v).to(device=device, dtype=dtype) for v in values)
+
+
+def pseudo_lines(segments: Tensor, mask: Tensor, height: int, width: int) -> tuple[Tensor, Tensor, Tensor]:
+    """(B, N, 2, 2) pixel segments -> the pseudo camera's segments, their (B, N, 3) lines and (B, N) pixel lengths
+    (zero where the mask is False)."""
+    seg = to_pseudo_camera(segments, height, width)
+    return seg, segments_to_lines(seg), segment_lengths(segments) * mask.to(segments)
 
 
 def checked_segments(segments: Tensor, mask: Tensor | None, batch: int) -> tuple[Tensor, Tensor]:

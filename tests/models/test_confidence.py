@@ -10,7 +10,9 @@ import torch
 from ngp_kornia import calibrate
 from ngp_kornia.data.synth.render import render_scene
 from ngp_kornia.models import NeuralGeometricParser, ParserConfig
+from ngp_kornia.models import parser as parser_module
 from ngp_kornia.models.confidence import TRUST_FILE, TrustModel
+from ngp_kornia.models.fsnet import FSNet
 from ngp_kornia.models.parser import prior_focal
 from ngp_kornia.sampling import frames_from_vps
 
@@ -112,3 +114,17 @@ def test_prior_changes_how_frames_are_built_not_only_which_survive(scene):
     known = NeuralGeometricParser(replace(cfg, focal=scene.focal))
     assert not bool(narrow(image).valid[0])
     assert bool(known(image).valid[0])
+
+
+def test_values_shared_by_the_parser_give_what_each_step_computes_alone(scene, monkeypatch):
+    """The parser computes the segments' lines, lengths and top-k weights once for the frame scores, FSNet's inputs
+    and the trust fields; each step computing them again from its own arguments gives the same answer bit for bit."""
+    image = torch.from_numpy(scene.image).permute(2, 0, 1).float().div(255)
+    shared = calibrate(image).to_dict()
+    attach = parser_module.attach_trust
+    monkeypatch.setattr(parser_module, "attach_trust", lambda *args, shared=None, **kwargs: attach(*args, **kwargs))
+    prepare = FSNet.prepare_inputs
+    monkeypatch.setattr(FSNet, "prepare_inputs", lambda self, *args: prepare(self, *args[:4]))
+    alone = calibrate(image).to_dict()
+    for name, value in shared.items():
+        assert torch.equal(value, alone[name]) if isinstance(value, torch.Tensor) else value == alone[name], name

@@ -151,7 +151,8 @@ def collect(samples: list[Sample], spec: str | None, seed: int, prior: str) -> l
 
     def recording(result, frames, scores, segments, mask, *args, **kwargs):
         with torch.no_grad():
-            captured.append(trust_features(result, frames, scores, segments, mask, *args[:2]))
+            refinement = kwargs.get("refinement")
+            captured.append(trust_features(result, frames, scores, segments, mask, *args[:2], refinement=refinement))
         return attach(result, frames, scores, segments, mask, *args, **kwargs)
 
     parser_module.attach_trust = recording

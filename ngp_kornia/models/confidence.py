@@ -1,8 +1,9 @@
 """How far to trust a calibration: a calibrated confidence and per-parameter standard deviations.
 
 The parser already knows more than its best score: whether a clearly different horizon scored almost as well (an
-ambiguous image), how far its top-k frames disagree, how many lines it saw and how many of them support the chosen
-frame. :func:`trust_features` gathers these per image; :class:`TrustModel` maps them to
+ambiguous image), whether the image's lines support a clearly different horizon nearly as well (the horizon search
+of :mod:`ngp_kornia.models.refine`), how far its top-k frames disagree, how many lines it saw and how many of them
+support the chosen frame. :func:`trust_features` gathers these per image; :class:`TrustModel` maps them to
 
 * ``confidence``: the predicted probability that the horizon error is below ``threshold`` image heights (0.02), a
   logistic model of the features;
@@ -37,6 +38,7 @@ from ngp_kornia.geometry import (
     to_pseudo_camera,
     topk_weighted_average,
 )
+from ngp_kornia.models.refine import Refinement, search_horizon
 from ngp_kornia.models.result import Calibration
 from ngp_kornia.sampling import FrameCandidates
 
@@ -75,6 +77,11 @@ class TrustFeatures:
         vertical_share: share of the segments' length that points at the answer's vertical VP.
         horizontal_share: the smaller share of the two horizontal VPs.
         valid_share: share of the scored frame candidates that are valid.
+        support_rival: the best line support of the horizon search (:func:`~ngp_kornia.models.refine.search_horizon`)
+            among horizons more than :data:`DIFFERENT_HORIZON` image heights from the answer's, divided by the best
+            support of all (0: no rival, 1: the lines support a clearly different horizon as well). Unlike
+            ``ambiguity``, which compares the frames FSNet scored, it sees every pitch and focal length near the
+            answer, in the image's own lines.
     """
 
     score: Tensor
@@ -88,6 +95,7 @@ class TrustFeatures:
     vertical_share: Tensor
     horizontal_share: Tensor
     valid_share: Tensor
+    support_rival: Tensor
 
     def as_dict(self) -> dict[str, Tensor]:
         return {f.name: getattr(self, f.name) for f in fields(self)}
@@ -152,6 +160,7 @@ def trust_features(
     top_k: int = 8,
     kernel_angle: float = 89.0,
     shared: SharedInputs | None = None,
+    refinement: Refinement | None = None,
 ) -> TrustFeatures:
     """The features of :class:`TrustFeatures` for a batch.
 
@@ -164,6 +173,8 @@ def trust_features(
         top_k: k of the top-k average.
         kernel_angle: width of the Manhattan score's kernel, degrees.
         shared: the same call's lines, lengths and top-k weights, when already computed; None computes them.
+        refinement: the horizon search run on the frame search's answer
+            (:func:`~ngp_kornia.models.refine.search_horizon`, as the parser runs it); None runs it on ``result``.
 
     Returns:
         :class:`TrustFeatures`, every field (B,), finite.
@@ -172,22 +183,18 @@ def trust_features(
     valid = frames.valid
     scores = torch.where(valid, scores, 0.0)
     best_score, best = scores.max(-1)
-    # horizons: every frame's against the answer's, worse border, image heights
-    mine, theirs = _answer_and_frame_heights(result.horizon, _frame_horizons(frames, height, width), height, width)
-    gap = (theirs - mine).abs().amax(-1)  # (B, F)
-    rival = torch.where(valid & (gap > DIFFERENT_HORIZON), scores, 0.0).amax(-1)
-    ambiguity = rival / best_score.clamp_min(1e-9)
-    w = topk_weighted_average(scores, frames.focal, top_k, valid)[1] if shared is None else shared.top_k_weights
-    horizon_spread = (w * gap.square()).sum(-1).sqrt()
-    spreads = _weighted_std(torch.stack(_frame_angles(frames, height, width), 1), w[:, None])  # (B, 3)
+    ambiguity, horizon_spread, spreads = _frame_disagreement(result, frames, scores, best_score, top_k, shared)
     best_vps = frames.vps.gather(1, best[:, None, None, None].expand(-1, 1, 3, 3))[:, 0]
     shares, manhattan = _line_support(best_vps, segments, mask, height, width, kernel_angle, shared)
+    if refinement is None:
+        refinement = search_horizon(result, segments, mask)
+    support_rival = _support_rival(refinement, result.horizon, height, width)
     # every feature but the counts is cleaned at once: finite, and 0 for an image without a valid frame
     raw = [best_score, manhattan, ambiguity, horizon_spread, *spreads.unbind(1), shares[:, 1]]
-    raw.append(torch.minimum(shares[:, 0], shares[:, 2]))
+    raw += [torch.minimum(shares[:, 0], shares[:, 2]), support_rival.to(best_score)]
     cleaned = torch.nan_to_num(torch.stack(raw, 1).to(result.focal), nan=0.0, posinf=0.0, neginf=0.0)
     cleaned = torch.where(valid.any(-1, keepdim=True), cleaned, 0.0)
-    score, manhattan, ambiguity, horizon_spread, pitch, roll, fov, vertical, horizontal = cleaned.unbind(1)
+    score, manhattan, ambiguity, horizon_spread, pitch, roll, fov, vertical, horizontal, rival = cleaned.unbind(1)
     return TrustFeatures(
         score=score,
         manhattan=manhattan,
@@ -200,7 +207,35 @@ def trust_features(
         vertical_share=vertical,
         horizontal_share=horizontal,
         valid_share=valid.to(result.focal).mean(-1),
+        support_rival=rival,
     )
+
+
+def _frame_disagreement(
+    result: Calibration, frames: FrameCandidates, scores: Tensor, best_score: Tensor, top_k: int, shared
+) -> tuple[Tensor, Tensor, Tensor]:
+    """How far the scored frames disagree with the answer: ``ambiguity`` (B,), ``horizon_spread`` (B,) and the
+    spreads (B, 3) of pitch, roll and field of view over the top-k frames (:class:`TrustFeatures`)."""
+    height, width = (int(v) for v in result.image_size[0].tolist())
+    valid = frames.valid
+    # horizons: every frame's against the answer's, worse border, image heights
+    mine, theirs = _answer_and_frame_heights(result.horizon, _frame_horizons(frames, height, width), height, width)
+    gap = (theirs - mine).abs().amax(-1)  # (B, F)
+    rival = torch.where(valid & (gap > DIFFERENT_HORIZON), scores, 0.0).amax(-1)
+    ambiguity = rival / best_score.clamp_min(1e-9)
+    w = topk_weighted_average(scores, frames.focal, top_k, valid)[1] if shared is None else shared.top_k_weights
+    horizon_spread = (w * gap.square()).sum(-1).sqrt()
+    spreads = _weighted_std(torch.stack(_frame_angles(frames, height, width), 1), w[:, None])  # (B, 3)
+    return ambiguity, horizon_spread, spreads
+
+
+def _support_rival(found: Refinement, horizon: Tensor, height: int, width: int) -> Tensor:
+    """:attr:`TrustFeatures.support_rival` (B,) from the search's hypotheses and the answer's (B, 3) horizon."""
+    support = found.hypothesis_support
+    mine, theirs = _answer_and_frame_heights(horizon, found.hypothesis_horizon, height, width)
+    far = (theirs - mine).abs().amax(-1) > DIFFERENT_HORIZON
+    rival = torch.where(far, support, 0.0).amax(-1)
+    return rival / support.amax(-1).clamp_min(1e-9)
 
 
 def _frame_angles(frames: FrameCandidates, height: int, width: int) -> tuple[Tensor, Tensor, Tensor]:
@@ -240,6 +275,7 @@ def confidence_inputs(features: TrustFeatures) -> Tensor:
             features.vertical_share,
             features.horizontal_share,
             features.valid_share,
+            features.support_rival**4,  # its effect lies near 1, where a rival is nearly as well supported
         ],
         -1,
     )
@@ -255,6 +291,7 @@ INPUT_NAMES = (
     "vertical_share",
     "horizontal_share",
     "valid_share",
+    "support_rival_4",
 )
 #: the parameters with a standard deviation, and the feature their spread comes from
 STD_SPREADS = {"pitch": "pitch_spread", "roll": "roll_spread", "fov_v": "fov_spread"}
@@ -391,6 +428,7 @@ def attach_trust(
     model: TrustModel | None = None,
     principal_point_std: float = 0.0,
     shared: SharedInputs | None = None,
+    refinement: Refinement | None = None,
 ) -> Calibration:
     """The answer with ``confidence``, ``pitch_std``, ``roll_std`` and ``fov_v_std`` filled in.
 
@@ -411,6 +449,7 @@ def attach_trust(
         principal_point_std: how uncertain the principal point is, a standard deviation per axis as a fraction of
             the image height (:attr:`ngp_kornia.models.ParserConfig.principal_point_std`); 0: at the centre.
         shared: the same call's lines, lengths and top-k weights (:class:`SharedInputs`), when already computed.
+        refinement: the horizon search of the same call, when already run (see :func:`trust_features`).
 
     Returns:
         a new :class:`Calibration`.
@@ -420,7 +459,11 @@ def attach_trust(
         frames = FrameCandidates(**{k: v.detach() for k, v in frames.__dict__.items()})
         if shared is not None:
             shared = SharedInputs(*(t.detach() for t in shared))
-        features = trust_features(result, frames, scores.detach(), segments.detach(), mask, top_k, kernel_angle, shared)
+        if refinement is not None:
+            refinement = Refinement(*(t.detach() for t in refinement))
+        features = trust_features(
+            result, frames, scores.detach(), segments.detach(), mask, top_k, kernel_angle, shared, refinement
+        )
         conf = model.confidence(features)
         height = int(result.image_size[0, 0].item())
         floor = principal_point_terms(principal_point_std, result.focal.detach(), height, result.pitch.detach())

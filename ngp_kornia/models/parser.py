@@ -40,7 +40,7 @@ from ngp_kornia.geometry import (
 )
 from ngp_kornia.models.confidence import SharedInputs, attach_trust
 from ngp_kornia.models.fsnet import frame_scores
-from ngp_kornia.models.refine import FOCAL_SCALES, refine_horizon
+from ngp_kornia.models.refine import FOCAL_SCALES, choose_horizon, search_horizon
 from ngp_kornia.models.result import Calibration
 from ngp_kornia.models.trace import ParserTrace
 from ngp_kornia.models.zsnet import zenith_estimate, zenith_weights_from_scores
@@ -103,7 +103,8 @@ class ParserConfig:
             only sees tensors and ignores it.
         refine_horizon: after the frame search, move the horizon (and the focal length) to the one that the
             segments support best, searching horizontal VPs of every building block along it
-            (:mod:`ngp_kornia.models.refine`); measured better on real photos, see BENCHMARKS.md.
+            (:mod:`ngp_kornia.models.refine`); measured better on real photos, see BENCHMARKS.md. The search runs
+            either way, because the confidence uses its line support; False keeps the frame search's horizon.
         principal_point_std: how far the principal point may be from the image centre, a standard deviation per
             axis as a fraction of the image height. The parser always assumes the centre; this only widens
             ``pitch_std``, ``roll_std`` and ``fov_v_std`` by the error such an offset causes (answers and
@@ -317,11 +318,15 @@ class NeuralGeometricParser(nn.Module):
             frames, scores = self.rescore_frames(images, segments, mask, frames, scores, stages, pseudo[1])
         result, top_k_weights = self._calibrate(frames, scores, height, width, stages)
         known_focal = cfg.focal is not None or cfg.fov_v is not None
-        if cfg.refine_horizon:  # with a known focal length only the horizon moves, never the focal length
-            result = refine_horizon(result, segments, mask, focal_scales=() if known_focal else FOCAL_SCALES)
+        # the horizon search serves the refinement and the confidence (how well the lines support a rival horizon);
+        # with a known focal length only the horizon moves, never the focal length
+        found = search_horizon(result, segments, mask, focal_scales=() if known_focal else FOCAL_SCALES)
+        if cfg.refine_horizon:
+            result = choose_horizon(result, found)
         result = attach_trust(
             result, frames, scores, segments, mask, cfg.top_k, cfg.kernel_angle, known_focal,
             principal_point_std=cfg.principal_point_std, shared=SharedInputs(*pseudo[1:], top_k_weights),
+            refinement=found,
         )
         return (result, ParserTrace(**stages)) if return_trace else result
 

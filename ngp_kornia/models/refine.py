@@ -22,7 +22,8 @@ Method (all batched over B with the segment mask; no loop over images; about 4 m
    image angle between segment ``i`` and the ray from its midpoint to ``v`` and ``k(t) = max(0, 1 - sin^2 t /
    (4 sin^2 kernel_deg))`` (the same measure for every hypothesis, the frame's included). The refined horizon
    replaces the frame's only where its support is higher by more than ``margin`` (relative); the margin was chosen
-   on renders. :func:`search_horizon` is the search without this choice; a logistic chooser fitted on renders
+   on renders. :func:`search_horizon` is the search without this choice and :func:`choose_horizon` the choice (the
+   parser runs them apart: the confidence also reads the search's hypotheses); a logistic chooser fitted on renders
    (``benchmarks/fit_chooser.py``) was measured no better than the margin on the real sets (BENCHMARKS.md).
 
 Consistency of the reported camera: the focal length and ``K`` stay the frame's (or, with ``focal_scales``, the
@@ -57,6 +58,7 @@ from ngp_kornia.models.result import Calibration
 __all__ = [
     "FOCAL_SCALES",
     "Refinement",
+    "choose_horizon",
     "horizon_support",
     "refine_horizon",
     "refine_up",
@@ -427,6 +429,13 @@ def refine_horizon(
         focal_scales,
         frame_roll,
     )
+    return choose_horizon(cal, found, margin)
+
+
+def choose_horizon(cal: Calibration, found: Refinement, margin: float = 0.08) -> Calibration:
+    """The choice of :func:`refine_horizon`: the calibration ``cal`` with the horizon that :func:`search_horizon`
+    found on it, where that horizon's line support beats the frame's by more than ``margin`` (relative); else
+    ``cal`` as it is."""
     better = found.support > found.frame_support * (1.0 + margin)
     use = cal.valid & better & torch.isfinite(found.up).all(-1)
     return _with_up(cal, use, torch.where(use[:, None, None], found.K, cal.K), found.up, found.horizontal)
@@ -445,6 +454,9 @@ class Refinement(NamedTuple):
         frame_peaks: (B, P) the same for the frame's own horizon.
         up_refined: (B, 3) the least-squares up vector of the zenith refinement (the hypotheses' roll).
         scale: (B,) the best hypothesis' focal scale.
+        hypothesis_support: (B, S * H) the line support of every coarse hypothesis (S focal scales, scale-major,
+            H pitches; column 0 is the frame's own horizon).
+        hypothesis_horizon: (B, S * H, 3) their horizons, lines in the image's pixels (``K_s^-T u``).
     """
 
     up: Tensor
@@ -456,6 +468,8 @@ class Refinement(NamedTuple):
     frame_peaks: Tensor
     up_refined: Tensor
     scale: Tensor
+    hypothesis_support: Tensor
+    hypothesis_horizon: Tensor
 
 
 def search_horizon(
@@ -482,7 +496,8 @@ def search_horizon(
     coarse = _coarse_search(cal.K, cam, lengths, mask, grid, scales, search)
     up, horizontal, support, peaks = _fine_search(cam, lengths, mask, grid, coarse, pitch_step, fine_step, search)
     total = lengths.sum(-1, keepdim=True).clamp_min(torch.finfo(lengths.dtype).tiny ** 0.5)
-    scale = _scale_constants(scales, cal.K)[0][coarse.best // grid.ups.shape[1]]
+    scale_values = _scale_constants(scales, cal.K)[0]
+    scale = scale_values[coarse.best // grid.ups.shape[1]]
     return Refinement(
         up,
         horizontal,
@@ -493,7 +508,19 @@ def search_horizon(
         coarse.peaks[:, 0] / total,
         grid.up_refined,
         scale,
+        coarse.support,
+        _hypothesis_horizons(cal.K, grid.ups, scale_values),
     )
+
+
+def _hypothesis_horizons(K: Tensor, ups: Tensor, scales: Tensor) -> Tensor:
+    """Pixel horizons ``K_s^-T u`` (B, S * H, 3), scale-major, of the (B, H, 3) up vectors with ``K``'s focal
+    length times each of the (S,) scales: ``(u_x / f, u_y / f, u_z - (c_x u_x + c_y u_y) / f)``."""
+    f = K[:, None, None, 0, 0] * scales[None, :, None]  # (B, S, 1)
+    cx, cy = K[:, None, None, 0, 2], K[:, None, None, 1, 2]
+    ux, uy, uz = ups[:, None].unbind(-1)  # (B, 1, H) each
+    lines = torch.stack([ux / f, uy / f, uz - (cx * ux + cy * uy) / f], -1)  # (B, S, H, 3)
+    return lines.flatten(1, 2)
 
 
 class _Search(NamedTuple):

@@ -128,3 +128,16 @@ def test_values_shared_by_the_parser_give_what_each_step_computes_alone(scene, m
     alone = calibrate(image).to_dict()
     for name, value in shared.items():
         assert torch.equal(value, alone[name]) if isinstance(value, torch.Tensor) else value == alone[name], name
+
+
+def test_the_parsers_horizon_search_gives_what_the_trust_fields_compute_alone(scene, monkeypatch):
+    """The parser hands its horizon search to the trust fields; without it they run the same search on the answer.
+    With the refinement off the answer is the frame search's, so both give the same fields bit for bit."""
+    image = torch.from_numpy(scene.image).permute(2, 0, 1).float().div(255)
+    config = ParserConfig(refine_horizon=False)
+    given = calibrate(image, config=config).to_dict()
+    attach = parser_module.attach_trust
+    monkeypatch.setattr(parser_module, "attach_trust", lambda *a, refinement=None, **kw: attach(*a, **kw))
+    alone = calibrate(image, config=config).to_dict()
+    for name in TRUST_FIELDS:
+        assert given[name] == alone[name], name

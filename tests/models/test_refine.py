@@ -16,8 +16,10 @@ from ngp_kornia.geometry import (
 )
 from ngp_kornia.metrics import horizon_error
 from ngp_kornia.models import NeuralGeometricParser, ParserConfig
+from ngp_kornia.models.confidence import _support_rival
 from ngp_kornia.models.refine import (
     FOCAL_SCALES,
+    choose_horizon,
     horizon_support,
     refine_horizon,
     refine_up,
@@ -279,3 +281,31 @@ def test_kernel_is_the_largest_closeness_over_kept_vps_even_on_a_midpoint():
         with torch.set_grad_enabled(grad):
             v = vps.clone().requires_grad_(grad)
             assert torch.equal(_kernel(cam, v, 1.5, mask, keep).detach(), expected)
+
+
+def test_choose_horizon_of_the_search_is_refine_horizon_and_the_hypotheses_are_reported():
+    K, R = camera(8.0, -3.0)
+    seg, mask = atlanta_segments(K, R, clutter=20, seed=8)
+    start = calibration(K, camera(11.0, -3.0)[1])
+    found = search_horizon(start, seg, mask)
+    chosen, refined = choose_horizon(start, found), refine_horizon(start, seg, mask)
+    for name in ("K", "R", "horizon", "pitch", "roll", "focal", "vps"):
+        assert torch.equal(getattr(chosen, name), getattr(refined, name)), name
+    hypotheses = 5 * 18  # five focal scales, each with the frame's own hypothesis and 17 pitches at the refined roll
+    assert found.hypothesis_support.shape == (1, hypotheses) and found.hypothesis_horizon.shape == (1, hypotheses, 3)
+    # column 0 is the frame's own horizon with its support; the best column is the best coarse support
+    assert float(horizon_error(found.hypothesis_horizon[:, 0].double(), start.horizon.double(), H, W)) < 1e-5
+    assert torch.equal(found.hypothesis_support[:, 0], found.frame_support)
+    assert float(found.hypothesis_support.max()) <= float(found.support) + 1e-6
+
+
+def test_support_rival_is_high_only_where_the_lines_support_a_different_horizon():
+    K, R = camera(8.0, -3.0)
+    seg, mask = atlanta_segments(K, R, clutter=10, seed=3)
+    other, other_mask = atlanta_segments(*camera(-2.0, -3.0), yaws=(20.0, -40.0), clutter=0, seed=4)
+    truth = calibration(K, R)
+    alone = _support_rival(search_horizon(truth, seg, mask), truth.horizon, H, W)
+    both = torch.cat([seg, other], 1), torch.cat([mask, other_mask], 1)
+    mixed = _support_rival(search_horizon(truth, *both), truth.horizon, H, W)
+    # the verticals support every nearby horizon alike, so even a clean scene's rival keeps most of the support
+    assert 0.0 <= float(alone) < 0.9 and 0.95 < float(mixed) <= 1.0

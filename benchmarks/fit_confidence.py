@@ -58,6 +58,9 @@ from ngp_kornia.models.confidence import (
 )
 
 THRESHOLD = 0.02
+#: exponent of the line-noise term of the standard deviations (TrustModel.residual_exponent), fixed, not fitted:
+#: the fitting renders hardly vary in line noise, so a fitted exponent would say little about real photos
+RESIDUAL_EXPONENT = 1.0
 #: York Urban's calibrated horizon (its own K and vp_orthogonal) by image name; samples carry the published one
 CALIBRATED_HORIZON: dict[str, torch.Tensor] = {}
 
@@ -205,13 +208,17 @@ def fit_logistic(x: np.ndarray, y: np.ndarray, l2: float = 1e-2, steps: int = 50
     return w[:-1], float(w[-1])
 
 
-def fit_std(spread: np.ndarray, logit_conf: np.ndarray, error: np.ndarray) -> tuple[float, float, float]:
-    """(a, b, c) of ``log std = a + b log(spread + 0.01) + c logit(conf)``, a set for 68.3% one-sigma coverage."""
+def fit_std(
+    spread: np.ndarray, logit_conf: np.ndarray, error: np.ndarray, noise: np.ndarray | None = None
+) -> tuple[float, float, float]:
+    """(a, b, c) of ``log std = a + b log(spread + 0.01) + c logit(conf) [+ noise]``, a set for 68.3% one-sigma
+    coverage. ``b`` and ``c`` come from a regression of the log errors; ``noise``, (N,) log of the fixed line-noise
+    term, only moves ``a``: the term then scales the standard deviations, on the fitting set as a whole unchanged."""
     ok = np.isfinite(error)
     s, q, e = np.log(spread[ok] + 0.01), logit_conf[ok], np.abs(error[ok])
     x = np.stack([np.ones_like(s), s, q], 1)
     coef, *_ = np.linalg.lstsq(x, np.log(e + 1e-3), rcond=None)
-    pred = x @ coef
+    pred = x @ coef + (0.0 if noise is None else noise[ok])
     # the shift that puts 68.3% of the errors within one sigma
     shift = np.quantile(np.log(e + 1e-12) - pred, 0.6827)
     return float(coef[0] + shift), float(coef[1]), float(coef[2])
@@ -227,10 +234,12 @@ def fit(records: list[dict], threshold: float) -> dict:
     conf = np.clip(conf, 1e-4, 1 - 1e-4)
     logit_conf = np.log(conf) - np.log1p(-conf)
     std = {}
+    # the line-noise term has a fixed exponent and moves only the intercept (see fit_std)
+    noise = RESIDUAL_EXPONENT * np.log(np.array([r["features"]["line_residual"] for r in records]) + 0.05)
     for name, spread in STD_SPREADS.items():
         spreads = np.array([r["features"][spread] for r in records])
         errors = np.array([r.get(f"{name}_signed", r.get(name, math.nan)) for r in records], dtype=np.float64)
-        std[name] = fit_std(spreads, logit_conf, errors)
+        std[name] = fit_std(spreads, logit_conf, errors, noise)
     return {
         "threshold": threshold,
         "inputs": list(INPUT_NAMES),
@@ -239,6 +248,7 @@ def fit(records: list[dict], threshold: float) -> dict:
         "mean": [round(float(v), 6) for v in mean],
         "scale": [round(float(v), 6) for v in scale],
         "std": {k: [round(v, 6) for v in c] for k, c in std.items()},
+        "residual_exponent": RESIDUAL_EXPONENT,
         "fitted_on": f"{len(records)} rendered images; {int(y.sum())} below the threshold",
     }
 

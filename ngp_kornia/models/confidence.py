@@ -57,6 +57,8 @@ TRUST_FILE = Path(__file__).resolve().parent.parent / "weights" / "trust.json"
 
 #: two frames whose horizons differ by more than this (image heights, at either border) count as different answers
 DIFFERENT_HORIZON = 0.03
+#: a segment within this angle (degrees) of one of the answer's VPs counts in :attr:`TrustFeatures.line_residual`
+RESIDUAL_INLIER = 2.0
 
 
 @dataclass
@@ -82,6 +84,9 @@ class TrustFeatures:
             support of all (0: no rival, 1: the lines support a clearly different horizon as well). Unlike
             ``ambiguity``, which compares the frames FSNet scored, it sees every pitch and focal length near the
             answer, in the image's own lines.
+        line_residual: how noisy the image's lines are, degrees: the length-weighted RMS angle between each segment
+            within :data:`RESIDUAL_INLIER` degrees of one of the answer's three VPs and the ray from its midpoint to
+            that VP (about 0.5 on clean renders, 0.6 on renders with lens distortion, 0.7 on York Urban).
     """
 
     score: Tensor
@@ -96,6 +101,7 @@ class TrustFeatures:
     horizontal_share: Tensor
     valid_share: Tensor
     support_rival: Tensor
+    line_residual: Tensor
 
     def as_dict(self) -> dict[str, Tensor]:
         return {f.name: getattr(self, f.name) for f in fields(self)}
@@ -186,15 +192,16 @@ def trust_features(
     ambiguity, horizon_spread, spreads = _frame_disagreement(result, frames, scores, best_score, top_k, shared)
     best_vps = frames.vps.gather(1, best[:, None, None, None].expand(-1, 1, 3, 3))[:, 0]
     shares, manhattan = _line_support(best_vps, segments, mask, height, width, kernel_angle, shared)
-    if refinement is None:
-        refinement = search_horizon(result, segments, mask)
-    support_rival = _support_rival(refinement, result.horizon, height, width)
+    found = search_horizon(result, segments, mask) if refinement is None else refinement
+    evidence = [_support_rival(found, result.horizon, height, width), _line_residual(result.vps, segments, mask)]
     # every feature but the counts is cleaned at once: finite, and 0 for an image without a valid frame
     raw = [best_score, manhattan, ambiguity, horizon_spread, *spreads.unbind(1), shares[:, 1]]
-    raw += [torch.minimum(shares[:, 0], shares[:, 2]), support_rival.to(best_score)]
+    raw += [torch.minimum(shares[:, 0], shares[:, 2]), *(t.to(best_score) for t in evidence)]
     cleaned = torch.nan_to_num(torch.stack(raw, 1).to(result.focal), nan=0.0, posinf=0.0, neginf=0.0)
     cleaned = torch.where(valid.any(-1, keepdim=True), cleaned, 0.0)
-    score, manhattan, ambiguity, horizon_spread, pitch, roll, fov, vertical, horizontal, rival = cleaned.unbind(1)
+    score, manhattan, ambiguity, horizon_spread, pitch, roll, fov, vertical, horizontal, rival, residual = (
+        cleaned.unbind(1)
+    )
     return TrustFeatures(
         score=score,
         manhattan=manhattan,
@@ -208,7 +215,21 @@ def trust_features(
         horizontal_share=horizontal,
         valid_share=valid.to(result.focal).mean(-1),
         support_rival=rival,
+        line_residual=residual,
     )
+
+
+def _line_residual(vps: Tensor, segments: Tensor, mask: Tensor) -> Tensor:
+    """:attr:`TrustFeatures.line_residual` (B,) of the answer's (B, 3, 3) pixel VPs (rows) and the segments."""
+    seg = segments.to(vps)
+    mid, direction = seg.mean(-2), seg[..., 1, :] - seg[..., 0, :]
+    length = direction.norm(dim=-1)
+    ray = vps[:, None, :, :2] - vps[:, None, :, 2:] * mid[:, :, None]  # (B, N, 3, 2), towards each VP
+    cross = direction[..., None, 0] * ray[..., 1] - direction[..., None, 1] * ray[..., 0]
+    sine = cross.abs() / (length[..., None] * ray.norm(dim=-1)).clamp_min(1e-12)
+    angle = torch.rad2deg(torch.asin(sine.clamp_max(1.0))).amin(-1)  # (B, N), to the closest VP
+    weight = length * (mask & (angle < RESIDUAL_INLIER))
+    return ((weight * angle.square()).sum(-1) / weight.sum(-1).clamp_min(1e-9)).sqrt()
 
 
 def _frame_disagreement(
@@ -308,7 +329,9 @@ class TrustModel:
         mean: (D,) input means used to standardise.
         scale: (D,) input standard deviations used to standardise.
         std: per parameter (``pitch``, ``roll``, ``fov_v``) ``(a, b, c)`` of
-            ``log(std) = a + b * log(spread + 0.01) + c * logit(confidence)``.
+            ``log(std) = a + b * log(spread + 0.01) + c * logit(confidence) + e * log(line_residual + 0.05)``.
+        residual_exponent: ``e`` above (0 for files without it). The shipped model fixes it at 1, as a VP's
+            direction error grows in proportion to its lines' angular noise; ``a``, ``b``, ``c`` are fitted.
         principal_point: per parameter the gain ``k`` of the principal-point term of :func:`principal_point_terms`
             (0 for all when the file has none).
     """
@@ -320,6 +343,7 @@ class TrustModel:
     scale: tuple[float, ...]
     std: dict[str, tuple[float, float, float]]
     principal_point: dict[str, float] = field(default_factory=lambda: dict.fromkeys(STD_SPREADS, 0.0))
+    residual_exponent: float = 0.0
 
     @classmethod
     def load(cls, path: str | Path = TRUST_FILE) -> TrustModel:
@@ -335,6 +359,7 @@ class TrustModel:
             scale=tuple(data["scale"]),
             std={k: tuple(v) for k, v in data["std"].items()},
             principal_point={k: float(data.get("principal_point", {}).get(k, 0.0)) for k in STD_SPREADS},
+            residual_exponent=float(data.get("residual_exponent", 0.0)),
         )
 
     def confidence(self, features: TrustFeatures) -> Tensor:
@@ -360,7 +385,8 @@ class TrustModel:
         spread = torch.stack([getattr(features, spread) for spread in STD_SPREADS.values()], -1)
         coefficients = tuple(zip(*(self.std[name] for name in STD_SPREADS), strict=True))
         a, b, c = _constants(coefficients, spread.dtype, spread.device)
-        out = torch.exp(a + b * torch.log(spread + 0.01) + c * logit[:, None])
+        noise = self.residual_exponent * torch.log(features.line_residual + 0.05)
+        out = torch.exp(a + b * torch.log(spread + 0.01) + c * logit[:, None] + noise[:, None])
         if floor is not None:
             (gain,) = _constants((tuple(self.principal_point[name] for name in STD_SPREADS),), out.dtype, out.device)
             out = torch.hypot(out, gain * torch.stack([floor[name] for name in STD_SPREADS], -1))

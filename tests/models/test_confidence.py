@@ -11,7 +11,7 @@ from ngp_kornia import calibrate
 from ngp_kornia.data.synth.render import render_scene
 from ngp_kornia.models import NeuralGeometricParser, ParserConfig
 from ngp_kornia.models import parser as parser_module
-from ngp_kornia.models.confidence import TRUST_FILE, TrustModel
+from ngp_kornia.models.confidence import TRUST_FILE, TrustFeatures, TrustModel, _line_residual
 from ngp_kornia.models.fsnet import FSNet
 from ngp_kornia.models.parser import prior_focal
 from ngp_kornia.sampling import frames_from_vps
@@ -141,3 +141,36 @@ def test_the_parsers_horizon_search_gives_what_the_trust_fields_compute_alone(sc
     alone = calibrate(image, config=config).to_dict()
     for name in TRUST_FIELDS:
         assert given[name] == alone[name], name
+
+
+def _segments_towards(vp: torch.Tensor, turn_deg: float, n: int = 40) -> torch.Tensor:
+    """(1, n, 2, 2) segments of length 40 px at random places, each pointing at the pixel ``vp`` turned by
+    +-``turn_deg`` about its midpoint (alternating signs)."""
+    g = torch.Generator().manual_seed(5)
+    mids = torch.rand(n, 2, generator=g, dtype=torch.float64) * torch.tensor([600.0, 440.0]) + 20
+    ray = vp[None] - mids
+    angle = torch.atan2(ray[:, 1], ray[:, 0]) + math.radians(turn_deg) * torch.tensor([1.0, -1.0]).repeat(n // 2)
+    half = 20 * torch.stack([torch.cos(angle), torch.sin(angle)], -1)
+    return torch.stack([mids - half, mids + half], 1)[None]
+
+
+def test_line_residual_measures_how_far_the_segments_miss_their_vps():
+    vps = torch.tensor([[[2000.0, 250.0, 1.0], [330.0, -5000.0, 1.0], [-1500.0, 230.0, 1.0]]], dtype=torch.float64)
+    mask = torch.ones(1, 40, dtype=torch.bool)
+    for turn in (0.0, 0.5, 1.0):
+        seg = _segments_towards(vps[0, 0, :2], turn)
+        assert float(_line_residual(vps, seg, mask)[0]) == pytest.approx(turn, abs=0.05)  # a few lie nearer another VP
+    one = vps[:, :1].expand(-1, 3, -1)  # the three VPs at one place: every segment 5 deg off all of them
+    far = _segments_towards(vps[0, 0, :2], 5.0)  # beyond RESIDUAL_INLIER: no inliers, residual 0
+    assert float(_line_residual(one, far, mask)[0]) == 0.0
+
+
+def test_noisier_lines_widen_the_standard_deviations_in_proportion():
+    model = TrustModel.load()
+    assert model.residual_exponent == 1.0
+    clean = {name: torch.tensor([0.2]) for name in TrustFeatures.__dataclass_fields__}
+    noisy = dict(clean, line_residual=torch.tensor([2 * 0.2 + 0.05]))  # (residual + 0.05) doubled
+    conf = torch.tensor([0.8])
+    a, b = model.stds(TrustFeatures(**clean), conf), model.stds(TrustFeatures(**noisy), conf)
+    for name in ("pitch", "roll", "fov_v"):
+        assert float(b[name] / a[name]) == pytest.approx(2.0, rel=1e-5)

@@ -4,6 +4,12 @@ Usage::
 
     python benchmarks/speed.py --yud /path/to/YorkUrbanDB [--split train] [--limit N] [--busy 0 1 2]
                                [--weights default --weights none] [--passes 1] [--out speed.json]
+    python benchmarks/speed.py --manifest /path/to/EurasianCities/manifest.csv --weights default \
+                               --weights default:working_size=640 --busy 0
+
+``--manifest`` times the photos of a CSV manifest instead (lu-vp-detect is then given a focal length of half the
+image's width plus height where the manifest has none: its cost does not depend on it). Weight sets take overrides
+of the parser's settings, as in the development suite (``default:working_size=640``).
 
 For each condition (0, 1 and 2 busy background processes: plain Python loops this script starts before the timed
 calls and kills afterwards, each bounded to ``--busy-seconds`` in case the script dies), every image is calibrated
@@ -30,6 +36,7 @@ import subprocess
 import sys
 import time
 from collections import defaultdict
+from dataclasses import replace
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -37,8 +44,9 @@ import torch
 
 import ngp_kornia.api as api
 from ngp_kornia import calibrate
-from ngp_kornia.evaluation import load_yud
+from ngp_kornia.evaluation import load_manifest, load_yud
 from ngp_kornia.evaluation import lu_vp_detect_method as make_lu
+from ngp_kornia.evaluation.methods import weights_and_config
 
 _BUSY = "import time\nend = time.time() + {seconds}\nwhile time.time() < end:\n    pass\n"
 
@@ -86,11 +94,13 @@ def run_condition(samples, weights: list[str], lu, passes: int) -> dict[str, dic
     api.read_rgb_oriented, api.detect_segments = read.wrap(original[0]), lsd.wrap(original[1])
     times: dict[str, dict[str, list[float]]] = defaultdict(lambda: defaultdict(list))
 
-    def ngp(w):
+    def ngp(spec):
+        w, config = weights_and_config(spec)
+
         def call(sample):
             read.take(), lsd.take()
             start = time.perf_counter()
-            calibrate(sample.image_path, weights=w)
+            calibrate(sample.image_path, weights=w, config=config)
             total = time.perf_counter() - start
             r, d = read.take(), lsd.take()
             return {"whole call": total, "reading": r, "line detection": d, "the rest": total - r - d}
@@ -98,6 +108,7 @@ def run_condition(samples, weights: list[str], lu, passes: int) -> dict[str, dic
         return call
 
     def peer(sample):
+        sample = sample if sample.K is not None else replace(sample, K=_stand_in_K(sample.width, sample.height))
         start = time.perf_counter()
         lu(sample)
         return {"whole call": time.perf_counter() - start}
@@ -115,6 +126,14 @@ def run_condition(samples, weights: list[str], lu, passes: int) -> dict[str, dic
     finally:
         api.read_rgb_oriented, api.detect_segments = original
     return times
+
+
+def _stand_in_K(width: int, height: int) -> torch.Tensor:
+    """A focal length of half the width plus height, principal point at the centre: lu-vp-detect's input where the
+    true K is unknown (its cost does not depend on it)."""
+    f = (width + height) / 2.0
+    rows = [[f, 0.0, (width - 1) / 2.0], [0.0, f, (height - 1) / 2.0], [0.0, 0.0, 1.0]]
+    return torch.tensor(rows, dtype=torch.float64)
 
 
 def summarize(times: dict[str, dict[str, list[float]]]) -> dict[str, dict]:
@@ -158,7 +177,8 @@ def table(results: dict[int, dict]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--yud", type=Path, required=True, help="York Urban DB root")
+    p.add_argument("--yud", type=Path, help="York Urban DB root")
+    p.add_argument("--manifest", type=Path, help="a CSV manifest of photos instead of York Urban")
     p.add_argument("--split", default="train", choices=["all", "train", "test"], help="default: the ECCV half")
     p.add_argument("--limit", type=int, default=None, help="use only the first N images")
     p.add_argument("--weights", action="append", default=None, help="weight sets (default: default and none)")
@@ -168,9 +188,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--no-lu", action="store_true", help="skip lu-vp-detect (no ratios then)")
     p.add_argument("--out", type=Path, default=None, help="write the figures as JSON here")
     args = p.parse_args(argv)
-    samples = load_yud(args.yud, split=args.split)[: args.limit]
+    if (args.yud is None) == (args.manifest is None):
+        p.error("give one of --yud and --manifest")
+    samples = (load_yud(args.yud, split=args.split) if args.yud else load_manifest(args.manifest))[: args.limit]
     if not samples:
-        p.error(f"no York Urban images under {args.yud}")
+        p.error(f"no images under {args.yud or args.manifest}")
     weights = args.weights or ["default", "none"]
     lu = None if args.no_lu else make_lu()
     header = {

@@ -7,6 +7,7 @@ import argparse
 import json
 import os
 import sys
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -142,13 +143,21 @@ def _add_prior_arguments(command: argparse.ArgumentParser) -> None:
         help="how far the principal point may be off the image centre (a standard deviation per axis, fraction of "
         "the image height); only widens pitch_std, roll_std, fov_v_std; 0 when it is known to be at the centre",
     )
+    command.add_argument(
+        "--working-size",
+        type=int,
+        default=None,
+        help="long side in pixels that line detection runs at (default 1280; 640 is faster on large photos and a "
+        "little less accurate; smaller images are used at their own size)",
+    )
 
 
 def _trust_config(args: argparse.Namespace):
-    """The ParserConfig of --principal-point-std (checked in main())."""
+    """The ParserConfig of --principal-point-std and --working-size (checked in main())."""
     from ngp_kornia.models import ParserConfig
 
-    return ParserConfig(principal_point_std=args.principal_point_std)
+    size = {} if args.working_size is None else {"working_size": args.working_size}
+    return ParserConfig(principal_point_std=args.principal_point_std, **size)
 
 
 def _prior(args: argparse.Namespace, image: str, rgb: np.ndarray) -> dict:
@@ -288,7 +297,6 @@ def _predict(args: argparse.Namespace) -> int:
         return 2
     for name in ("lightning.pytorch", "lightning.fabric"):  # the rows go to --out; keep the terminal quiet
         logging.getLogger(name).setLevel(logging.WARNING)
-    from ngp_kornia.models import ParserConfig
 
     try:
         counts = predict_folder(
@@ -299,9 +307,7 @@ def _predict(args: argparse.Namespace) -> int:
             recursive=args.recursive,
             batch_size=args.batch_size,
             seed=args.seed,
-            config=ParserConfig(
-                focal=args.focal, fov_v=args.fov, exif=args.exif, principal_point_std=args.principal_point_std
-            ),
+            config=replace(_trust_config(args), focal=args.focal, fov_v=args.fov, exif=args.exif),
             progress_bar=sys.stdout.isatty(),
         )
     except USER_ERRORS as err:
@@ -452,8 +458,8 @@ def main(argv: list[str] | None = None) -> int:
 
         try:
             _trust_config(args)
-        except ConfigError as err:
-            parser.error(f"--principal-point-std: {err}")
+        except ConfigError as err:  # it names the setting: ParserConfig.principal_point_std or .working_size
+            parser.error(f"--principal-point-std / --working-size: {err}")
     commands = {"calibrate": _calibrate, "predict": _predict, "rectify": _rectify, "demo": _demo, "render": _render}
     try:
         return commands[args.command](args)

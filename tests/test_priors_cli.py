@@ -12,6 +12,7 @@ from ngp_kornia import calibrate
 from ngp_kornia.cli import main
 from ngp_kornia.data.synth.render import render_scene
 from ngp_kornia.exif import FILM_DIAGONAL_MM
+from ngp_kornia.models import ParserConfig
 from ngp_kornia.predict import predict_folder
 from ngp_kornia.viz import draw_calibration
 from tests.test_exif import SHORT, tiff_block
@@ -105,3 +106,21 @@ def test_cli_principal_point_std_widens_only_the_stds(photos, capsys, tmp_path):
     with pytest.raises(SystemExit) as exit_info:
         main(["calibrate", image, "--principal-point-std", "-1"])
     assert exit_info.value.code == 2 and "principal_point_std" in capsys.readouterr().err
+
+
+def test_cli_working_size_reaches_the_line_detector(capsys, tmp_path):
+    rgb = render_scene(4, size=(800, 600)).image  # larger than 640: the working size decides the detection
+    image = tmp_path / "large.png"
+    cv2.imwrite(str(image), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+    assert main(["calibrate", str(image), "--working-size", "640"]) == 0
+    small = _rows(capsys)[0]
+    assert main(["calibrate", str(image)]) == 0
+    full = _rows(capsys)[0]
+    expected = calibrate(str(image), config=ParserConfig(working_size=640))
+    assert small["focal"] == pytest.approx(float(expected.focal), rel=1e-6) and small["focal"] != full["focal"]
+    out = tmp_path / "rows.jsonl"
+    assert main(["predict", str(tmp_path), "--out", str(out), "--working-size", "640"]) == 0
+    assert json.loads(out.read_text().splitlines()[0])["focal"] == pytest.approx(small["focal"], rel=1e-5)
+    with pytest.raises(SystemExit) as exit_info:
+        main(["calibrate", str(image), "--working-size", "0"])
+    assert exit_info.value.code == 2 and "working_size" in capsys.readouterr().err

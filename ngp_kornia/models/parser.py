@@ -65,7 +65,10 @@ class ParserConfig:
     """Settings of the pipeline; the defaults are the paper's where it gives them.
 
     Attributes:
-        working_size: LSD runs at this long side, in pixels.
+        working_size: LSD runs on the image resized to this long side, in pixels; smaller images at their own size.
+            1280 keeps the detail of most photos' lines (on the 1152-pixel Eurasian Cities photos 2.3 points of
+            horizon AUC above 640, at 1.7x the time of a call on them; BENCHMARKS.md); 640 is faster on large
+            images and the same on images of 640 pixels or less.
         min_length: shorter segments (working-resolution pixels) are dropped.
         max_segments: at most this many segments per image, the longest kept (512 keeps the cost of scoring
             frames well under the line detector's; 1024 is 0.1 points of horizon AUC better on the York Urban half).
@@ -113,7 +116,7 @@ class ParserConfig:
             to be at the centre (renders, or images corrected by a calibration).
     """
 
-    working_size: int = 640
+    working_size: int = 1280
     min_length: float = 10.0
     max_segments: int = 512
     num_zenith_lines: int = 256

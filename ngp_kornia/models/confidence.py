@@ -20,6 +20,7 @@ The coefficients are fitted on rendered scenes only (``benchmarks/fit_confidence
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass, field, fields, replace
 from functools import lru_cache
 from pathlib import Path
@@ -220,16 +221,19 @@ def trust_features(
 
 
 def _line_residual(vps: Tensor, segments: Tensor, mask: Tensor) -> Tensor:
-    """:attr:`TrustFeatures.line_residual` (B,) of the answer's (B, 3, 3) pixel VPs (rows) and the segments."""
+    """:attr:`TrustFeatures.line_residual` (B,) of the answer's (B, 3, 3) pixel VPs (rows) and the segments.
+
+    The angles are taken as their sines (in radians): below :data:`RESIDUAL_INLIER` degrees the two differ by less
+    than 0.02%, and squared sines need no square root, absolute value or arcsine per segment and VP."""
     seg = segments.to(vps)
     mid, direction = seg.mean(-2), seg[..., 1, :] - seg[..., 0, :]
-    length = direction.norm(dim=-1)
     ray = vps[:, None, :, :2] - vps[:, None, :, 2:] * mid[:, :, None]  # (B, N, 3, 2), towards each VP
     cross = direction[..., None, 0] * ray[..., 1] - direction[..., None, 1] * ray[..., 0]
-    sine = cross.abs() / (length[..., None] * ray.norm(dim=-1)).clamp_min(1e-12)
-    angle = torch.rad2deg(torch.asin(sine.clamp_max(1.0))).amin(-1)  # (B, N), to the closest VP
-    weight = length * (mask & (angle < RESIDUAL_INLIER))
-    return ((weight * angle.square()).sum(-1) / weight.sum(-1).clamp_min(1e-9)).sqrt()
+    length_sq = direction.square().sum(-1)
+    sine_sq = (cross.square() / (length_sq[..., None] * ray.square().sum(-1)).clamp_min(1e-24)).amin(-1)  # (B, N)
+    weight = length_sq.sqrt() * (mask & (sine_sq < math.sin(math.radians(RESIDUAL_INLIER)) ** 2))
+    mean_sq = (weight * sine_sq).sum(-1) / weight.sum(-1).clamp_min(1e-9)
+    return torch.rad2deg(mean_sq.sqrt())
 
 
 def _frame_disagreement(

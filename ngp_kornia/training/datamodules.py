@@ -115,7 +115,8 @@ class CachedScenes(Dataset):
         tag: readable prefix of the cache folder.
         spec: everything that determines the samples besides the key (hashed into the folder name).
         cache_dir: cache root (None: compute every time, write nothing).
-        working_size: LSD working resolution (long side), as in the parser.
+        working_size: LSD working resolution (long side). The training renders are 640x480, so 640 detects them as
+            the parser's default (up to 1280) does: at their own size; larger training images are detected at 640.
         max_segments: longest segments kept per image.
         input_size: also keep the image resized to ``(w, h)``, the network's input (for FSNet), or None.
     """

@@ -130,12 +130,15 @@ def _frame_horizons(frames: FrameCandidates, height: int, width: int) -> Tensor:
     return torch.cat([ab / pf, (z[..., 2] - (cx * a + cy * b) / pf)[..., None]], -1)
 
 
-def _answer_and_frame_heights(answer: Tensor, frames: Tensor, height: int, width: int) -> tuple[Tensor, Tensor]:
-    """:func:`_border_heights` of the (B, 3) answer's horizon, as (B, 1, 2), and of the (B, F, 3) frames'."""
-    if answer.dtype != frames.dtype:
-        return _border_heights(answer, height, width)[:, None], _border_heights(frames, height, width)
-    heights = _border_heights(torch.cat([answer[:, None], frames], 1), height, width)  # one pass for both
-    return heights[:, :1], heights[:, 1:]
+def _horizon_gaps(answer: Tensor, others: Tensor, height: int, width: int) -> Tensor:
+    """How far each of the (B, F, 3) pixel horizons ``others`` lies from the (B, 3) answer's: (B, F), image heights at
+    the worse border (:func:`_border_heights`)."""
+    if answer.dtype != others.dtype:
+        mine, theirs = _border_heights(answer, height, width)[:, None], _border_heights(others, height, width)
+    else:
+        heights = _border_heights(torch.cat([answer[:, None], others], 1), height, width)  # one pass for both
+        mine, theirs = heights[:, :1], heights[:, 1:]
+    return (theirs - mine).abs().amax(-1)
 
 
 class SharedInputs(NamedTuple):
@@ -186,17 +189,17 @@ def trust_features(
     Returns:
         :class:`TrustFeatures`, every field (B,), finite.
     """
-    height, width = (int(v) for v in result.image_size[0].tolist())
+    size = height, width = tuple(int(v) for v in result.image_size[0].tolist())
     valid = frames.valid
     scores = torch.where(valid, scores, 0.0)
     best_score, best = scores.max(-1)
-    ambiguity, horizon_spread, spreads = _frame_disagreement(result, frames, scores, best_score, top_k, shared)
+    disagreement = _frame_disagreement(result.horizon, frames, scores, best_score, top_k, shared, size)
     best_vps = frames.vps.gather(1, best[:, None, None, None].expand(-1, 1, 3, 3))[:, 0]
     shares, manhattan = _line_support(best_vps, segments, mask, height, width, kernel_angle, shared)
     found = search_horizon(result, segments, mask) if refinement is None else refinement
     evidence = [_support_rival(found, result.horizon, height, width), _line_residual(result.vps, segments, mask)]
     # every feature but the counts is cleaned at once: finite, and 0 for an image without a valid frame
-    raw = [best_score, manhattan, ambiguity, horizon_spread, *spreads.unbind(1), shares[:, 1]]
+    raw = [best_score, manhattan, *disagreement[:2], *disagreement[2].unbind(1), shares[:, 1]]
     raw += [torch.minimum(shares[:, 0], shares[:, 2]), *(t.to(best_score) for t in evidence)]
     cleaned = torch.nan_to_num(torch.stack(raw, 1).to(result.focal), nan=0.0, posinf=0.0, neginf=0.0)
     cleaned = torch.where(valid.any(-1, keepdim=True), cleaned, 0.0)
@@ -237,17 +240,15 @@ def _line_residual(vps: Tensor, segments: Tensor, mask: Tensor) -> Tensor:
 
 
 def _frame_disagreement(
-    result: Calibration, frames: FrameCandidates, scores: Tensor, best_score: Tensor, top_k: int, shared
+    horizon: Tensor, frames: FrameCandidates, scores: Tensor, best_score: Tensor, top_k: int, shared, size
 ) -> tuple[Tensor, Tensor, Tensor]:
     """How far the scored frames disagree with the answer: ``ambiguity`` (B,), ``horizon_spread`` (B,) and the
-    spreads (B, 3) of pitch, roll and field of view over the top-k frames (:class:`TrustFeatures`)."""
-    height, width = (int(v) for v in result.image_size[0].tolist())
+    spreads (B, 3) of pitch, roll and field of view over the top-k frames (:class:`TrustFeatures`); ``horizon`` is
+    the answer's (B, 3), ``size`` the image's (height, width)."""
+    height, width = size
     valid = frames.valid
-    # horizons: every frame's against the answer's, worse border, image heights
-    mine, theirs = _answer_and_frame_heights(result.horizon, _frame_horizons(frames, height, width), height, width)
-    gap = (theirs - mine).abs().amax(-1)  # (B, F)
-    rival = torch.where(valid & (gap > DIFFERENT_HORIZON), scores, 0.0).amax(-1)
-    ambiguity = rival / best_score.clamp_min(1e-9)
+    gap = _horizon_gaps(horizon, _frame_horizons(frames, height, width), height, width)  # (B, F)
+    ambiguity = _rival_share(scores, gap, best_score)  # scores: zero for invalid frames
     w = topk_weighted_average(scores, frames.focal, top_k, valid)[1] if shared is None else shared.top_k_weights
     horizon_spread = (w * gap.square()).sum(-1).sqrt()
     spreads = _weighted_std(torch.stack(_frame_angles(frames, height, width), 1), w[:, None])  # (B, 3)
@@ -257,10 +258,15 @@ def _frame_disagreement(
 def _support_rival(found: Refinement, horizon: Tensor, height: int, width: int) -> Tensor:
     """:attr:`TrustFeatures.support_rival` (B,) from the search's hypotheses and the answer's (B, 3) horizon."""
     support = found.hypothesis_support
-    mine, theirs = _answer_and_frame_heights(horizon, found.hypothesis_horizon, height, width)
-    far = (theirs - mine).abs().amax(-1) > DIFFERENT_HORIZON
-    rival = torch.where(far, support, 0.0).amax(-1)
-    return rival / support.amax(-1).clamp_min(1e-9)
+    gap = _horizon_gaps(horizon, found.hypothesis_horizon, height, width)
+    return _rival_share(support, gap, support.amax(-1))
+
+
+def _rival_share(values: Tensor, gap: Tensor, best: Tensor) -> Tensor:
+    """The best of the (B, F) ``values`` whose horizon lies more than :data:`DIFFERENT_HORIZON` from the answer's
+    (``gap``, (B, F)), over ``best`` (B,): the ``ambiguity`` and ``support_rival`` of :class:`TrustFeatures`."""
+    rival = torch.where(gap > DIFFERENT_HORIZON, values, 0.0).amax(-1)
+    return rival / best.clamp_min(1e-9)
 
 
 def _frame_angles(frames: FrameCandidates, height: int, width: int) -> tuple[Tensor, Tensor, Tensor]:

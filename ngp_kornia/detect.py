@@ -7,14 +7,23 @@ the same lines for the same image.
 
 LSD runs on the 8-bit greyscale image resized so its long side is at most ``working_size`` (aspect ratio kept); the
 segments are mapped back to the input's pixels (pixel-centre convention), filtered by length and padded to
-``(B, N, 2, 2)`` with a ``(B, N)`` mask. ``ParserConfig(detector="fld")`` uses OpenCV's FastLineDetector
+``(B, N, 2, 2)`` with a ``(B, N)`` mask. LSD runs on ``line_strips`` horizontal strips of the image at once (one
+thread each, as many as the process may use; :func:`line_workers`), and a line cut between two strips is joined
+again: on two cores that takes 0.6-0.7x the time of one LSD over the whole image, for segments that differ from its
+in 1-3% of their length (LSD's region growing and its significance test depend on the image it sees).
+``ParserConfig(detector="fld")`` uses OpenCV's FastLineDetector
 (opencv-contrib's ximgproc) instead: faster, and less accurate on real photos (see BENCHMARKS.md).
 """
 
 from __future__ import annotations
 
 import math
+import os
 import threading
+from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
+from itertools import pairwise
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -25,11 +34,19 @@ from kornia.core.check import KORNIA_CHECK_SHAPE
 from torch import Tensor
 
 from ngp_kornia.io import read_rgb
+from ngp_kornia.threads import usable_cores
 
 if TYPE_CHECKING:  # the settings live beside the parser, which itself calls this module
     from ngp_kornia.models.parser import ParserConfig
 
-__all__ = ["DETECTORS", "LineDetector", "detect_segments", "detect_segments_gray", "pad_segments"]
+__all__ = [
+    "DETECTORS",
+    "LineDetector",
+    "detect_segments",
+    "detect_segments_gray",
+    "line_workers",
+    "pad_segments",
+]
 
 #: line detectors ``ParserConfig.detector`` accepts
 DETECTORS = ("lsd", "fld")
@@ -64,13 +81,14 @@ def detect_segments_gray(gray: np.ndarray, config: ParserConfig | None = None) -
         gray: (H, W) uint8 image.
         config: the settings used: LSD runs on a copy whose long side is at most ``working_size`` pixels, segments
             shorter than ``min_length`` (working-resolution pixels) are dropped and at most ``max_segments`` kept,
-            the longest first, found by ``detector`` (``"lsd"`` or ``"fld"``). None for the defaults of
+            the longest first, found by ``detector`` (``"lsd"`` or ``"fld"``), LSD in ``line_strips`` strips.
+            None for the defaults of
             :class:`~ngp_kornia.models.ParserConfig`.
 
     Returns:
         (N, 2, 2) float32 segments ``[[x0, y0], [x1, y1]]`` in the input's pixels, longest first.
     """
-    working_size, min_length, max_segments, detector = _settings(config)
+    working_size, min_length, max_segments, detector, strips = _settings(config)
     if gray.ndim != 2 or gray.dtype != np.uint8:
         raise ValueError(f"expected an (H, W) uint8 greyscale image, got shape {gray.shape} dtype {gray.dtype}")
     if detector not in DETECTORS:
@@ -80,10 +98,9 @@ def detect_segments_gray(gray: np.ndarray, config: ParserConfig | None = None) -
     small = (
         gray if scale == 1.0 else cv2.resize(gray, (round(w * scale), round(h * scale)), interpolation=cv2.INTER_AREA)
     )
-    found = _lsd().detect(small)[0] if detector == "lsd" else _fld(min_length).detect(small)
-    if found is None or found.size == 0:
+    seg = _lsd_in_strips(small, strips) if detector == "lsd" else _as_segments(_fld(min_length).detect(small))
+    if len(seg) == 0:
         return np.zeros((0, 2, 2), np.float32)
-    seg = found.reshape(-1, 2, 2).astype(np.float32)  # OpenCV 4 gives (N, 1, 4), OpenCV 5 (N, 4)
     length = np.linalg.norm(seg[:, 1] - seg[:, 0], axis=-1)
     order = np.argsort(-length, kind="stable")
     order = order[length[order] >= min_length][:max_segments]
@@ -92,6 +109,134 @@ def detect_segments_gray(gray: np.ndarray, config: ParserConfig | None = None) -
     seg[..., 0] = (seg[..., 0] + 0.5) * sx - 0.5
     seg[..., 1] = (seg[..., 1] + 0.5) * sy - 0.5
     return seg
+
+
+#: rows a strip reads beyond each of its cuts, so that LSD's smoothing and gradients near a cut see both sides
+STRIP_OVERLAP = 10
+#: LSD first resamples the image by 0.8: strips that start at multiples of 5 rows keep the whole image's samples
+_GRID = 5
+#: a line's pieces on both sides of a cut are joined when their directions differ by at most this (degrees) and
+#: the lower piece's point on the cut lies within _JOIN_GAP pixels of the upper piece's line
+_JOIN_ANGLE, _JOIN_GAP = 2.0, 1.5
+_workers: int | None = None
+_pools: dict[tuple[int, int], ThreadPoolExecutor] = {}
+
+
+@contextmanager
+def line_workers(count: int | None) -> Iterator[None]:
+    """Run LSD's strips on at most ``count`` threads inside the block (None: as many as the process's CPU cores).
+    ``ngp predict`` gives each of its processes its share of the cores this way; the segments do not change."""
+    global _workers
+    saved, _workers = _workers, count
+    try:
+        yield
+    finally:
+        _workers = saved
+
+
+def _thread_count(strips: int) -> int:
+    return max(1, min(strips, usable_cores() if _workers is None else _workers))
+
+
+def _pool(threads: int) -> ThreadPoolExecutor:
+    # keyed by process: a pool's threads do not survive a fork, and a forked child must not wait for them
+    key = (os.getpid(), threads)
+    if key not in _pools:
+        _pools[key] = ThreadPoolExecutor(max_workers=threads - 1, thread_name_prefix="ngp-lsd")
+    return _pools[key]
+
+
+def _as_segments(found: np.ndarray | None) -> np.ndarray:
+    # OpenCV 4 gives (N, 1, 4), OpenCV 5 (N, 4), and None when there is nothing
+    return np.zeros((0, 2, 2), np.float32) if found is None else found.reshape(-1, 2, 2).astype(np.float32)
+
+
+def _lsd_segments(image: np.ndarray) -> np.ndarray:
+    return _as_segments(_lsd().detect(image)[0])
+
+
+def _strip_cuts(height: int, strips: int) -> list[int]:
+    """Rows between strips: evenly spaced, on the resampling grid, each strip at least 4 overlaps high."""
+    cuts = sorted({round(height * i / strips / _GRID) * _GRID for i in range(1, strips)})
+    if any(b - a < 4 * STRIP_OVERLAP for a, b in pairwise([0, *cuts, height])):
+        return [] if strips <= 2 else _strip_cuts(height, strips - 1)
+    return cuts
+
+
+def _lsd_in_strips(image: np.ndarray, strips: int) -> np.ndarray:
+    """LSD on ``strips`` horizontal strips of the image (:data:`STRIP_OVERLAP` rows beyond each cut), run at once
+    on up to :func:`_thread_count` threads (OpenCV releases the GIL); every segment is clipped to its strip's rows
+    and a line's pieces on both sides of a cut joined again. (N, 2, 2)."""
+    cuts = _strip_cuts(image.shape[0], strips)
+    if not cuts:
+        return _lsd_segments(image)
+    starts = [0] + [c - STRIP_OVERLAP for c in cuts]
+    views = [image[a : b + STRIP_OVERLAP] for a, b in zip(starts, [*cuts, image.shape[0]], strict=True)]
+    threads = _thread_count(len(views))
+    if threads == 1:
+        parts = [_lsd_segments(v) for v in views]
+    else:  # the first strips on the pool, the last on this thread (the pool has one thread fewer)
+        pool = _pool(threads)
+        pending = [pool.submit(_lsd_segments, v) for v in views[:-1]]
+        last = _lsd_segments(views[-1])
+        parts = [p.result() for p in pending] + [last]
+    bands = pairwise([-math.inf, *cuts, math.inf])
+    found = None
+    for start, (low, high), seg in zip(starts, bands, parts, strict=True):
+        seg[..., 1] += start
+        seg = _clip_rows(seg, low, high)
+        found = seg if found is None else _join_at_cut(found, seg, low)
+    return found
+
+
+def _clip_rows(seg: np.ndarray, low: float, high: float) -> np.ndarray:
+    """The parts of segments within rows ``low < y <= high`` (a segment lying on ``low`` belongs to the strip above),
+    ends moved onto the band's edge exactly."""
+    y = seg[..., 1].astype(np.float64)
+    keep = (y.max(-1) > low) & (y.min(-1) <= high)
+    seg, y = seg[keep].astype(np.float64), y[keep]
+    dy = y[:, 1] - y[:, 0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_low, t_high = (low - y[:, 0]) / dy, (high - y[:, 0]) / dy
+    flat = dy == 0  # inside the band (kept above), so the whole segment
+    t_in = np.where(flat, 0.0, np.clip(np.minimum(t_low, t_high), 0.0, 1.0))
+    t_out = np.where(flat, 1.0, np.clip(np.maximum(t_low, t_high), 0.0, 1.0))
+    a, d = seg[:, 0], seg[:, 1] - seg[:, 0]
+    out = np.stack([a + t_in[:, None] * d, a + t_out[:, None] * d], 1)
+    moved = np.stack([t_in > 0, t_out < 1], 1)  # ends cut at an edge: put them on it exactly, for the join
+    edge = np.where(np.abs(out[..., 1] - low) < np.abs(out[..., 1] - high), low, high)
+    out[..., 1] = np.where(moved, edge, out[..., 1])
+    return out[t_out > t_in].astype(np.float32)
+
+
+def _join_at_cut(upper: np.ndarray, lower: np.ndarray, cut: int) -> np.ndarray:
+    """Segments above and below a cut, each line's two pieces that meet on the cut joined into one."""
+    on_up, on_low = upper[..., 1] == cut, lower[..., 1] == cut
+    ui = np.nonzero(on_up.sum(-1) == 1)[0]  # pieces with one end on the cut (not lying along it)
+    li = np.nonzero(on_low.sum(-1) == 1)[0]
+    if len(ui) == 0 or len(li) == 0:
+        return np.concatenate([upper, lower])
+    # each piece as (point on the cut, far end)
+    up = np.where(on_up[ui][:, 0, None, None], upper[ui], upper[ui, ::-1])
+    low = np.where(on_low[li][:, 0, None, None], lower[li], lower[li, ::-1])
+    du, dl = (_unit(p[:, 1] - p[:, 0]) for p in (up, low))
+    normal = np.stack([-du[:, 1], du[:, 0]], -1)
+    gap = np.abs(normal @ low[:, 0].T - (normal * up[:, 0]).sum(-1, keepdims=True))
+    match = (np.abs(du @ dl.T) >= math.cos(math.radians(_JOIN_ANGLE))) & (gap <= _JOIN_GAP)
+    pairs, used_up, used_low = [], set(), set()
+    # the closest pairs first, each piece in one pair at most
+    for i, j in sorted(zip(*np.nonzero(match), strict=True), key=lambda ij: gap[ij]):
+        if i not in used_up and j not in used_low:
+            used_up.add(i), used_low.add(j)
+            pairs.append(np.stack([up[i, 1], low[j, 1]]))
+    rest_up = np.delete(upper, ui[list(used_up)], 0)
+    rest_low = np.delete(lower, li[list(used_low)], 0)
+    joined = np.stack(pairs) if pairs else np.zeros((0, 2, 2), np.float32)
+    return np.concatenate([rest_up, rest_low, joined]).astype(np.float32)
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v, axis=-1, keepdims=True).clip(1e-9)
 
 
 def pad_segments(segments: list[np.ndarray | Tensor], like: Tensor | None = None) -> tuple[Tensor, Tensor]:
@@ -112,12 +257,12 @@ def pad_segments(segments: list[np.ndarray | Tensor], like: Tensor | None = None
     return out, mask
 
 
-def _settings(config: ParserConfig | None) -> tuple[int, float, int, str]:
+def _settings(config: ParserConfig | None) -> tuple[int, float, int, str, int]:
     if config is None:
         from ngp_kornia.models.parser import ParserConfig
 
         config = ParserConfig()
-    return config.working_size, config.min_length, config.max_segments, config.detector
+    return config.working_size, config.min_length, config.max_segments, config.detector, config.line_strips
 
 
 def _to_gray_uint8(image: Tensor) -> np.ndarray:

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import heapq
 import json
-import os
 import secrets
 import signal
 import warnings
@@ -43,11 +42,12 @@ except ImportError as err:
 
 from ngp_kornia.api import load_parser, with_orientation
 from ngp_kornia.data.folder import IMAGE_EXTENSIONS, ImageFolder
+from ngp_kornia.detect import line_workers
 from ngp_kornia.errors import OutputError
 from ngp_kornia.exif import exif_focal
 from ngp_kornia.io import read_rgb_oriented
 from ngp_kornia.models import Calibration, NeuralGeometricParser, ParserConfig
-from ngp_kornia.threads import pipeline_threads
+from ngp_kornia.threads import pipeline_threads, usable_cores
 
 __all__ = [
     "FolderImages",
@@ -317,14 +317,6 @@ def _check_out(out: Path, images: ImageFolder) -> None:
         raise OutputError(f"--out {out} is one of the input images; give another file, e.g. results.jsonl")
 
 
-def usable_cores() -> int:
-    """The CPU cores this process may run on (its affinity mask where the system has one, else the core count)."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # macOS, Windows
-        return os.cpu_count() or 1
-
-
 def cap_devices(devices: int) -> int:
     """``devices`` capped at :func:`usable_cores`, with a warning when capped: each process runs the parser on one
     thread, so more processes than cores only take turns on the same cores (and each costs its own memory)."""
@@ -389,9 +381,9 @@ def predict_folder(
     loader = DataLoader(FolderImages(images), batch_size=batch_size, num_workers=num_workers, collate_fn=collate_items)
     writer = JsonlWriter(out, devices)
     trainer = _trainer(devices, writer, progress_bar)
-    # fork (the processes of a multi-process run, the loader's workers) from one thread: OpenCV's worker pool does
-    # not survive a fork, and a child that resizes or uses the pool it inherited waits for threads that are not there
-    with pipeline_threads(1):
+    # fork from one thread (OpenCV's worker pool does not survive a fork: a child would wait for threads that are
+    # not there); each process runs LSD's strips on its share of the cores
+    with pipeline_threads(1), line_workers(max(1, usable_cores() // devices)):
         _run(trainer, module, loader, writer)
     if writer.multi and not writer.interrupted:  # the forked processes wrote and merged; this one only waited
         writer.images, writer.errors = count_rows(writer.out)

@@ -29,7 +29,7 @@ from contextlib import contextmanager
 import cv2
 import torch
 
-__all__ = ["ENV_VAR", "pipeline_threads", "resolve_num_threads"]
+__all__ = ["ENV_VAR", "pipeline_threads", "resolve_num_threads", "usable_cores"]
 
 #: environment variable with the default thread count of the pipeline (a positive integer, or 0: do not change)
 ENV_VAR = "NGP_NUM_THREADS"
@@ -112,3 +112,11 @@ def _set(torch_threads: int, cv2_threads: int) -> None:
         torch.set_num_threads(torch_threads)
     if cv2.getNumThreads() != cv2_threads:
         cv2.setNumThreads(cv2_threads)
+
+
+def usable_cores() -> int:
+    """The CPU cores this process may run on (its affinity mask where the system has one, else the core count)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # macOS, Windows
+        return os.cpu_count() or 1

@@ -219,3 +219,95 @@ def test_parser_config_selects_the_detector():
     image = render_scene(3, size=(320, 240)).image
     lsd, fld = calibrate(image), calibrate(image, config=ParserConfig(detector="fld"))
     assert bool(lsd.valid) and bool(fld.valid) and float(lsd.focal) != float(fld.focal)
+
+
+def _slanted_bar(h: int, w: int, top: tuple[float, float], bottom: tuple[float, float]) -> np.ndarray:
+    """A white quadrilateral from ``top`` to ``bottom`` (x, y), 12 pixels wide, on a black uint8 image."""
+    (x0, y0), (x1, y1) = top, bottom
+    polygon = np.array([[x0, y0], [x0 + 12, y0], [x1 + 12, y1], [x1, y1]], np.int32)
+    return cv2.fillPoly(np.zeros((h, w), np.uint8), [polygon], 255)
+
+
+def _one_piece(**kw) -> ParserConfig:
+    return ParserConfig(line_strips=1, **kw)
+
+
+def test_strips_give_the_rectangle_whose_edges_cross_the_cuts():
+    # 480 rows in two strips are cut at row 240: both vertical edges cross it and come back as one segment each;
+    # the horizontal edges lie in the strips' overlap (rows 230-250) and come back once, not twice
+    img = _rectangle(480, 640, 235, 247, 150, 499)
+    img = img + _rectangle(480, 640, 40, 439, 560, 599)
+    seg, mask = detect_segments(img, ParserConfig(line_strips=2))
+    whole, whole_mask = detect_segments(img, _one_piece())
+    assert int(mask.sum()) == int(whole_mask.sum()) == 8
+    assert _farthest_match(seg[0][mask[0]].numpy(), whole[0][whole_mask[0]].numpy()) < 0.5
+
+
+def _farthest_match(a: np.ndarray, b: np.ndarray) -> float:
+    """How far (pixels, the worse endpoint) the segment of ``a`` farthest from every segment of ``b`` is from its
+    nearest one, either way round."""
+    ends = lambda s: np.abs(a[:, None] - s[None]).max(-1).max(-1)  # noqa: E731
+    return float(np.minimum(ends(b), ends(b[:, ::-1])).min(1).max())
+
+
+@pytest.mark.parametrize("strips", [2, 3])
+def test_a_slanted_line_across_the_cuts_is_one_segment(strips):
+    gray = _slanted_bar(600, 400, (100, 30), (260, 570))
+    seg = detect_segments_gray(gray, ParserConfig(line_strips=strips))
+    whole = detect_segments_gray(gray, _one_piece())
+    assert len(seg) == len(whole) == 4  # the bar's two long sides and its two short ends
+    lengths = lambda s: np.sort(np.linalg.norm(s[:, 1] - s[:, 0], axis=-1))  # noqa: E731
+    np.testing.assert_allclose(lengths(seg), lengths(whole), atol=1.0)
+
+
+def test_strips_do_not_depend_on_the_threads_that_run_them():
+    from ngp_kornia.data.synth.render import render_scene
+    from ngp_kornia.detect import line_workers
+
+    gray = cv2.cvtColor(render_scene(5, size=(640, 480)).image, cv2.COLOR_RGB2GRAY)
+    config = ParserConfig(line_strips=3)
+    with line_workers(1):
+        alone = detect_segments_gray(gray, config)
+    with line_workers(3):
+        together = detect_segments_gray(gray, config)
+    assert len(alone) > 50 and np.array_equal(alone, together)
+
+
+def test_short_images_are_detected_in_one_piece():
+    # 64 rows cannot hold two strips of at least 40 rows: the whole image is the one strip
+    img = _rectangle(64, 64, 20, 43, 20, 43)
+    a, _ = detect_segments(img, ParserConfig(line_strips=4))
+    b, _ = detect_segments(img, _one_piece())
+    assert torch.equal(a, b)
+
+
+def test_strips_work_in_a_forked_process():
+    # the parent's LSD threads do not exist in a forked child; the child must start its own, not wait for them
+    import multiprocessing
+
+    gray = _slanted_bar(480, 640, (100, 30), (260, 450))
+    expected = detect_segments_gray(gray)  # the parent's pool now exists
+    context = multiprocessing.get_context("fork")
+    with context.Pool(1) as pool:
+        got = pool.apply_async(detect_segments_gray, (gray,)).get(timeout=60)
+    assert np.array_equal(got, expected)
+
+
+@pytest.mark.parametrize("bad", [0, 17, 1.5, True])
+def test_line_strips_out_of_range_is_refused(bad):
+    with pytest.raises(ValueError, match="ParserConfig.line_strips must be an integer from 1 to 16"):
+        ParserConfig(line_strips=bad)
+
+
+def test_strips_find_the_lines_of_the_whole_image():
+    # LSD's region growing and significance test see a strip, not the image, so a few segments differ; strips on
+    # the image's own resampling grid keep almost all of them (off the grid, a quarter of the length moves)
+    from ngp_kornia.data.synth.render import render_scene
+
+    gray = cv2.cvtColor(render_scene(7, size=(640, 486)).image, cv2.COLOR_RGB2GRAY)
+    whole = detect_segments_gray(gray, _one_piece(max_segments=10**6))
+    strips = detect_segments_gray(gray, ParserConfig(line_strips=2, max_segments=10**6))
+    ends = lambda s: np.abs(whole[:, None] - s[None]).max(-1).max(-1)  # noqa: E731
+    found = np.minimum(ends(strips), ends(strips[:, ::-1])).min(1) < 1.0
+    length = np.linalg.norm(whole[:, 1] - whole[:, 0], axis=-1)
+    assert length[found].sum() / length.sum() > 0.95

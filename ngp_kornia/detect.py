@@ -120,7 +120,7 @@ _GRID = 5
 #: the lower piece's point on the cut lies within _JOIN_GAP pixels of the upper piece's line
 _JOIN_ANGLE, _JOIN_GAP = 2.0, 1.5
 _workers: int | None = None
-_pools: dict[tuple[int, int], ThreadPoolExecutor] = {}
+_pools: dict[int, ThreadPoolExecutor] = {}
 
 
 @contextmanager
@@ -139,12 +139,18 @@ def _thread_count(strips: int) -> int:
     return max(1, min(strips, usable_cores() if _workers is None else _workers))
 
 
-def _pool(threads: int) -> ThreadPoolExecutor:
-    # keyed by process: a pool's threads do not survive a fork, and a forked child must not wait for them
-    key = (os.getpid(), threads)
-    if key not in _pools:
-        _pools[key] = ThreadPoolExecutor(max_workers=threads - 1, thread_name_prefix="ngp-lsd")
-    return _pools[key]
+def _pool() -> ThreadPoolExecutor:
+    # keyed by process: a pool's threads do not survive a fork, and a forked child must not wait for them. As many
+    # threads as the process may use besides a caller's own, started only when needed: calls from several threads
+    # of one process then run their strips side by side instead of queueing for one thread
+    pid = os.getpid()
+    if pid not in _pools:
+        _pools[pid] = ThreadPoolExecutor(max_workers=max(1, usable_cores() - 1), thread_name_prefix="ngp-lsd")
+    return _pools[pid]
+
+
+def _detect_each(views: list[np.ndarray]) -> list[np.ndarray]:
+    return [_lsd_segments(v) for v in views]
 
 
 def _as_segments(found: np.ndarray | None) -> np.ndarray:
@@ -174,13 +180,11 @@ def _lsd_in_strips(image: np.ndarray, strips: int) -> np.ndarray:
     starts = [0] + [c - STRIP_OVERLAP for c in cuts]
     views = [image[a : b + STRIP_OVERLAP] for a, b in zip(starts, [*cuts, image.shape[0]], strict=True)]
     threads = _thread_count(len(views))
-    if threads == 1:
-        parts = [_lsd_segments(v) for v in views]
-    else:  # the first strips on the pool, the last on this thread (the pool has one thread fewer)
-        pool = _pool(threads)
-        pending = [pool.submit(_lsd_segments, v) for v in views[:-1]]
-        last = _lsd_segments(views[-1])
-        parts = [p.result() for p in pending] + [last]
+    parts: list = [None] * len(views)
+    groups = [views[i::threads] for i in range(threads)]  # every thread-th strip: this thread takes the first group
+    pending = [_pool().submit(_detect_each, group) for group in groups[1:]]
+    for i, found in enumerate([_detect_each(groups[0])] + [p.result() for p in pending]):
+        parts[i::threads] = found
     bands = pairwise([-math.inf, *cuts, math.inf])
     found = None
     for start, (low, high), seg in zip(starts, bands, parts, strict=True):

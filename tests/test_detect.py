@@ -320,3 +320,16 @@ def test_strips_run_on_the_process_share_of_the_cores():
         assert detect._thread_count(2) == 1
     with detect.line_workers(8):
         assert detect._thread_count(2) == 2  # never more threads than strips
+
+
+def test_calls_from_several_threads_share_the_strip_threads():
+    # a server may calibrate in many threads at once: each call's strips still come back whole and in order
+    from concurrent.futures import ThreadPoolExecutor
+
+    from ngp_kornia.data.synth.render import render_scene
+
+    grays = [cv2.cvtColor(render_scene(seed, size=(640, 480)).image, cv2.COLOR_RGB2GRAY) for seed in range(4)]
+    expected = [detect_segments_gray(g) for g in grays]
+    with ThreadPoolExecutor(4) as callers:
+        got = list(callers.map(detect_segments_gray, grays * 3, timeout=120))
+    assert all(np.array_equal(a, b) for a, b in zip(got, expected * 3, strict=True))

@@ -141,7 +141,7 @@ def sample_zenith_candidates(
     ends = _gather(lines, pairs)  # both lines of every pair in one gather
     zenith = intersect_lines(ends[:, :num_candidates], ends[:, num_candidates:])
     ok = usable & (pairs[:, :num_candidates] != pairs[:, num_candidates:])
-    ok = ok & (zenith.norm(dim=-1) > 0.5)  # identical lines have no intersection
+    ok = ok & (torch.linalg.vector_norm(zenith, dim=-1) > 0.5)  # identical lines have no intersection
     return _gather(lines, idx[:, :num_lines]), line_mask, zenith, ok
 
 
@@ -263,7 +263,7 @@ def sample_horizontal_vps(
     # both groups' first lines, then both groups' second lines, in one gather and one intersection
     ends = _gather(lines, torch.cat([d[:, :half] for d in draws] + [d[:, half:] for d in draws], 1))
     vps = intersect_lines(ends[:, : 2 * half], ends[:, 2 * half :])
-    return vps, torch.cat(valid, 1) & (vps.norm(dim=-1) > 0.5)
+    return vps, torch.cat(valid, 1) & (torch.linalg.vector_norm(vps, dim=-1) > 0.5)
 
 
 @dataclass
@@ -358,7 +358,7 @@ def frames_from_vps(
     scale = torch.stack([f, f, torch.ones_like(f)], -1)  # K = diag(f, f, 1)
     a, b = normalize(pair / scale).unbind(0)
     b = b - (b * a).sum(-1, keepdim=True) * a
-    b_norm = b.norm(dim=-1, keepdim=True)
+    b_norm = torch.linalg.vector_norm(b, dim=-1, keepdim=True)
     ok = ok & (b_norm[..., 0] > 1e-6)  # a second VP along the first has no orthogonal part
     b = b / b_norm.clamp_min(torch.finfo(b.dtype).eps)  # normalize(b), reusing its norm
     R = _vertical_axis_first(b, a)
@@ -378,7 +378,7 @@ def _column_norm(m: Tensor) -> Tensor:
     the correctly rounded one in the last bit, while a float64 root rounded to float32 cannot.
     """
     if m.dtype != torch.float32:
-        return m.norm(dim=-2, keepdim=True)
+        return torch.linalg.vector_norm(m, dim=-2, keepdim=True)
     sq = m * m
     return (sq[..., 0, :] + sq[..., 1, :] + sq[..., 2, :]).double().sqrt_().float()[..., None, :]
 

@@ -54,7 +54,7 @@ def _eps(x: Tensor) -> float:
 
 def normalize(v: Tensor, dim: int = -1) -> Tensor:
     """Unit vectors along ``dim``; a zero vector stays zero instead of becoming NaN."""
-    return v / v.norm(dim=dim, keepdim=True).clamp_min(_eps(v))
+    return v / torch.linalg.vector_norm(v, dim=dim, keepdim=True).clamp_min(_eps(v))
 
 
 def image_center(height: int, width: int, like: Tensor | None = None) -> Tensor:
@@ -257,7 +257,7 @@ def horizon_from_zenith(K: Tensor, zenith: Tensor) -> Tensor:
 
 
 def _normalize_line(line: Tensor) -> Tensor:
-    ab = line[..., :2].norm(dim=-1, keepdim=True).clamp_min(_eps(line))
+    ab = torch.linalg.vector_norm(line[..., :2], dim=-1, keepdim=True).clamp_min(_eps(line))
     sign = torch.where(line[..., 1:2] < 0, -1.0, 1.0).to(line)
     return line * sign / ab
 

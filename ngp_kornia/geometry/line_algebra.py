@@ -38,7 +38,7 @@ def segment_lengths(segments: Tensor) -> Tensor:
         tensor([[5.]])
     """
     KORNIA_CHECK_SHAPE(segments, ["*", "2", "2"])
-    return (segments[..., 1, :] - segments[..., 0, :]).norm(dim=-1)
+    return torch.linalg.vector_norm(segments[..., 1, :] - segments[..., 0, :], dim=-1)
 
 
 def segments_to_lines(segments: Tensor) -> Tensor:
@@ -62,15 +62,16 @@ def segments_to_lines(segments: Tensor) -> Tensor:
     # zero a cross product that is only rounding residue of (anti)parallel inputs, so it is not normalised into a
     # random direction (fused multiply-adds leave about eps * |p0| |p1| where exact arithmetic gives 0); both
     # endpoints' norms come from one reduction, row by row as from two
-    ends = p.norm(dim=-1, keepdim=True)
+    ends = torch.linalg.vector_norm(p, dim=-1, keepdim=True)
     tolerance = _RESIDUE * torch.finfo(p.dtype).eps * ends[..., 0, :] * ends[..., 1, :]
-    line = torch.where(cross.norm(dim=-1, keepdim=True) <= tolerance, 0.0, cross)
-    return line / line[..., :2].norm(dim=-1, keepdim=True).clamp_min(torch.finfo(line.dtype).eps)
+    line = torch.where(torch.linalg.vector_norm(cross, dim=-1, keepdim=True) <= tolerance, 0.0, cross)
+    return line / torch.linalg.vector_norm(line[..., :2], dim=-1, keepdim=True).clamp_min(torch.finfo(line.dtype).eps)
 
 
 def _residue_tolerance(u: Tensor, v: Tensor) -> Tensor:
     """The largest cross product of ``u`` and ``v`` (..., 3) taken for rounding residue (see :data:`_RESIDUE`)."""
-    return _RESIDUE * torch.finfo(u.dtype).eps * u.norm(dim=-1, keepdim=True) * v.norm(dim=-1, keepdim=True)
+    u_length = torch.linalg.vector_norm(u, dim=-1, keepdim=True)
+    return _RESIDUE * torch.finfo(u.dtype).eps * u_length * torch.linalg.vector_norm(v, dim=-1, keepdim=True)
 
 
 def intersect_lines(l0: Tensor, l1: Tensor) -> Tensor:
@@ -93,7 +94,7 @@ def intersect_lines(l0: Tensor, l1: Tensor) -> Tensor:
     KORNIA_CHECK_SHAPE(l1, ["*", "3"])
     l0, l1 = torch.broadcast_tensors(l0, l1)
     cross = torch.linalg.cross(l0, l1)
-    norm = cross.norm(dim=-1, keepdim=True)
+    norm = torch.linalg.vector_norm(cross, dim=-1, keepdim=True)
     # a cross product within the rounding residue is zeroed (as in segments_to_lines) before normalising, with the
     # norm computed once: a zeroed row divides to zero either way
     residue = norm <= _residue_tolerance(l0, l1)

@@ -157,7 +157,7 @@ def _segment_pixels(segments: Tensor, mask: Tensor, height: int, width: int) -> 
     segments and the pixel's index in the flattened (B, H, W) maps, from points sampled about one pixel apart and
     rounded to the nearest pixel."""
     B, N = mask.shape
-    length = (segments[..., 1, :] - segments[..., 0, :]).norm(dim=-1).detach()
+    length = torch.linalg.vector_norm(segments[..., 1, :] - segments[..., 0, :], dim=-1).detach()
     # sample points per image, by its own longest segment: an image's map does not depend on the rest of its batch
     longest = torch.where(mask, length, 0.0).amax(-1).ceil().long() + 2  # (B,)
     t = _steps(longest.tolist(), segments)  # (B, S)

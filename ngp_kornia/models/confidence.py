@@ -110,7 +110,7 @@ class TrustFeatures:
 
 def _border_heights(lines: Tensor, height: int, width: int) -> Tensor:
     """(..., 3) pixel lines -> (..., 2) their y at the left and right borders, in image heights (finite)."""
-    ab = lines[..., :2].norm(dim=-1).clamp_min(1e-12)
+    ab = torch.linalg.vector_norm(lines[..., :2], dim=-1).clamp_min(1e-12)
     sign = torch.where(lines[..., 1] < 0, -1.0, 1.0).to(lines) / ab
     a, b, c = (lines * sign[..., None]).unbind(-1)
     b = b.clamp_min(1e-6)

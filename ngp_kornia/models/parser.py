@@ -444,7 +444,7 @@ class NeuralGeometricParser(nn.Module):
     def _result(K: Tensor, R: Tensor, score: Tensor, valid: Tensor, height: int, width: int) -> Calibration:
         up = -R[..., :, 1]
         zenith = zenith_from_up(K, up)
-        zenith = zenith / zenith.norm(dim=-1, keepdim=True)
+        zenith = zenith / torch.linalg.vector_norm(zenith, dim=-1, keepdim=True)
         pitch, roll, yaw = angles_from_rotation(R)  # its pitch and roll are those of up = -R[:, :, 1]
         f = K[:, 0, 0]
         size = torch.tensor([height, width], device=K.device)

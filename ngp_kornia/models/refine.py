@@ -68,7 +68,7 @@ __all__ = [
 
 
 def _normalize(v: Tensor) -> Tensor:
-    return v / v.norm(dim=-1, keepdim=True).clamp_min(torch.finfo(v.dtype).tiny ** 0.5)
+    return v / torch.linalg.vector_norm(v, dim=-1, keepdim=True).clamp_min(torch.finfo(v.dtype).tiny ** 0.5)
 
 
 def up_from_pitch_roll(pitch: Tensor, roll: Tensor) -> Tensor:
@@ -121,7 +121,7 @@ def _line(mid: Tensor, direction: Tensor) -> Tensor:
     tiny = torch.finfo(mid.dtype).tiny ** 0.5
     sx, sy = direction[..., 0], direction[..., 1]
     line = torch.stack([-sy, sx, sy * mid[..., 0] - sx * mid[..., 1]], -1)
-    return line / direction.norm(dim=-1, keepdim=True).clamp_min(tiny)
+    return line / torch.linalg.vector_norm(direction, dim=-1, keepdim=True).clamp_min(tiny)
 
 
 def _camera_segments(segments: Tensor, K: Tensor) -> _Cam:
@@ -234,7 +234,7 @@ def _scaled_focal(K: Tensor, scale: Tensor) -> Tensor:
 
 
 def _lengths(segments: Tensor, mask: Tensor) -> Tensor:
-    return (segments[..., 1, :] - segments[..., 0, :]).norm(dim=-1) * mask.to(segments)
+    return torch.linalg.vector_norm(segments[..., 1, :] - segments[..., 0, :], dim=-1) * mask.to(segments)
 
 
 def _refine_up(
@@ -362,10 +362,10 @@ def _horizontal_basis(ups: Tensor) -> tuple[Tensor, Tensor]:
     ``u x z`` (``u x x`` where ``u`` is the optical axis)."""
     ref, alt = _constants(("axes",), ups, [[[0.0, 0.0, 1.0]]], [[[1.0, 0.0, 0.0]]])  # (1, 1, 3): broadcast
     e1 = torch.linalg.cross(ups, ref)
-    norm = e1.norm(dim=-1, keepdim=True)
+    norm = torch.linalg.vector_norm(e1, dim=-1, keepdim=True)
     if not bool((norm > 1e-6).all()):
         e1 = torch.where(norm > 1e-6, e1, torch.linalg.cross(ups, alt))
-        norm = e1.norm(dim=-1, keepdim=True)
+        norm = torch.linalg.vector_norm(e1, dim=-1, keepdim=True)
     e1 = e1 / norm.clamp_min(torch.finfo(e1.dtype).tiny ** 0.5)  # _normalize
     return e1, torch.linalg.cross(ups, e1)
 

@@ -100,7 +100,7 @@ class ParserConfig:
             (OpenCV releases the GIL), and the pieces of a line cut between strips are joined again
             (:func:`ngp_kornia.detect.detect_segments_gray`). 2 takes 0.6x the time of 1 on two idle cores and is
             as accurate within seed noise on the development suite; beside busy processes, which leave no core
-            idle, a call takes about 6% longer (the strips' overlap and the join; BENCHMARKS.md). 1 is the whole image
+            idle, a call takes 2-6% longer (the strips' overlap and the join; BENCHMARKS.md). 1 is the whole image
             in one piece. The segments depend on this number only, never on how many threads run them.
         focal: a known focal length in pixels of the input image (a prior): every frame candidate then uses it, so
             frames are built from one zenith or horizontal VP plus another VP moved onto its orthogonal plane, not

@@ -7,13 +7,16 @@ the same lines for the same image.
 
 LSD runs on the 8-bit greyscale image resized so its long side is at most ``working_size`` (aspect ratio kept); the
 segments are mapped back to the input's pixels (pixel-centre convention), filtered by length and padded to
-``(B, N, 2, 2)`` with a ``(B, N)`` mask. LSD runs on ``line_strips`` horizontal strips of the image at once (one
-thread each, as many as the process may use; :func:`line_workers`), and a line cut between two strips is joined
-again: on two idle cores that takes 0.6x the time of one LSD over the whole image. The segments are not quite the
-whole image's (LSD's region growing and its significance test depend on the image it sees): 94% of their length on
-York Urban and 98% on the Eurasian Cities photos comes back within a pixel.
-``ParserConfig(detector="fld")`` uses OpenCV's FastLineDetector
-(opencv-contrib's ximgproc) instead: faster, and less accurate on real photos (see BENCHMARKS.md).
+``(B, N, 2, 2)`` with a ``(B, N)`` mask.
+
+LSD runs on ``line_strips`` (default 2) horizontal strips of the image at once, one thread each as far as the process
+has cores (:func:`line_workers`), and a line cut between two strips is joined again: on two idle cores that takes
+0.6x the time of one LSD over the whole image. The segments are not quite the whole image's (LSD's region growing and
+its significance test depend on the image it sees): 94% of their length on York Urban and 98% on the Eurasian Cities
+photos comes back within a pixel. They depend on ``line_strips`` only, never on the threads.
+
+``ParserConfig(detector="fld")`` uses OpenCV's FastLineDetector (opencv-contrib's ximgproc) instead: faster, and less
+accurate on real photos (see BENCHMARKS.md).
 """
 
 from __future__ import annotations

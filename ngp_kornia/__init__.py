@@ -30,15 +30,12 @@ if TYPE_CHECKING:
 
 # The public names are imported on first use (torch and OpenCV take a second or two to import): the ``ngp``
 # command can then answer Ctrl+C during its start-up with a message instead of a traceback.
+_ERRORS = "CheckpointError ConfigError ImageReadError InputError ManifestError NGPError OutputError WeightsError"
 _HOMES = {
     "calibrate": "ngp_kornia.api",
     "ImageError": "ngp_kornia.io",
     **dict.fromkeys(("Calibration", "NeuralGeometricParser", "ParserConfig"), "ngp_kornia.models"),
-    **dict.fromkeys(
-        ("CheckpointError", "ConfigError", "ImageReadError", "InputError", "ManifestError", "NGPError"),
-        "ngp_kornia.errors",
-    ),
-    **dict.fromkeys(("OutputError", "WeightsError"), "ngp_kornia.errors"),
+    **dict.fromkeys(_ERRORS.split(), "ngp_kornia.errors"),
 }
 
 __version__ = "0.1.0"

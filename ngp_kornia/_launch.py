@@ -22,7 +22,8 @@ def _run(command: str, modules: list[str]) -> int:
 
     previous = signal.signal(signal.SIGINT, stop)
     try:
-        main = [importlib.import_module(name) for name in modules][0].main
+        loaded = [importlib.import_module(name) for name in modules]  # the command's own module first
+        main = loaded[0].main
     finally:
         signal.signal(signal.SIGINT, previous)
     try:

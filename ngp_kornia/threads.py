@@ -5,7 +5,8 @@ gain nothing on an idle machine and spin against every other process on a busy o
 default call took 8-10x lu-vp-detect's time with two threads and 1.0-1.14x with one (BENCHMARKS.md). :func:`calibrate`,
 :class:`~ngp_kornia.models.NeuralGeometricParser` and ``ngp predict`` therefore run inside :func:`pipeline_threads`,
 which sets torch's (and OpenCV's) thread count for the duration of the call and restores the caller's afterwards,
-also when the call raises.
+also when the call raises. Line detection runs LSD's strips on threads of its own, one per strip as far as the
+process has cores (:mod:`ngp_kornia.detect`); those do not depend on these counts.
 
 How many threads: ``ParserConfig.num_threads`` (``calibrate(image, config=ParserConfig(num_threads=N))``) when
 given; else the environment variable ``NGP_NUM_THREADS``; else 1. ``0`` leaves the caller's setting alone (the

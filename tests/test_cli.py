@@ -270,14 +270,23 @@ def test_kornia_check_errors_are_one_line(photo, monkeypatch, capsys):
 
 @pytest.mark.parametrize(("entry", "args"), [("ngp", ["calibrate", "photo.jpg"]), ("ngp_train", ["--help"])])
 def test_ctrl_c_during_start_up_ends_with_a_message(entry, args):
-    # the commands import torch, OpenCV and Lightning first (seconds): Ctrl+C then is answered as during their work
+    # the commands import torch, OpenCV and Lightning first (seconds): Ctrl+C then is answered as during their work.
+    # The child says when it starts those imports, so the interrupt lands in them however fast the machine is.
     import signal
-    import time
 
-    code = f"import sys; from ngp_kornia._launch import {entry}; sys.exit({entry}())"
+    code = (
+        "import importlib, sys\n"
+        "real = importlib.import_module\n"
+        "def announced(name, *rest):\n"
+        "    print('importing', flush=True)\n"
+        "    return real(name, *rest)\n"
+        "importlib.import_module = announced\n"
+        f"from ngp_kornia._launch import {entry}\n"
+        f"sys.exit({entry}())\n"
+    )
     pipes = {"stdout": subprocess.PIPE, "stderr": subprocess.PIPE, "text": True}
     process = subprocess.Popen([sys.executable, "-c", code, *args], **pipes)
-    time.sleep(0.5)
+    assert process.stdout.readline() == "importing\n"
     process.send_signal(signal.SIGINT)
     _, err = process.communicate(timeout=120)
     assert process.returncode == 130, err

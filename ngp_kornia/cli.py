@@ -318,6 +318,7 @@ def _predict(args: argparse.Namespace) -> int:
             f"ngp: interrupted: the {counts['images']} images finished are in {args.out}; "
             "the run does not resume: run the command again to calibrate the whole folder",
             file=sys.stderr,
+            flush=True,
         )
         return 130
     print(f"{counts['images']} rows written to {args.out}")

@@ -242,6 +242,7 @@ def _interrupt(tmp_path, devices, count):
     assert proc.poll() is None, "the run ended before it could be interrupted"
     os.killpg(proc.pid, signal.SIGINT)
     stdout, stderr = proc.communicate(timeout=120)
+    _interrupt.stdout = stdout  # for the failure messages: what a run that ended without its message printed instead
     return proc.returncode, stderr, out, folder
 
 
@@ -250,7 +251,8 @@ def test_interrupted_run_keeps_the_finished_rows(tmp_path, devices):
     code, stderr, out, folder = _interrupt(tmp_path, devices, count=200)
     assert code == 130, stderr
     lines = stderr.splitlines()
-    assert len(lines) == 1 and lines[0].startswith("ngp: interrupted: the "), stderr[-2000:]
+    printed = (stderr[-2000:], _interrupt.stdout[-2000:])
+    assert len(lines) == 1 and lines[0].startswith("ngp: interrupted: the "), printed
     rows = _rows(out)
     assert 2 <= len(rows) < 200 and f"the {len(rows)} images finished are in {out}" in lines[0]
     names = [r["image"] for r in rows]

@@ -18,7 +18,7 @@ from ngp_kornia.exif import exif_focal
 from ngp_kornia.io import as_batch, read_rgb_oriented
 from ngp_kornia.models import Calibration, NeuralGeometricParser, ParserConfig
 from ngp_kornia.models.weights import load_network, network_name, shipped_weights
-from ngp_kornia.threads import pipeline_threads
+from ngp_kornia.threads import Lookahead, pipeline_threads
 
 __all__ = ["DEFAULT_WEIGHTS", "WEIGHTS", "calibrate", "load_parser", "with_orientation"]
 
@@ -129,10 +129,15 @@ def calibrate(
         return _calibrate_list(image, weights, seed, config, focal=focal, fov_v=fov_v, exif=exif)
     cfg = _call_config(config, seed, focal, fov_v, exif)
     with pipeline_threads(cfg.num_threads):  # one thread unless configured; the caller's count is restored
-        batch, segments, mask, orientation, cfg = _inputs(image, cfg)
-        parser = _on_device(_parser(weights, cfg, copy=False), batch.device)  # the cached networks, read only
-        with torch.no_grad():
-            result = parser(batch, segments, mask)
+        return _calibrate_inputs(image, _inputs(image, cfg), weights)
+
+
+def _calibrate_inputs(image, inputs: tuple, weights) -> Calibration:
+    """The rest of :func:`calibrate` for one input, given what :func:`_inputs` made of it."""
+    batch, segments, mask, orientation, cfg = inputs
+    parser = _on_device(_parser(weights, cfg, copy=False), batch.device)  # the cached networks, read only
+    with torch.no_grad():
+        result = parser(batch, segments, mask)
     if isinstance(image, Tensor) and image.dim() == 4:
         return result
     result = result[0]
@@ -177,14 +182,21 @@ def with_orientation(result: Calibration, orientation: int) -> Calibration:
     return replace(result, exif_orientation=torch.tensor(orientation, device=result.focal.device))
 
 
-def _calibrate_list(images, weights, seed: int, config: ParserConfig | None, **priors) -> list[Calibration]:
+def _calibrate_list(
+    images, weights, seed: int, config: ParserConfig | None, focal, fov_v, exif: bool
+) -> list[Calibration]:
     """One result per item, each computed alone (so it equals what the item gives alone, whatever its size)."""
     if not images:
         raise ValueError("calibrate() got an empty list; give at least one image (path, array or tensor)")
     _networks(weights)  # a bad weight set is reported once, before any image is read
-    results = []
     for index, item in enumerate(images):
         if isinstance(item, (list, tuple)):
             raise TypeError(f"calibrate(): item {index} is a {type(item).__name__}; lists of lists are not supported")
-        results.append(calibrate(item, weights=weights, seed=seed, config=config, **priors))
-    return results
+    cfg = _call_config(config, seed, focal, fov_v, exif)
+    last = len(images) - 1
+    # the next item is read and its lines detected on a second thread while the parser works on this one: the
+    # same inputs as one call per item (the segments do not depend on threads), so the same results
+    with pipeline_threads(cfg.num_threads), Lookahead(lambda i: _inputs(images[i], cfg)) as ahead:
+        return [
+            _calibrate_inputs(item, ahead.get(i, i + 1 if i < last else None), weights) for i, item in enumerate(images)
+        ]

@@ -42,12 +42,12 @@ except ImportError as err:
 
 from ngp_kornia.api import load_parser, with_orientation
 from ngp_kornia.data.folder import IMAGE_EXTENSIONS, ImageFolder
-from ngp_kornia.detect import line_workers
+from ngp_kornia.detect import detect_segments, line_workers
 from ngp_kornia.errors import OutputError
 from ngp_kornia.exif import exif_focal
 from ngp_kornia.io import read_rgb_oriented
 from ngp_kornia.models import Calibration, NeuralGeometricParser, ParserConfig
-from ngp_kornia.threads import pipeline_threads, usable_cores
+from ngp_kornia.threads import Lookahead, pipeline_threads, usable_cores
 
 __all__ = [
     "FolderImages",
@@ -63,34 +63,59 @@ __all__ = [
 
 class FolderItem(NamedTuple):
     """One file of the folder: its dataset index, its path relative to the folder, and the (3, H, W) float image
-    in [0, 1] or the reason it could not be read."""
+    in [0, 1] with its line segments (1, N, 2, 2) and mask (1, N), or the reason it could not be read."""
 
     index: int
     name: str
     image: Tensor | None
     error: str | None
     orientation: int | None = None
+    segments: Tensor | None = None
+    mask: Tensor | None = None
 
 
 class FolderImages(Dataset):
-    """The files of an :class:`ImageFolder` as :class:`FolderItem` records; an unreadable file gives an item with
-    its error instead of raising, so a run writes a row for every file."""
+    """The files of an :class:`ImageFolder` as :class:`FolderItem` records, each read and its lines detected as
+    :func:`ngp_kornia.calibrate` does for a file; an unreadable file gives an item with its error instead of raising,
+    so a run writes a row for every file.
 
-    def __init__(self, folder: ImageFolder) -> None:
+    Args:
+        folder: the files.
+        config: the line-detection settings (a :class:`ParserConfig`; the defaults when None).
+        stride: the step between the indices one process asks for in turn (its DDP world size): the file it will
+            ask for next is read on a second thread (:class:`~ngp_kornia.threads.Lookahead`) while the parser works
+            on the current one; None reads each file only when asked (loader worker processes read ahead anyway).
+    """
+
+    def __init__(self, folder: ImageFolder, config: ParserConfig | None = None, stride: int | None = 1) -> None:
         self.folder = folder
+        self.config = config or ParserConfig()
+        self.stride = stride
+        self._ahead = Lookahead(self._read)
 
     def __len__(self) -> int:
         return len(self.folder)
 
     def __getitem__(self, index: int) -> FolderItem:
+        if self.stride is None:
+            return self._read(index)
+        upcoming = index + self.stride
+        return self._ahead.get(index, upcoming if upcoming < len(self) else None)
+
+    def _read(self, index: int) -> FolderItem:
         path = self.folder.paths[index]
         name = path.relative_to(self.folder.root).as_posix()
         try:
             rgb, orientation = read_rgb_oriented(path)
+            segments, mask = detect_segments(rgb, self.config)
         except Exception as err:  # whatever goes wrong with one file is that file's error row
             return FolderItem(index, name, None, _reason(err, path))
         image = torch.from_numpy(rgb).permute(2, 0, 1).float().div(255.0)
-        return FolderItem(index, name, image, None, orientation)
+        return FolderItem(index, name, image, None, orientation, segments, mask)
+
+    def close(self) -> None:
+        """Stop reading ahead."""
+        self._ahead.close()
 
 
 def _reason(err: BaseException, path) -> str:
@@ -124,9 +149,12 @@ class FolderPredictor(L.LightningModule):
         self.parser = parser
         self.root = None if root is None else Path(root)
 
-    def calibrate(self, image: Tensor, name: str | None = None) -> Calibration:
+    def calibrate(
+        self, image: Tensor, name: str | None = None, segments: Tensor | None = None, mask: Tensor | None = None
+    ) -> Calibration:
         """Calibrate one (3, H, W) image as :func:`ngp_kornia.calibrate` does for a file (``name``, relative to
-        ``root``, is where an EXIF focal length is read from)."""
+        ``root``, is where an EXIF focal length is read from; ``segments`` (1, N, 2, 2) and ``mask`` (1, N): its
+        lines when already detected)."""
         parser, cfg = self.parser, self.parser.config
         if cfg.exif and cfg.focal is None and cfg.fov_v is None and name is not None and self.root is not None:
             focal = exif_focal(self.root / name, image.shape[-2], image.shape[-1])
@@ -134,7 +162,9 @@ class FolderPredictor(L.LightningModule):
                 parser = NeuralGeometricParser(replace(cfg, focal=focal), parser.zsnet, parser.fsnet)
         # the parser detects lines on the image rounded to 8 bits, which are the exact pixels the file decoded to
         # (the float image is uint8 / 255): the same lines, hence the same answer, as calibrate() on the file
-        return parser(image[None].to(self.device))[0]
+        if segments is not None:
+            segments, mask = segments.to(self.device), mask.to(self.device)
+        return parser(image[None].to(self.device), segments, mask)[0]
 
     def predict_step(self, batch: list[FolderItem], batch_idx: int) -> list[tuple[int, dict]]:
         rows = []
@@ -143,7 +173,7 @@ class FolderPredictor(L.LightningModule):
                 rows.append((item.index, {"image": item.name, "error": item.error}))
                 continue
             try:
-                result = self.calibrate(item.image, item.name)
+                result = self.calibrate(item.image, item.name, item.segments, item.mask)
                 if item.orientation is not None:
                     result = with_orientation(result, item.orientation)
                 rows.append((item.index, {"image": item.name, **result.to_dict()}))
@@ -378,13 +408,13 @@ def predict_folder(
     _check_out(Path(out), images)
     devices = min(cap_devices(devices), len(images))  # Lightning's predict sampler refuses a process without an image
     module = FolderPredictor(load_parser(weights, replace(config or ParserConfig(), seed=seed)), images.root)
-    loader = DataLoader(FolderImages(images), batch_size=batch_size, num_workers=num_workers, collate_fn=collate_items)
+    files = FolderImages(images, module.parser.config, devices if num_workers == 0 else None)  # reads ahead
+    loader = DataLoader(files, batch_size=batch_size, num_workers=num_workers, collate_fn=collate_items)
     writer = JsonlWriter(out, devices)
-    trainer = _trainer(devices, writer, progress_bar)
-    # fork from one thread (OpenCV's worker pool does not survive a fork: a child would wait for threads that are
-    # not there); each process runs LSD's strips on its share of the cores
-    with pipeline_threads(1), line_workers(max(1, usable_cores() // devices)):
-        _run(trainer, module, loader, writer)
+    try:
+        _run(_trainer(devices, writer, progress_bar), module, loader, writer)
+    finally:
+        files.close()
     if writer.multi and not writer.interrupted:  # the forked processes wrote and merged; this one only waited
         writer.images, writer.errors = count_rows(writer.out)
     return {"images": writer.images, "errors": writer.errors, "interrupted": writer.interrupted}
@@ -392,7 +422,10 @@ def predict_folder(
 
 def _run(trainer: L.Trainer, module: FolderPredictor, loader: DataLoader, writer: JsonlWriter) -> None:
     """``trainer.predict`` with Lightning's noise filtered, and Ctrl+C ending the run with the finished rows kept."""
-    with warnings.catch_warnings():
+    # fork from one thread (OpenCV's worker pool does not survive a fork: a child would wait for threads that are
+    # not there); each process runs LSD's strips on its share of the cores less the one its parser runs on
+    strip_threads = max(1, usable_cores() // trainer.num_devices - 1)
+    with pipeline_threads(1), line_workers(strip_threads), warnings.catch_warnings():
         # the parser, not the loader, is the bottleneck; and the pytree notice is between Lightning and torch
         warnings.filterwarnings("ignore", message=".*does not have many workers.*")
         warnings.filterwarnings("ignore", message=".*LeafSpec.*is deprecated.*", category=FutureWarning)

@@ -24,13 +24,15 @@ from __future__ import annotations
 
 import os
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Hashable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import contextmanager
+from typing import Any
 
 import cv2
 import torch
 
-__all__ = ["ENV_VAR", "pipeline_threads", "resolve_num_threads", "usable_cores"]
+__all__ = ["ENV_VAR", "Lookahead", "pipeline_threads", "resolve_num_threads", "usable_cores"]
 
 #: environment variable with the default thread count of the pipeline (a positive integer, or 0: do not change)
 ENV_VAR = "NGP_NUM_THREADS"
@@ -121,3 +123,55 @@ def usable_cores() -> int:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:  # macOS, Windows
         return os.cpu_count() or 1
+
+
+class Lookahead:
+    """Computes ``fn(key)`` for the key a caller will ask for next on one background thread, while the caller works
+    on the current one: reading an image and detecting its lines (C code that releases the GIL) then overlaps the
+    parser's work on the previous image.
+
+    :meth:`get` returns ``fn(key)`` in the caller's thread, exceptions included (raised there, for that key only),
+    whether it was computed ahead or not, so the results are those of ``fn`` called in order. Use it as a context
+    manager: on the way out a computation not yet started is dropped and a running one finishes on its own. The
+    thread is per process (a forked child starts its own).
+
+    Example:
+        >>> with Lookahead(lambda k: k * k) as ahead:
+        ...     [ahead.get(k, k + 1) for k in range(4)]
+        [0, 1, 4, 9]
+    """
+
+    def __init__(self, fn: Callable[[Any], Any]) -> None:
+        self.fn = fn
+        self._pid: int | None = None
+        self._executor: ThreadPoolExecutor | None = None
+        self._pending: tuple[Hashable, Future] | None = None
+
+    def get(self, key: Hashable, upcoming: Hashable | None = None) -> Any:
+        """``fn(key)``; ``upcoming``, when given, is the key to compute next, in the background."""
+        if self._pid != os.getpid():  # a fork copied a parent's state: its thread is not here
+            self._pid, self._executor, self._pending = os.getpid(), None, None
+        pending, self._pending = self._pending, None
+        if pending is not None and pending[0] != key:
+            pending[1].cancel()
+            pending = None
+        if upcoming is not None:
+            if self._executor is None:
+                self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="ngp-ahead")
+            self._pending = (upcoming, self._executor.submit(self.fn, upcoming))
+        return self.fn(key) if pending is None else pending[1].result()
+
+    def close(self) -> None:
+        """Drop the computation not yet started and let the thread end."""
+        if self._pending is not None:
+            self._pending[1].cancel()
+            self._pending = None
+        if self._executor is not None and self._pid == os.getpid():
+            self._executor.shutdown(wait=False, cancel_futures=True)
+        self._executor = None
+
+    def __enter__(self) -> Lookahead:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

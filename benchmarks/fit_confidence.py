@@ -154,8 +154,8 @@ def collect(samples: list[Sample], spec: str | None, seed: int, prior: str) -> l
 
     def recording(result, frames, scores, segments, mask, *args, **kwargs):
         with torch.no_grad():
-            refinement = kwargs.get("refinement")
-            captured.append(trust_features(result, frames, scores, segments, mask, *args[:2], refinement=refinement))
+            extra = {k: kwargs.get(k) for k in ("refinement", "residual_vps")}
+            captured.append(trust_features(result, frames, scores, segments, mask, *args[:2], **extra))
         return attach(result, frames, scores, segments, mask, *args, **kwargs)
 
     parser_module.attach_trust = recording

@@ -171,6 +171,7 @@ def trust_features(
     kernel_angle: float = 89.0,
     shared: SharedInputs | None = None,
     refinement: Refinement | None = None,
+    residual_vps: Tensor | None = None,
 ) -> TrustFeatures:
     """The features of :class:`TrustFeatures` for a batch.
 
@@ -185,6 +186,7 @@ def trust_features(
         shared: the same call's lines, lengths and top-k weights, when already computed; None computes them.
         refinement: the horizon search run on the frame search's answer
             (:func:`~ngp_kornia.models.refine.search_horizon`, as the parser runs it); None runs it on ``result``.
+        residual_vps: (B, 3, 3) pixel VPs (rows) for ``line_residual``; None: the answer's (see the parser).
 
     Returns:
         :class:`TrustFeatures`, every field (B,), finite.
@@ -197,30 +199,22 @@ def trust_features(
     best_vps = frames.vps.gather(1, best[:, None, None, None].expand(-1, 1, 3, 3))[:, 0]
     shares, manhattan = _line_support(best_vps, segments, mask, height, width, kernel_angle, shared)
     found = search_horizon(result, segments, mask) if refinement is None else refinement
-    evidence = [_support_rival(found, result.horizon, height, width), _line_residual(result.vps, segments, mask)]
+    residual = _line_residual(result.vps if residual_vps is None else residual_vps, segments, mask)
+    evidence = [_support_rival(found, result.horizon, height, width), residual]
     # every feature but the counts is cleaned at once: finite, and 0 for an image without a valid frame
     raw = [best_score, manhattan, *disagreement[:2], *disagreement[2].unbind(1), shares[:, 1]]
     raw += [torch.minimum(shares[:, 0], shares[:, 2]), *(t.to(best_score) for t in evidence)]
     cleaned = torch.nan_to_num(torch.stack(raw, 1).to(result.focal), nan=0.0, posinf=0.0, neginf=0.0)
     cleaned = torch.where(valid.any(-1, keepdim=True), cleaned, 0.0)
-    score, manhattan, ambiguity, horizon_spread, pitch, roll, fov, vertical, horizontal, rival, residual = (
-        cleaned.unbind(1)
-    )
-    return TrustFeatures(
-        score=score,
-        manhattan=manhattan,
-        ambiguity=ambiguity,
-        horizon_spread=horizon_spread,
-        pitch_spread=pitch,
-        roll_spread=roll,
-        fov_spread=fov,
-        lines=mask.sum(-1).to(result.focal),
-        vertical_share=vertical,
-        horizontal_share=horizontal,
-        valid_share=valid.to(result.focal).mean(-1),
-        support_rival=rival,
-        line_residual=residual,
-    )
+    counts = {"lines": mask.sum(-1).to(result.focal), "valid_share": valid.to(result.focal).mean(-1)}
+    return TrustFeatures(**dict(zip(_CLEANED, cleaned.unbind(1), strict=True)), **counts)
+
+
+#: the features of :func:`trust_features` in the order they are cleaned together
+_CLEANED = (
+    "score", "manhattan", "ambiguity", "horizon_spread", "pitch_spread", "roll_spread", "fov_spread",
+    "vertical_share", "horizontal_share", "support_rival", "line_residual",
+)  # fmt: skip
 
 
 def _line_residual(vps: Tensor, segments: Tensor, mask: Tensor) -> Tensor:
@@ -465,6 +459,7 @@ def attach_trust(
     principal_point_std: float = 0.0,
     shared: SharedInputs | None = None,
     refinement: Refinement | None = None,
+    residual_vps: Tensor | None = None,
 ) -> Calibration:
     """The answer with ``confidence``, ``pitch_std``, ``roll_std`` and ``fov_v_std`` filled in.
 
@@ -485,7 +480,8 @@ def attach_trust(
         principal_point_std: how uncertain the principal point is, a standard deviation per axis as a fraction of
             the image height (:attr:`ngp_kornia.models.ParserConfig.principal_point_std`); 0: at the centre.
         shared: the same call's lines, lengths and top-k weights (:class:`SharedInputs`), when already computed.
-        refinement: the horizon search of the same call, when already run (see :func:`trust_features`).
+        refinement, residual_vps: the horizon search of the same call, when already run, and the VPs of the line
+            residual (see :func:`trust_features`).
 
     Returns:
         a new :class:`Calibration`.
@@ -498,8 +494,8 @@ def attach_trust(
         if refinement is not None:
             refinement = Refinement(*(t.detach() for t in refinement))
         features = trust_features(
-            result, frames, scores.detach(), segments.detach(), mask, top_k, kernel_angle, shared, refinement
-        )
+            result, frames, scores, segments, mask, top_k, kernel_angle, shared, refinement, residual_vps
+        )  # under no_grad: nothing it computes holds a gradient
         conf = model.confidence(features)
         height = int(result.image_size[0, 0].item())
         floor = principal_point_terms(principal_point_std, result.focal.detach(), height, result.pitch.detach())
@@ -508,7 +504,5 @@ def attach_trust(
     conf = torch.where(valid, conf, 0.0)
     pitch_std = torch.where(valid, stds["pitch"], 90.0)
     roll_std = torch.where(valid, stds["roll"], 90.0)
-    fov_std = torch.where(valid, stds["fov_v"], 180.0)
-    if known_focal:
-        fov_std = torch.zeros_like(fov_std)
+    fov_std = torch.zeros_like(stds["fov_v"]) if known_focal else torch.where(valid, stds["fov_v"], 180.0)
     return replace(result, confidence=conf, pitch_std=pitch_std, roll_std=roll_std, fov_v_std=fov_std)

@@ -40,6 +40,7 @@ from ngp_kornia.geometry import (
 )
 from ngp_kornia.models.confidence import SharedInputs, attach_trust
 from ngp_kornia.models.fsnet import frame_scores
+from ngp_kornia.models.polish import POLISH_SCALES, polish_frame
 from ngp_kornia.models.refine import FOCAL_SCALES, choose_horizon, search_horizon
 from ngp_kornia.models.result import Calibration
 from ngp_kornia.models.trace import ParserTrace
@@ -114,6 +115,9 @@ class ParserConfig:
             segments support best, searching horizontal VPs of every building block along it
             (:mod:`ngp_kornia.models.refine`); measured better on real photos, see BENCHMARKS.md. The search runs
             either way, because the confidence uses its line support; False keeps the frame search's horizon.
+        polish_frame: before that, refit the frame's rotation and focal length on the segments that point at its
+            three VPs (:mod:`ngp_kornia.models.polish`) where that raises their line support; with a known focal
+            length only the rotation.
         principal_point_std: how far the principal point may be from the image centre, a standard deviation per
             axis as a fraction of the image height. The parser always assumes the centre; this only widens
             ``pitch_std``, ``roll_std`` and ``fov_v_std`` by the error such an offset causes (answers and
@@ -148,6 +152,7 @@ class ParserConfig:
     fov_v: float | None = None
     exif: bool = False
     refine_horizon: bool = True
+    polish_frame: bool = False
     principal_point_std: float = 0.02
 
     def __post_init__(self) -> None:
@@ -252,8 +257,9 @@ def check_config(config: ParserConfig) -> None:
         raise ConfigError(f"ParserConfig.focal must be a positive number of pixels or None, got {config.focal!r}")
     if config.fov_v is not None and not 0 < _number(config.fov_v) < 180:
         raise ConfigError(f"ParserConfig.fov_v must be an angle in (0, 180) degrees or None, got {config.fov_v!r}")
-    if not isinstance(config.refine_horizon, bool):
-        raise ConfigError(f"ParserConfig.refine_horizon must be True or False, got {config.refine_horizon!r}")
+    for name in ("refine_horizon", "polish_frame"):
+        if not isinstance(getattr(config, name), bool):
+            raise ConfigError(f"ParserConfig.{name} must be True or False, got {getattr(config, name)!r}")
     if not isinstance(config.exif, bool):
         raise ConfigError(f"ParserConfig.exif must be True or False, got {config.exif!r}")
 
@@ -329,6 +335,9 @@ class NeuralGeometricParser(nn.Module):
             frames, scores = self.rescore_frames(images, segments, mask, frames, scores, stages, pseudo[1])
         result, top_k_weights = self._calibrate(frames, scores, height, width, stages)
         known_focal = cfg.focal is not None or cfg.fov_v is not None
+        search_vps = result.vps  # the frame search's VPs: the residual of their lines is a trust input
+        if cfg.polish_frame:
+            result = self._polished(result, segments, mask, known_focal, height, width)
         # the horizon search serves the refinement and the confidence (how well the lines support a rival horizon);
         # with a known focal length only the horizon moves, never the focal length
         found = search_horizon(result, segments, mask, focal_scales=() if known_focal else FOCAL_SCALES)
@@ -337,9 +346,22 @@ class NeuralGeometricParser(nn.Module):
         result = attach_trust(
             result, frames, scores, segments, mask, cfg.top_k, cfg.kernel_angle, known_focal,
             principal_point_std=cfg.principal_point_std, shared=SharedInputs(*pseudo[1:], top_k_weights),
-            refinement=found,
+            refinement=found, residual_vps=search_vps,
         )
         return (result, ParserTrace(**stages)) if return_trace else result
+
+    def _polished(
+        self, result: Calibration, segments: Tensor, mask: Tensor, known_focal: bool, height: int, width: int
+    ) -> Calibration:
+        """The frame refitted on its inlier segments (:func:`~ngp_kornia.models.polish.polish_frame`; with a known
+        focal length only the rotation), where that raises its line support."""
+        K, R, use = polish_frame(result.K, result.R, segments, mask, (1.0,) if known_focal else POLISH_SCALES)
+        use = use & result.valid
+        if not bool(use.any()):
+            return result
+        # the other images keep their K and R, from which _result rebuilds the same fields
+        K, R = torch.where(use[:, None, None], K, result.K), torch.where(use[:, None, None], R, result.R)
+        return self._result(K, R, result.score, result.valid, height, width)
 
     def score_frames(
         self,

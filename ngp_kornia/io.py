@@ -334,17 +334,21 @@ def _decode(data: np.ndarray) -> tuple[np.ndarray | None, str]:
             except cv2.error as err:
                 return None, str(err)
         with tempfile.TemporaryFile() as messages:
-            _flush_c_stdio()
-            os.dup2(messages.fileno(), 2)
             try:
+                _flush_c_stdio()
+                os.dup2(messages.fileno(), 2)
                 image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
             except cv2.error as err:  # OpenCV's own checks (its pixel limit, allocation failures)
                 image = None
                 os.write(2, str(err).encode())
             finally:
-                _flush_c_stdio()
-                os.dup2(saved, 2)
-                os.close(saved)
+                # Ctrl+C during the decode is raised at the next Python call, here: the stderr must come back
+                # whatever is raised, or every later message of the process would go to the deleted file
+                try:
+                    _flush_c_stdio()
+                finally:
+                    os.dup2(saved, 2)
+                    os.close(saved)
             messages.seek(0)
             text = messages.read().decode("utf-8", "replace")
     return image, "; ".join(_clean(line) for line in text.splitlines() if line.strip())

@@ -133,3 +133,30 @@ def test_decoder_messages_do_not_reach_the_terminal(tmp_path, capfd):
     with pytest.raises(NGPError, match="libpng error"):
         read_image(path)
     assert capfd.readouterr().err == ""
+
+
+@pytest.mark.parametrize("call", [1, 2])
+def test_ctrl_c_during_a_decode_gives_the_stderr_back(tmp_path, jpeg, monkeypatch, call):
+    """Ctrl+C is raised at the first Python call after the signal: before the decode or right after it, in the
+    step that restores the process's stderr. Either way the stderr must be the terminal's again."""
+    import os
+
+    import ngp_kornia.io as io
+
+    path = tmp_path / "photo.jpg"
+    path.write_bytes(jpeg)
+    calls = []
+    flush = io._flush_c_stdio
+
+    def interrupted():
+        calls.append(1)
+        if len(calls) == call:
+            raise KeyboardInterrupt
+        flush()
+
+    before = os.fstat(2)
+    monkeypatch.setattr(io, "_flush_c_stdio", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        read_image(path)
+    after = os.fstat(2)
+    assert (after.st_dev, after.st_ino) == (before.st_dev, before.st_ino)

@@ -132,8 +132,9 @@ class Lookahead:
 
     :meth:`get` returns ``fn(key)`` in the caller's thread, exceptions included (raised there, for that key only),
     whether it was computed ahead or not, so the results are those of ``fn`` called in order. Use it as a context
-    manager: on the way out a computation not yet started is dropped and a running one finishes on its own. The
-    thread is per process (a forked child starts its own).
+    manager: on the way out a computation not yet started is dropped and a running one is waited for (it reads one
+    file), so nothing of it runs on after the caller returns. The thread is per process (a forked child starts
+    its own).
 
     Example:
         >>> with Lookahead(lambda k: k * k) as ahead:
@@ -162,13 +163,14 @@ class Lookahead:
         return self.fn(key) if pending is None else pending[1].result()
 
     def close(self) -> None:
-        """Drop the computation not yet started and let the thread end."""
+        """Drop the computation not yet started, wait for a running one and end the thread. (A decode redirects
+        the process's stderr for its duration: a message printed after an interrupted run must not fall into it.)"""
         if self._pending is not None:
             self._pending[1].cancel()
             self._pending = None
-        if self._executor is not None and self._pid == os.getpid():
-            self._executor.shutdown(wait=False, cancel_futures=True)
-        self._executor = None
+        executor, self._executor = self._executor, None
+        if executor is not None and self._pid == os.getpid():
+            executor.shutdown(wait=True, cancel_futures=True)
 
     def __enter__(self) -> Lookahead:
         return self

@@ -44,7 +44,7 @@ def test_the_error_of_one_key_is_raised_when_that_key_is_asked_for():
         assert ahead.get(3) == 3
 
 
-def test_the_work_runs_on_another_thread_and_the_thread_ends_after_close():
+def test_the_work_runs_on_another_thread_which_has_ended_after_close():
     names = {}
 
     def where(k):
@@ -56,10 +56,23 @@ def test_the_work_runs_on_another_thread_and_the_thread_ends_after_close():
     ahead.get(1)
     ahead.close()
     assert names[0] == threading.current_thread().name and names[1].startswith("ngp-ahead")
-    for thread in threading.enumerate():
-        if thread.name.startswith("ngp-ahead"):
-            thread.join(timeout=5)
     assert not any(t.name.startswith("ngp-ahead") for t in threading.enumerate())
+
+
+def test_close_waits_for_a_running_computation():
+    import time
+
+    done = []
+
+    def slow(k):
+        time.sleep(0.1 if k == 0 else 0.5)
+        done.append(k)
+        return k
+
+    ahead = Lookahead(slow)
+    assert ahead.get(0, 1) == 0 and done == [0]  # 1 is still running in the background
+    ahead.close()
+    assert done == [0, 1]  # waited for: nothing runs on after close
 
 
 def test_a_bad_file_in_a_list_is_reported_by_name_after_the_good_ones_were_read(tmp_path):

@@ -124,3 +124,18 @@ def test_cli_working_size_reaches_the_line_detector(capsys, tmp_path):
     with pytest.raises(SystemExit) as exit_info:
         main(["calibrate", str(image), "--working-size", "0"])
     assert exit_info.value.code == 2 and "working_size" in capsys.readouterr().err
+
+
+def test_cli_polish_frame_gives_the_polished_answer(capsys, tmp_path):
+    rgb = render_scene(3, size=(640, 480)).image  # a scene where the polish moves the frame
+    image = tmp_path / "scene.png"
+    cv2.imwrite(str(image), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+    assert main(["calibrate", str(image), "--polish-frame"]) == 0
+    polished = _rows(capsys)[0]
+    assert main(["calibrate", str(image)]) == 0
+    plain = _rows(capsys)[0]
+    expected = calibrate(str(image), config=ParserConfig(polish_frame=True))
+    assert polished["pitch"] == pytest.approx(float(expected.pitch), abs=1e-5) and polished["pitch"] != plain["pitch"]
+    out = tmp_path / "rows.jsonl"
+    assert main(["predict", str(tmp_path), "--out", str(out), "--polish-frame"]) == 0
+    assert json.loads(out.read_text().splitlines()[0])["pitch"] == pytest.approx(polished["pitch"], abs=1e-5)

@@ -55,16 +55,16 @@ def test_calibrate_with_polish_keeps_a_known_focal_length_and_a_consistent_camer
                           torch.zeros(3), atol=1e-4)
 
 
-def test_polish_on_renders_is_at_least_as_close_to_the_true_horizon_on_average():
+def test_polish_brings_renders_closer_to_the_true_horizon():
     errors = {False: 0.0, True: 0.0}
-    for seed in (3, 11, 20, 31):
+    for seed in range(14):  # ordinary renders (no gross failure, where a tiny change can flip the answer)
         scene = render_scene(seed, (640, 480))
         up = -torch.as_tensor(scene.R, dtype=torch.float32)[:, 1]
         truth = (torch.linalg.inv(torch.as_tensor(scene.K, dtype=torch.float32)).T @ up)[None]
         for polish in (False, True):
             found = calibrate(scene.image, config=ParserConfig(polish_frame=polish)).horizon[None]
             errors[polish] += float(horizon_error(found, truth, 480, 640))
-    assert errors[True] <= errors[False] + 1e-3
+    assert errors[True] < 0.8 * errors[False]  # measured: 0.059 against 0.100 of the image height in all
 
 
 def test_polish_frame_must_be_a_bool():

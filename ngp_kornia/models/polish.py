@@ -22,7 +22,14 @@ import torch
 from torch import Tensor
 
 from ngp_kornia.geometry import canonical_manhattan_rotation
-from ngp_kornia.models.refine import _cam, _camera_segments, _kernel, _lengths, _normalize, _sin2
+from ngp_kornia.models.refine import (
+    _camera_segments,
+    _kernel,
+    _lengths,
+    _scaled_cam,
+    _scaled_focal,
+    _sin2,
+)
 
 __all__ = ["POLISH_SCALES", "polish_frame"]
 
@@ -88,11 +95,7 @@ def polish_frame(
     scale = torch.tensor(scales, dtype=K.dtype, device=K.device)
     inv = (1.0 / scale)[:, None, None, None]
     stretch = torch.cat([1.0 / inv, 1.0 / inv, torch.ones_like(inv)], -1)
-    cam_s = _cam(
-        (cam.mid * inv).flatten(0, 1),
-        (cam.direction * inv).flatten(0, 1),
-        _normalize((cam.normals * stretch).flatten(0, 1)),
-    )  # (S * B) rows, scale-major
+    cam_s = _scaled_cam(cam, inv, stretch)  # (S * B) rows, scale-major
     lengths_s, mask_s = lengths.repeat(S, 1), mask.repeat(S, 1)
     R_s = _gauss_newton(cam_s, lengths_s, mask_s, R.repeat(S, 1, 1), inlier_deg, iterations)
     total = lengths.sum(-1).clamp_min(1e-12)
@@ -107,8 +110,6 @@ def polish_frame(
     best_support = support.gather(1, best[:, None])[:, 0]
     use = best_support > frame
     R_best = R_s.view(S, B, 3, 3)[best, torch.arange(B)]
-    K_best = K.clone()
-    K_best[:, 0, 0] = K[:, 0, 0] * scale[best]
-    K_best[:, 1, 1] = K[:, 1, 1] * scale[best]
+    K_best = _scaled_focal(K, scale[best])
     R_out = torch.where(use[:, None, None], canonical_manhattan_rotation(R_best), R)
     return torch.where(use[:, None, None], K_best, K), R_out, use

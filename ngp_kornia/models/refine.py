@@ -576,11 +576,8 @@ def _pitch_offsets(n: int, step: float, like: Tensor) -> Tensor:
 def _coarse_search(K, cam, lengths, mask, grid: _Grid, scales: list[float], search: _Search) -> _Coarse:
     """Support of every hypothesis at every focal scale, in one pass (each scale its own batch rows)."""
     S, B, Hn = len(scales), len(K), grid.ups.shape[1]
-    # K^-1 with f times x maps the centred points to p / x: midpoints and directions scale by 1 / x, and the plane
-    # normal (n_x, n_y, n_z) becomes (x n_x, x n_y, n_z) up to its length
     scale, inv, stretch = _scale_constants(scales, K)
-    mid, direction = (cam.mid * inv).flatten(0, 1), (cam.direction * inv).flatten(0, 1)
-    cam_s = _cam(mid, direction, _normalize((cam.normals * stretch).flatten(0, 1)))
+    cam_s = _scaled_cam(cam, inv, stretch)
     sup, d, v = _support(
         grid.ups.repeat(S, 1, 1),
         cam_s,
@@ -597,6 +594,14 @@ def _coarse_search(K, cam, lengths, mask, grid: _Grid, scales: list[float], sear
     peaks = v.view(S, B, Hn, -1).transpose(0, 1).reshape(B, S * Hn, -1)
     best = support.argmax(-1)
     return _Coarse(support, dirs, cam if S == 1 else cam_s, best, _scaled_focal(K, scale[best // Hn]), peaks)
+
+
+def _scaled_cam(cam: _Cam, inv: Tensor, stretch: Tensor) -> _Cam:
+    """The segments seen with the focal length times each of S scales (:func:`_scale_constants`), (S * B) rows,
+    scale-major. ``K^-1`` with ``f`` times ``x`` maps the centred points to ``p / x``: midpoints and directions scale
+    by ``1 / x``, and the plane normal ``(n_x, n_y, n_z)`` becomes ``(x n_x, x n_y, n_z)`` up to its length."""
+    mid, direction = (cam.mid * inv).flatten(0, 1), (cam.direction * inv).flatten(0, 1)
+    return _cam(mid, direction, _normalize((cam.normals * stretch).flatten(0, 1)))
 
 
 def _scale_constants(scales: list[float], like: Tensor) -> tuple[Tensor, Tensor, Tensor]:

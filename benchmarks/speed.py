@@ -19,7 +19,10 @@ reads the file itself.
 
 Printed (and written as JSON with ``--out``): per method the mean and median ms per image and the ratio of the
 means to lu-vp-detect's in the same condition; per weight set the stages of the call (reading and decoding the file,
-line detection, the rest), and the whole call over the line detection alone.
+line detection, the rest), and the whole call over the line detection alone. A further row, "LSD alone", times
+the line detector by itself as a single-threaded call would run it (the whole working image, one strip, on the
+decoded greyscale image; decoding not timed), interleaved with the others: the floor a calibration call on one
+core cannot go below. The whole call of each weight set over it is printed below the table.
 
 The thread count is left as the environment sets it (run it without ``OMP_NUM_THREADS`` to see what users get);
 the load average before and after each condition is printed, since other jobs on the machine slow every figure.
@@ -40,13 +43,17 @@ from dataclasses import replace
 from datetime import UTC, datetime
 from pathlib import Path
 
+import cv2
 import torch
 
 import ngp_kornia.api as api
 from ngp_kornia import calibrate
+from ngp_kornia.detect import detect_segments_gray
 from ngp_kornia.evaluation import load_manifest, load_yud
 from ngp_kornia.evaluation import lu_vp_detect_method as make_lu
 from ngp_kornia.evaluation.methods import weights_and_config
+from ngp_kornia.io import read_rgb_oriented
+from ngp_kornia.models import ParserConfig
 
 _BUSY = "import time\nend = time.time() + {seconds}\nwhile time.time() < end:\n    pass\n"
 
@@ -87,7 +94,26 @@ def stop_busy(procs: list[subprocess.Popen]) -> None:
         proc.wait()
 
 
-def run_condition(samples, weights: list[str], lu, passes: int) -> dict[str, dict[str, list[float]]]:
+FLOOR = "LSD alone"
+
+
+def lsd_alone():
+    """The line detector by itself on the whole working image in one strip (decoding done before the timer)."""
+    grays: dict[Path, object] = {}
+    config = ParserConfig(line_strips=1)
+
+    def call(sample):
+        if sample.image_path not in grays:
+            rgb = read_rgb_oriented(sample.image_path)[0]
+            grays[sample.image_path] = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
+        start = time.perf_counter()
+        detect_segments_gray(grays[sample.image_path], config)
+        return {"whole call": time.perf_counter() - start}
+
+    return call
+
+
+def run_condition(samples, weights: list[str], lu, passes: int, floor: bool = True) -> dict[str, dict]:
     """Per method, per stage, the seconds of every call (methods interleaved image by image)."""
     read, lsd = _Timer(), _Timer()
     original = api.read_rgb_oriented, api.detect_segments
@@ -114,6 +140,7 @@ def run_condition(samples, weights: list[str], lu, passes: int) -> dict[str, dic
         return {"whole call": time.perf_counter() - start}
 
     methods = [(w, ngp(w)) for w in weights] + ([("lu-vp-detect", peer)] if lu is not None else [])
+    methods += [(FLOOR, lsd_alone())] if floor else []
     try:
         for _, fn in methods:  # warm-up: first calls load weights and build detectors
             fn(samples[0])
@@ -150,6 +177,8 @@ def summarize(times: dict[str, dict[str, list[float]]]) -> dict[str, dict]:
         }
         if "line detection" in stages:
             row["whole_over_line_detection"] = statistics.fmean(whole) / statistics.fmean(stages["line detection"])
+        if "line detection" in stages and FLOOR in times:
+            row["whole_over_lsd_alone"] = statistics.fmean(whole) / statistics.fmean(times[FLOOR]["whole call"])
         out[name] = row
     return out
 
@@ -172,6 +201,11 @@ def table(results: dict[int, dict]) -> str:
                 + " | ".join(cells)
                 + f" | {over} | {load} |"
             )
+    for busy, res in results.items():
+        over = [f"{name} {row['whole_over_lsd_alone']:.2f}x" for name, row in res["methods"].items()
+                if "whole_over_lsd_alone" in row]
+        if over:
+            lines.append(f"\n{busy} busy: whole call over {FLOOR} (whole image, one strip): " + ", ".join(over))
     return "\n".join(lines)
 
 
@@ -186,6 +220,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--busy-seconds", type=float, default=600.0, help="upper bound of a busy process's life")
     p.add_argument("--passes", type=int, default=1, help="passes over the images per condition")
     p.add_argument("--no-lu", action="store_true", help="skip lu-vp-detect (no ratios then)")
+    p.add_argument("--no-floor", action="store_true", help=f"skip the {FLOOR!r} row")
     p.add_argument("--out", type=Path, default=None, help="write the figures as JSON here")
     args = p.parse_args(argv)
     if (args.yud is None) == (args.manifest is None):
@@ -212,7 +247,7 @@ def main(argv: list[str] | None = None) -> int:
         try:
             time.sleep(0.5 if busy else 0.0)  # let them start
             load_before = os.getloadavg()[0]
-            times = run_condition(samples, weights, lu, args.passes)
+            times = run_condition(samples, weights, lu, args.passes, floor=not args.no_floor)
             load_after = os.getloadavg()[0]
         finally:
             stop_busy(procs)

@@ -127,13 +127,18 @@ def _line(mid: Tensor, direction: Tensor) -> Tensor:
 def _camera_segments(segments: Tensor, K: Tensor) -> _Cam:
     """Segments in normalised camera coordinates ``K^-1 p`` (:class:`_Cam`). ``K^-1`` is a similarity for square
     pixels, so image angles are kept."""
+    return _cam(*_camera_points(segments, K))
+
+
+def _camera_points(segments: Tensor, K: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """The midpoints, directions and unit plane normals of :func:`_camera_segments`."""
     ones = segments.new_ones(*segments.shape[:-1], 1)
     pts = torch.cat([segments, ones], -1)  # (B, N, 2, 3)
     cam = torch.bmm(pts.flatten(1, 2), torch.linalg.inv(K).transpose(-1, -2)).view_as(pts)
     cam = cam / cam[..., 2:]  # (x, y, 1): z / z is exactly 1
     xy = cam[..., :2]
     mid, direction = xy.mean(-2), xy[..., 1, :] - xy[..., 0, :]
-    return _cam(mid, direction, _normalize(torch.linalg.cross(cam[..., 0, :], cam[..., 1, :])))
+    return mid, direction, _normalize(torch.linalg.cross(cam[..., 0, :], cam[..., 1, :]))
 
 
 def _ratio(cam: _Cam, vps: Tensor, inplace: bool = False) -> tuple[Tensor, Tensor]:
@@ -489,11 +494,11 @@ def search_horizon(
     """The search of :func:`refine_horizon` (same arguments) without the choice: the best hypothesis and what is
     known about it and about the frame's own horizon."""
     seg = segments.to(cal.K.dtype)
-    cam, lengths = _camera_segments(seg, cal.K), _lengths(seg, mask)
-    grid = _pitch_grid(cal.up, cam, lengths, mask, pitch_range, pitch_step, zenith_tol, frame_roll)
     scales = [1.0] + [float(x) for x in focal_scales if float(x) != 1.0]  # the frame's focal length first
+    (cam, cam_s), lengths = _search_cams(seg, cal.K, scales), _lengths(seg, mask)
+    grid = _pitch_grid(cal.up, cam, lengths, mask, pitch_range, pitch_step, zenith_tol, frame_roll)
     search = _Search(num_peaks, kernel_deg, tie_zenith)
-    coarse = _coarse_search(cal.K, cam, lengths, mask, grid, scales, search)
+    coarse = _coarse_search(cal.K, cam, lengths, mask, grid, scales, search, cam_s)
     up, horizontal, support, peaks = _fine_search(cam, lengths, mask, grid, coarse, pitch_step, fine_step, search)
     total = lengths.sum(-1, keepdim=True).clamp_min(torch.finfo(lengths.dtype).tiny ** 0.5)
     scale_values = _scale_constants(scales, cal.K)[0]
@@ -573,11 +578,12 @@ def _pitch_offsets(n: int, step: float, like: Tensor) -> Tensor:
     return _CONSTANTS[key][0]
 
 
-def _coarse_search(K, cam, lengths, mask, grid: _Grid, scales: list[float], search: _Search) -> _Coarse:
-    """Support of every hypothesis at every focal scale, in one pass (each scale its own batch rows)."""
+def _coarse_search(K, cam, lengths, mask, grid: _Grid, scales: list[float], search: _Search, cam_s=None) -> _Coarse:
+    """Support of every hypothesis at every focal scale, in one pass (each scale its own batch rows); ``cam_s``: the
+    segments at every scale (:func:`_search_cams`), built here when omitted."""
     S, B, Hn = len(scales), len(K), grid.ups.shape[1]
     scale, inv, stretch = _scale_constants(scales, K)
-    cam_s = _scaled_cam(cam, inv, stretch)
+    cam_s = _scaled_cam(cam, inv, stretch) if cam_s is None else cam_s
     sup, d, v = _support(
         grid.ups.repeat(S, 1, 1),
         cam_s,
@@ -600,8 +606,24 @@ def _scaled_cam(cam: _Cam, inv: Tensor, stretch: Tensor) -> _Cam:
     """The segments seen with the focal length times each of S scales (:func:`_scale_constants`), (S * B) rows,
     scale-major. ``K^-1`` with ``f`` times ``x`` maps the centred points to ``p / x``: midpoints and directions scale
     by ``1 / x``, and the plane normal ``(n_x, n_y, n_z)`` becomes ``(x n_x, x n_y, n_z)`` up to its length."""
-    mid, direction = (cam.mid * inv).flatten(0, 1), (cam.direction * inv).flatten(0, 1)
-    return _cam(mid, direction, _normalize((cam.normals * stretch).flatten(0, 1)))
+    return _scaled(cam.mid, cam.direction, cam.normals, inv, stretch)
+
+
+def _scaled(mid: Tensor, direction: Tensor, normals: Tensor, inv: Tensor, stretch: Tensor) -> _Cam:
+    mid_s, direction_s = (mid * inv).flatten(0, 1), (direction * inv).flatten(0, 1)
+    return _cam(mid_s, direction_s, _normalize((normals * stretch).flatten(0, 1)))
+
+
+def _search_cams(segments: Tensor, K: Tensor, scales: list[float]) -> tuple[_Cam, _Cam]:
+    """The segments in camera coordinates (:func:`_camera_segments`) and at every focal scale (:func:`_scaled_cam`),
+    the first scale 1. Its rows' line and midpoint terms are the unscaled segments' (times 1 is exact), so those are
+    built once; its normals are normalised again, so the unscaled ones are kept apart."""
+    mid, direction, normals = _camera_points(segments, K)
+    _, inv, stretch = _scale_constants(scales, K)
+    scaled = _scaled(mid, direction, normals, inv, stretch)
+    B = len(K)
+    cam = _Cam(mid, direction, normals, scaled.line_t[:B], scaled.mid_terms[:B], normals.transpose(-1, -2).contiguous())
+    return cam, scaled
 
 
 def _scale_constants(scales: list[float], like: Tensor) -> tuple[Tensor, Tensor, Tensor]:

@@ -36,6 +36,7 @@ horizon is kept, the calibration is returned unchanged.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import replace
 from typing import NamedTuple
@@ -169,14 +170,16 @@ def _sin2(cam: _Cam, vps: Tensor) -> Tensor:
     return sin2.reshape(*vps.shape[:-1], -1)
 
 
-def _kernel(cam: _Cam, vps: Tensor, kernel_deg: float, mask: Tensor, keep: Tensor | None = None) -> Tensor:
+def _kernel(cam: _Cam, vps: Tensor, kernel_deg: float, mask: Tensor | None, keep: Tensor | None = None) -> Tensor:
     """Closeness ``max(0, 1 - sin^2 theta / (4 sin^2 sigma))`` of every segment to the nearest of a group of VPs
     (``theta`` as in :func:`_sin2`, ``sigma`` = ``kernel_deg``): 1 on the VP, 3/4 at ``sigma``, 0 beyond
     ``2 sigma`` (a cheap stand-in for a Gaussian of width ``sigma``).
 
     Args:
         cam: the segments (:class:`_Cam`); vps: (B, H, P, 3), P VPs per group; mask: (B, N) bool, the segments
-            that count; keep: (B, H, P) bool, the VPs that count (all when omitted).
+            that count (None: all, for a caller that weighs them by lengths 0 where masked; the closeness is finite
+            and at least +0, so it then gives the same products); keep: (B, H, P) bool, the VPs that count (all
+            when omitted).
 
     Returns:
         (B, H, N): the largest closeness over each group's kept VPs (0 where none is kept or masked).
@@ -201,8 +204,10 @@ def _kernel(cam: _Cam, vps: Tensor, kernel_deg: float, mask: Tensor, keep: Tenso
     if c > 1.0:  # below, a clamped 1 and anything above 1 both give 0
         sin2 = sin2.clamp_max(1.0)
     if grad:
-        return (1.0 - sin2 / c).clamp_min(0.0) * mask[:, None]
-    return sin2.div_(c).neg_().add_(1.0).clamp_min_(0.0).mul_(mask[:, None])  # 1 - x as -x + 1: the same value
+        out = (1.0 - sin2 / c).clamp_min(0.0)
+        return out if mask is None else out * mask[:, None]
+    out = sin2.div_(c).neg_().add_(1.0).clamp_min_(0.0)  # 1 - x as -x + 1: the same value
+    return out if mask is None else out.mul_(mask[:, None])
 
 
 def refine_up(
@@ -291,11 +296,12 @@ def horizon_support(
         coordinates (unit, orthogonal to the hypothesis' up) and their histogram weights (B, H, P), strongest first
         (0 for an empty peak).
     """
+    lengths = _lengths(segments, mask)
     return _support(
         ups,
         _camera_segments(segments, K),
-        _lengths(segments, mask),
-        mask,
+        lengths,
+        _total(lengths),
         num_peaks,
         kernel_deg,
         bins,
@@ -306,43 +312,88 @@ def horizon_support(
 
 def _support(
     ups: Tensor,
-    cam: tuple[Tensor, Tensor, Tensor],
+    cam: _Cam,
     lengths: Tensor,
-    mask: Tensor,
+    total: Tensor,
     num_peaks: int,
     kernel_deg: float,
     bins: int,
     separation_deg: float,
     zenith_ups: Tensor | None,
 ) -> tuple[Tensor, Tensor, Tensor]:
-    """:func:`horizon_support` on segments already in camera coordinates (:func:`_camera_segments`)."""
+    """:func:`horizon_support` on segments already in camera coordinates (:func:`_camera_segments`), their lengths
+    (B, N) 0 where masked (so the closeness needs no mask) and ``total`` (B, 1) their sum (:func:`_total`)."""
     B, H, _ = ups.shape
-    kz = _kernel(cam, (ups if zenith_ups is None else zenith_ups)[:, :, None], kernel_deg, mask)  # (B, H, N)
+    kz = _kernel(cam, (ups if zenith_ups is None else zenith_ups)[:, :, None], kernel_deg, None)  # (B, H, N)
     e1, e2 = _horizontal_basis(ups)
-    # each segment's line meets the horizon in the horizontal direction n x u; with (e1, e2, u) right-handed its
-    # coordinates are (n . e2, -n . e1), and |n x u|^2 = 1 - (n . u)^2
-    nt = cam.normals_t
-    with torch.no_grad():  # integer bins and a bool: no gradient, so in place (-x + 1 is 1 - x)
-        psi = torch.atan2(torch.bmm(e1, nt).neg_(), torch.bmm(e2, nt)).remainder_(math.pi)  # (B, H, N)
-        index = psi.div_(math.pi).mul_(bins).long().clamp_(0, bins - 1)
-        meets = torch.bmm(ups, nt).square_().neg_().add_(1.0) > 1e-12
+    index, meets = _directions(ups, e1, e2, cam.normals_t, bins)
     weight = lengths[:, None] * (1.0 - kz) * meets
     hist = torch.zeros(B, H, bins, dtype=ups.dtype, device=ups.device).scatter_add_(-1, index, weight)
-    # smooth (circular) and keep separated local maxima
-    wrap = _wrap(hist, 2)  # wrap[..., 2 + i - k] is hist rolled by k
-    near = wrap[..., 1 : bins + 1] + wrap[..., 3 : bins + 3]
-    hist = (3.0 * hist + 2.0 * near + wrap[..., :bins] + wrap[..., 4:]) / 9.0
+    hist = _smooth(hist)
+    # keep separated local maxima
     half = max(1, round(separation_deg / 180.0 * bins))
     local_max = F.max_pool1d(_wrap(hist, half).reshape(B * H, 1, -1), 2 * half + 1, stride=1).reshape(B, H, bins)
     peaks = torch.where(hist >= local_max, hist, 0.0)
     value, idx = peaks.topk(min(num_peaks, bins), dim=-1)
-    angle = (idx.to(ups) + 0.5) * (math.pi / bins)
-    dirs = torch.cos(angle)[..., None] * e1[:, :, None] + torch.sin(angle)[..., None] * e2[:, :, None]  # (B,H,P,3)
-    kh = _kernel(cam, dirs, kernel_deg, mask, value > 0)  # (B, H, N)
+    cos_sin = _bin_angles(bins, ups)[idx]  # (B, H, P, 2)
+    dirs = cos_sin[..., :1] * e1[:, :, None] + cos_sin[..., 1:] * e2[:, :, None]  # (B, H, P, 3)
+    kh = _kernel(cam, dirs, kernel_deg, None, value > 0)  # (B, H, N)
     explained = torch.maximum(kz, kh)
-    total = lengths.sum(-1, keepdim=True)
-    support = (explained * lengths[:, None]).sum(-1) / total.clamp_min(torch.finfo(total.dtype).tiny ** 0.5)
+    support = (explained * lengths[:, None]).sum(-1) / total
     return support, dirs, value
+
+
+def _total(lengths: Tensor) -> Tensor:
+    """The total segment length (B, 1), at least tiny^0.5 (the support's denominator)."""
+    return lengths.sum(-1, keepdim=True).clamp_min(torch.finfo(lengths.dtype).tiny ** 0.5)
+
+
+def _directions(ups: Tensor, e1: Tensor, e2: Tensor, nt: Tensor, bins: int) -> tuple[Tensor, Tensor]:
+    """The histogram bin (B, H, N) of every segment's horizontal direction on each horizon and whether its line
+    meets the horizon (B, H, N) bool."""
+    # each segment's line meets the horizon in the horizontal direction n x u; with (e1, e2, u) right-handed its
+    # coordinates are (n . e2, -n . e1), and |n x u|^2 = 1 - (n . u)^2
+    with torch.no_grad():  # integer bins and a bool: no gradient, so in place
+        psi = torch.atan2(torch.bmm(e1, nt).neg_(), torch.bmm(e2, nt)).remainder_(math.pi)  # (B, H, N)
+        index = psi.div_(math.pi).mul_(bins).long().clamp_(0, bins - 1)
+        meets = torch.bmm(ups, nt).square_() < _meets_bound(ups.dtype)  # 1 - (n . u)^2 > 1e-12
+    return index, meets
+
+
+@functools.cache
+def _meets_bound(dtype: torch.dtype) -> float:
+    """The least ``x`` of ``dtype`` with ``1 - x > 1e-12`` false, so that ``x < bound`` is that test in one pass:
+    ``1 - x`` falls with ``x`` (rounding keeps the order), so the test holds exactly below the bound."""
+
+    def meets(x: Tensor) -> bool:
+        return bool(x.neg().add(1.0) > 1e-12)
+
+    up, down = torch.tensor([2.0], dtype=dtype), torch.tensor([0.0], dtype=dtype)
+    bound = torch.tensor([1.0 - 1e-12], dtype=dtype)
+    while meets(bound):
+        bound = torch.nextafter(bound, up)
+    while not meets(below := torch.nextafter(bound, down)):
+        bound = below
+    return bound.item()
+
+
+def _smooth(hist: Tensor) -> Tensor:
+    """The histograms (B, H, bins) smoothed circularly by (1, 2, 3, 2, 1) / 9, in place (``hist`` is consumed)."""
+    bins = hist.shape[-1]
+    wrap = _wrap(hist, 2)  # wrap[..., 2 + i - k] is hist rolled by k
+    near = wrap[..., 1 : bins + 1] + wrap[..., 3 : bins + 3]
+    # 3 h + 2 near as one add with alpha 2: doubling is exact, so a fused multiply-add rounds the same
+    return torch.add(hist.mul_(3.0), near, alpha=2.0).add_(wrap[..., :bins]).add_(wrap[..., 4:]).div_(9.0)
+
+
+def _bin_angles(bins: int, like: Tensor) -> Tensor:
+    """The cosine and sine (bins, 2) of every bin's centre angle ``(i + 1/2) pi / bins``, built once per dtype and
+    device (the values the same arithmetic gives element by element)."""
+    key = ("bins", bins, like.dtype, like.device)
+    if key not in _CONSTANTS:
+        angle = (torch.arange(bins, device=like.device).to(like) + 0.5) * (math.pi / bins)
+        _CONSTANTS[key] = (torch.stack([torch.cos(angle), torch.sin(angle)], -1),)
+    return _CONSTANTS[key][0]
 
 
 def _wrap(x: Tensor, k: int) -> Tensor:
@@ -584,11 +635,12 @@ def _coarse_search(K, cam, lengths, mask, grid: _Grid, scales: list[float], sear
     S, B, Hn = len(scales), len(K), grid.ups.shape[1]
     scale, inv, stretch = _scale_constants(scales, K)
     cam_s = _scaled_cam(cam, inv, stretch) if cam_s is None else cam_s
+    lengths_s = lengths.repeat(S, 1)
     sup, d, v = _support(
         grid.ups.repeat(S, 1, 1),
         cam_s,
-        lengths.repeat(S, 1),
-        mask.repeat(S, 1),
+        lengths_s,
+        _total(lengths_s),
         search.num_peaks,
         search.kernel_deg,
         360,
@@ -658,7 +710,7 @@ def _fine_search(cam, lengths, mask, grid: _Grid, coarse: _Coarse, pitch_step, f
             up_from_pitch_roll(fine_p, fine_r),
             cam_best,
             lengths,
-            mask,
+            _total(lengths),
             search.num_peaks,
             search.kernel_deg,
             360,

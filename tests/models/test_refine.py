@@ -309,3 +309,24 @@ def test_support_rival_is_high_only_where_the_lines_support_a_different_horizon(
     mixed = _support_rival(search_horizon(truth, *both), truth.horizon, H, W)
     # the verticals support every nearby horizon alike, so even a clean scene's rival keeps most of the support
     assert 0.0 <= float(alone) < 0.9 and 0.95 < float(mixed) <= 1.0
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_the_support_constants_give_the_values_of_the_arithmetic_they_replace(dtype):
+    from ngp_kornia.models.refine import _bin_angles, _meets_bound
+
+    bins = 360
+    table = _bin_angles(bins, torch.zeros((), dtype=dtype))
+    # every bin's angle as the support computed it, in tensors of every length up to 48 (each value at many
+    # places of the vector and the scalar loops)
+    angle = (torch.arange(bins).to(dtype) + 0.5) * (math.pi / bins)
+    for n in range(1, 49):
+        parts = angle.split(n)
+        assert torch.equal(torch.cat([torch.cos(p.clone()) for p in parts]), table[:, 0])
+        assert torch.equal(torch.cat([torch.sin(p.clone()) for p in parts]), table[:, 1])
+    bound = torch.tensor([_meets_bound(dtype)], dtype=dtype)
+    near = [bound]
+    for _ in range(64):
+        near = [torch.nextafter(near[0], torch.zeros_like(bound)), *near, torch.nextafter(near[-1], 2 * bound)]
+    x = torch.cat([*near, torch.rand(10000, dtype=dtype), torch.tensor([0.0, 0.5, 1.0, 2.0, math.nan], dtype=dtype)])
+    assert torch.equal(x < bound, x.neg().add(1.0) > 1e-12)

@@ -106,7 +106,9 @@ class _Cam(NamedTuple):
     normals_t: Tensor
 
     def rows(self, index: Tensor) -> _Cam:
-        return _Cam(*(t[index] for t in self))
+        """The rows ``index`` of the terms a hypothesis is scored with; the midpoints, directions and normals, which
+        scoring does not read, are left out (None)."""
+        return _Cam(None, None, None, self.line_t[index], self.mid_terms[index], self.normals_t[index])
 
 
 def _cam(mid: Tensor, direction: Tensor, normals: Tensor) -> _Cam:
@@ -562,10 +564,9 @@ def search_horizon(
     grid = _pitch_grid(cal.up, cam, lengths, mask, pitch_range, pitch_step, zenith_tol, frame_roll)
     search = _Search(num_peaks, kernel_deg, tie_zenith)
     coarse = _coarse_search(cal.K, cam, lengths, mask, grid, scales, search, cam_s)
-    up, horizontal, support, peaks = _fine_search(cam, lengths, mask, grid, coarse, pitch_step, fine_step, search)
-    total = lengths.sum(-1, keepdim=True).clamp_min(torch.finfo(lengths.dtype).tiny ** 0.5)
+    total = _total(lengths)
+    up, horizontal, support, peaks = _fine_search(cam, lengths, total, grid, coarse, pitch_step, fine_step, search)
     scale_values = _scale_constants(scales, cal.K)[0]
-    scale = scale_values[coarse.best // grid.ups.shape[1]]
     return Refinement(
         up,
         horizontal,
@@ -575,7 +576,7 @@ def search_horizon(
         peaks / total,
         coarse.peaks[:, 0] / total,
         grid.up_refined,
-        scale,
+        coarse.scale,
         coarse.support,
         _hypothesis_horizons(cal.K, grid.ups, scale_values),
     )
@@ -612,6 +613,7 @@ class _Coarse(NamedTuple):
     best: Tensor  # (B,) index into the S * H hypotheses
     K: Tensor  # (B, 3, 3) K with the best hypothesis' focal scale
     peaks: Tensor  # (B, S * H, P) histogram weights of the horizontal VPs
+    scale: Tensor  # (B,) the best hypothesis' focal scale
 
 
 def _pitch_grid(up_frame, cam, lengths, mask, pitch_range, pitch_step, zenith_tol, frame_roll) -> _Grid:
@@ -663,7 +665,8 @@ def _coarse_search(K, cam, lengths, mask, grid: _Grid, scales: list[float], sear
     dirs = d.view(S, B, Hn, -1, 3).transpose(0, 1).reshape(B, S * Hn, -1, 3)
     peaks = v.view(S, B, Hn, -1).transpose(0, 1).reshape(B, S * Hn, -1)
     best = support.argmax(-1)
-    return _Coarse(support, dirs, cam if S == 1 else cam_s, best, _scaled_focal(K, scale[best // Hn]), peaks)
+    best_scale = scale[best // Hn]
+    return _Coarse(support, dirs, cam if S == 1 else cam_s, best, _scaled_focal(K, best_scale), peaks, best_scale)
 
 
 def _scaled_cam(cam: _Cam, inv: Tensor, stretch: Tensor) -> _Cam:
@@ -700,41 +703,34 @@ def _scale_constants(scales: list[float], like: Tensor) -> tuple[Tensor, Tensor,
     return _CONSTANTS[key]
 
 
-def _fine_search(cam, lengths, mask, grid: _Grid, coarse: _Coarse, pitch_step, fine_step, search: _Search):
+def _fine_search(cam, lengths, total, grid: _Grid, coarse: _Coarse, pitch_step, fine_step, search: _Search):
     """Pitches ``fine_step`` apart around the best coarse hypothesis, at its roll and focal scale: the chosen up
     vectors (B, 3), their strongest horizontal VP directions (B, 3), their support (B,) and their horizontal VPs'
-    histogram weights (B, P)."""
+    histogram weights (B, P); ``total`` (B, 1) is :func:`_total` of the lengths."""
     B, Hn = len(coarse.best), grid.ups.shape[1]
     rows = torch.arange(B, device=coarse.best.device)
     hyp, best = coarse.best % Hn, coarse.best
     m = max(1, int(round(pitch_step / fine_step)))
     fine = _pitch_offsets(m - 1, fine_step, grid.ups)[1:]
-    pitch, roll = grid.pitches[rows, hyp][:, None], grid.rolls[rows, hyp][:, None]
-    fine_p = pitch + fine
-    fine_r = roll.expand_as(fine_p)
-    all_p, all_r = torch.cat([pitch, fine_p], 1), torch.cat([roll, fine_r], 1)
+    # the best coarse hypothesis first: its up vector is the grid's (the same arithmetic on the same angles)
+    cand_up = grid.ups[rows, hyp][:, None]
     cand_support, cand_dirs = coarse.support[rows, best][:, None], coarse.dirs[rows, best][:, None]
     cand_peaks = coarse.peaks[rows, best][:, None]
     if len(fine):
-        fine_zen = grid.zen[rows, hyp][:, None].expand(-1, len(fine), 3)
+        pitch, roll = grid.pitches[rows, hyp][:, None], grid.rolls[rows, hyp][:, None]
+        fine_p = pitch + fine
+        fine_up = up_from_pitch_roll(fine_p, roll.expand_as(fine_p))
+        fine_zen = None if search.tie_zenith else grid.zen[rows, hyp][:, None].expand(-1, len(fine), 3)
         cam_best = coarse.cam if len(coarse.cam[0]) == B else coarse.cam.rows((best // Hn) * B + rows)
         fine_support, fine_dirs, fine_peaks = _support(
-            up_from_pitch_roll(fine_p, fine_r),
-            cam_best,
-            lengths,
-            _total(lengths),
-            search.num_peaks,
-            search.kernel_deg,
-            360,
-            3.0,
-            None if search.tie_zenith else fine_zen,
+            fine_up, cam_best, lengths, total, search.num_peaks, search.kernel_deg, 360, 3.0, fine_zen
         )
+        cand_up = torch.cat([cand_up, fine_up], 1)
         cand_support = torch.cat([cand_support, fine_support], 1)
         cand_dirs = torch.cat([cand_dirs, fine_dirs], 1)
         cand_peaks = torch.cat([cand_peaks, fine_peaks], 1)
     pick = cand_support.argmax(-1)
-    up = up_from_pitch_roll(all_p[rows, pick], all_r[rows, pick])
-    return up, cand_dirs[rows, pick, 0], cand_support[rows, pick], cand_peaks[rows, pick]
+    return cand_up[rows, pick], cand_dirs[rows, pick, 0], cand_support[rows, pick], cand_peaks[rows, pick]
 
 
 def _with_up(cal: Calibration, use: Tensor, K: Tensor, up: Tensor, horizontal: Tensor) -> Calibration:

@@ -330,3 +330,13 @@ def test_the_support_constants_give_the_values_of_the_arithmetic_they_replace(dt
         near = [torch.nextafter(near[0], torch.zeros_like(bound)), *near, torch.nextafter(near[-1], 2 * bound)]
     x = torch.cat([*near, torch.rand(10000, dtype=dtype), torch.tensor([0.0, 0.5, 1.0, 2.0, math.nan], dtype=dtype)])
     assert torch.equal(x < bound, x.neg().add(1.0) > 1e-12)
+
+
+def test_up_vectors_do_not_depend_on_the_batch_they_are_computed_in():
+    # the fine search returns the up vector it computed among the hypotheses, not one computed alone
+    g = torch.Generator().manual_seed(3)
+    pitch, roll = torch.rand(2, 4096, generator=g) * 180.0 - 90.0
+    ups = up_from_pitch_roll(pitch, roll)
+    for n in (1, 6, 17, 35):
+        parts = [up_from_pitch_roll(p, r) for p, r in zip(pitch.split(n), roll.split(n), strict=True)]
+        assert torch.equal(torch.cat(parts), ups)

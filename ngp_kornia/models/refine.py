@@ -112,19 +112,18 @@ class _Cam(NamedTuple):
 
 
 def _cam(mid: Tensor, direction: Tensor, normals: Tensor) -> _Cam:
-    def t(x: Tensor) -> Tensor:
-        return x.transpose(-1, -2).contiguous()
-
-    terms = torch.cat([torch.ones_like(mid[..., :1]), mid, mid.square().sum(-1, keepdim=True)], -1)
-    return _Cam(mid, direction, normals, t(_line(mid, direction)), t(terms), t(normals))
+    # the (B, k, N) terms are stacked as such, not transposed after (the same values, one copy less)
+    square = mid.square().sum(-1)
+    terms = torch.stack([torch.ones_like(square), mid[..., 0], mid[..., 1], square], -2)
+    return _Cam(mid, direction, normals, _line(mid, direction), terms, normals.transpose(-1, -2).contiguous())
 
 
 def _line(mid: Tensor, direction: Tensor) -> Tensor:
-    """The line through each midpoint along its direction, ``(-s_y, s_x, s_y m_x - s_x m_y) / |s|`` (B, N, 3)."""
+    """The line through each midpoint along its direction, ``(-s_y, s_x, s_y m_x - s_x m_y) / |s|`` (B, 3, N)."""
     tiny = torch.finfo(mid.dtype).tiny ** 0.5
     sx, sy = direction[..., 0], direction[..., 1]
-    line = torch.stack([-sy, sx, sy * mid[..., 0] - sx * mid[..., 1]], -1)
-    return line / torch.linalg.vector_norm(direction, dim=-1, keepdim=True).clamp_min(tiny)
+    line = torch.stack([-sy, sx, sy * mid[..., 0] - sx * mid[..., 1]], -2)
+    return line / torch.linalg.vector_norm(direction, dim=-1).unsqueeze(-2).clamp_min(tiny)
 
 
 def _camera_segments(segments: Tensor, K: Tensor) -> _Cam:

@@ -151,7 +151,7 @@ def _ratio(cam: _Cam, vps: Tensor, inplace: bool = False) -> tuple[Tensor, Tenso
     num = torch.bmm(vps, cam.line_t)
     num = torch.square(num, out=num if inplace else None)
     vxy, vz = vps[..., :2], vps[..., 2:]
-    terms = torch.cat([vxy.square().sum(-1, keepdim=True), -2.0 * vz * vxy, vz.square()], -1)
+    terms = torch.cat([vxy.square().sum(-1, keepdim=True), _numbers(vz, -2.0)[0] * vz * vxy, vz.square()], -1)
     return num, torch.bmm(terms, cam.mid_terms)
 
 
@@ -194,7 +194,7 @@ def _kernel(cam: _Cam, vps: Tensor, kernel_deg: float, mask: Tensor | None, keep
     v = vps.reshape(B, H * P, 3)
     grad = torch.is_grad_enabled() and (v.requires_grad or cam.line_t.requires_grad or cam.mid_terms.requires_grad)
     num, den = _ratio(cam, v, not grad)
-    if bool(den.amin() > tiny):
+    if float(den.amin()) > tiny:  # tiny, a power of 2, is the same number in the tensor's dtype
         sin2 = torch.div(num, den, out=None if grad else num)
     else:
         sin2 = torch.where(den > tiny, num / den.clamp_min(tiny), 1.0)
@@ -207,7 +207,8 @@ def _kernel(cam: _Cam, vps: Tensor, kernel_deg: float, mask: Tensor | None, keep
     if grad:
         out = (1.0 - sin2 / c).clamp_min(0.0)
         return out if mask is None else out * mask[:, None]
-    out = sin2.div_(c).neg_().add_(1.0).clamp_min_(0.0)  # 1 - x as -x + 1: the same value
+    c_t, one = _numbers(sin2, c, 1.0)
+    out = sin2.div_(c_t).neg_().add_(one).clamp_min_(0.0)  # 1 - x as -x + 1: the same value
     return out if mask is None else out.mul_(mask[:, None])
 
 
@@ -276,8 +277,8 @@ def _near_zenith(cam: _Cam, up: Tensor, bound: float) -> Tensor:
         return _sin2(cam, up[:, None])[:, 0] <= bound
     with torch.no_grad():  # a bool: in place
         num, den = _ratio(cam, up[:, None], True)
-        tiny = torch.finfo(den.dtype).tiny ** 0.5
-        return (torch.div(num, den, out=num)[:, 0] <= bound) & (den[:, 0] > tiny)
+        bound_t, tiny = _numbers(den, bound, torch.finfo(den.dtype).tiny ** 0.5)
+        return (torch.div(num, den, out=num)[:, 0] <= bound_t) & (den[:, 0] > tiny)
 
 
 def horizon_support(
@@ -340,17 +341,18 @@ def _support(
     kz = _kernel(cam, (ups if zenith_ups is None else zenith_ups)[:, :, None], kernel_deg, None)  # (B, H, N)
     e1, e2 = _horizontal_basis(ups)
     index, meets = _directions(ups, e1, e2, cam.normals_t, bins)
-    weight = lengths[:, None] * (1.0 - kz) * meets
+    zero, one = _numbers(kz, 0.0, 1.0)
+    weight = lengths[:, None] * (one - kz) * meets
     hist = torch.zeros(B, H, bins, dtype=ups.dtype, device=ups.device).scatter_add_(-1, index, weight)
     hist = _smooth(hist)
     # keep separated local maxima
     half = max(1, round(separation_deg / 180.0 * bins))
     local_max = F.max_pool1d(_wrap(hist, half).reshape(B * H, 1, -1), 2 * half + 1, stride=1).reshape(B, H, bins)
-    peaks = torch.where(hist >= local_max, hist, 0.0)
+    peaks = torch.where(hist >= local_max, hist, zero)
     value, idx = peaks.topk(min(num_peaks, bins), dim=-1)
     cos_sin = _bin_angles(bins, ups)[idx]  # (B, H, P, 2)
     dirs = cos_sin[..., :1] * e1[:, :, None] + cos_sin[..., 1:] * e2[:, :, None]  # (B, H, P, 3)
-    kh = _kernel(cam, dirs, kernel_deg, None, value > 0)  # (B, H, N)
+    kh = _kernel(cam, dirs, kernel_deg, None, value > zero)  # (B, H, N)
     explained = torch.maximum(kz, kh)
     support = (explained * lengths[:, None]).sum(-1) / total
     return support, dirs, value
@@ -366,10 +368,11 @@ def _directions(ups: Tensor, e1: Tensor, e2: Tensor, nt: Tensor, bins: int) -> t
     meets the horizon (B, H, N) bool."""
     # each segment's line meets the horizon in the horizontal direction n x u; with (e1, e2, u) right-handed its
     # coordinates are (n . e2, -n . e1), and |n x u|^2 = 1 - (n . u)^2
+    pi, count, bound = _numbers(ups, math.pi, bins, _meets_bound(ups.dtype))
     with torch.no_grad():  # integer bins and a bool: no gradient, so in place
-        psi = torch.atan2(torch.bmm(e1, nt).neg_(), torch.bmm(e2, nt)).remainder_(math.pi)  # (B, H, N)
-        index = psi.div_(math.pi).mul_(bins).long().clamp_(0, bins - 1)
-        meets = torch.bmm(ups, nt).square_() < _meets_bound(ups.dtype)  # 1 - (n . u)^2 > 1e-12
+        psi = torch.atan2(torch.bmm(e1, nt).neg_(), torch.bmm(e2, nt)).remainder_(pi)  # (B, H, N)
+        index = psi.div_(pi).mul_(count).long().clamp_(0, bins - 1)
+        meets = torch.bmm(ups, nt).square_() < bound  # 1 - (n . u)^2 > 1e-12
     return index, meets
 
 
@@ -392,11 +395,11 @@ def _meets_bound(dtype: torch.dtype) -> float:
 
 def _smooth(hist: Tensor) -> Tensor:
     """The histograms (B, H, bins) smoothed circularly by (1, 2, 3, 2, 1) / 9, in place (``hist`` is consumed)."""
-    bins = hist.shape[-1]
+    bins, (three, nine) = hist.shape[-1], _numbers(hist, 3.0, 9.0)
     wrap = _wrap(hist, 2)  # wrap[..., 2 + i - k] is hist rolled by k
     near = wrap[..., 1 : bins + 1] + wrap[..., 3 : bins + 3]
     # 3 h + 2 near as one add with alpha 2: doubling is exact, so a fused multiply-add rounds the same
-    return torch.add(hist.mul_(3.0), near, alpha=2.0).add_(wrap[..., :bins]).add_(wrap[..., 4:]).div_(9.0)
+    return torch.add(hist.mul_(three), near, alpha=2.0).add_(wrap[..., :bins]).add_(wrap[..., 4:]).div_(nine)
 
 
 def _bin_angles(bins: int, like: Tensor) -> Tensor:
@@ -426,13 +429,23 @@ def _constants(key: tuple, like: Tensor, *rows: list) -> tuple[Tensor, ...]:
     return _CONSTANTS[key]
 
 
+def _numbers(like: Tensor, *values: float) -> tuple[Tensor, ...]:
+    """The numbers as 0-dim tensors of ``like``'s dtype and device, built once: an operation given a Python number
+    converts it to such a tensor (the same value) on every call, which costs more than the arithmetic on small
+    tensors."""
+    key = ("numbers", *values, like.dtype, like.device)
+    if key not in _CONSTANTS:
+        _CONSTANTS[key] = tuple(torch.tensor(v, dtype=like.dtype, device=like.device) for v in values)
+    return _CONSTANTS[key]
+
+
 def _horizontal_basis(ups: Tensor) -> tuple[Tensor, Tensor]:
     """A basis ``e1, e2`` (B, H, 3) of each horizontal plane, ``(e1, e2, u)`` right-handed: ``e1`` along
     ``u x z`` (``u x x`` where ``u`` is the optical axis)."""
     ref, alt = _constants(("axes",), ups, [[[0.0, 0.0, 1.0]]], [[[1.0, 0.0, 0.0]]])  # (1, 1, 3): broadcast
     e1 = torch.linalg.cross(ups, ref)
     norm = torch.linalg.vector_norm(e1, dim=-1, keepdim=True)
-    if not bool((norm > 1e-6).all()):
+    if not bool((norm > _numbers(norm, 1e-6)[0]).all()):
         e1 = torch.where(norm > 1e-6, e1, torch.linalg.cross(ups, alt))
         norm = torch.linalg.vector_norm(e1, dim=-1, keepdim=True)
     e1 = e1 / norm.clamp_min(torch.finfo(e1.dtype).tiny ** 0.5)  # _normalize

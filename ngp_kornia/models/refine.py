@@ -238,11 +238,11 @@ def refine_up(
 
 
 def _scaled_focal(K: Tensor, scale: Tensor) -> Tensor:
-    """``K`` (B, 3, 3) with its focal length times ``scale`` (B,), the principal point kept."""
-    out = K.clone()
-    out[:, 0, 0] = K[:, 0, 0] * scale
-    out[:, 1, 1] = K[:, 1, 1] * scale
-    return out
+    """``K`` (B, 3, 3) with its focal length times ``scale`` (B,, K's dtype), the principal point kept."""
+    key = ("focal entries", K.device)
+    if key not in _CONSTANTS:
+        _CONSTANTS[key] = (torch.tensor([[1, 0, 0], [0, 1, 0], [0, 0, 0]], dtype=torch.bool, device=K.device),)
+    return torch.where(_CONSTANTS[key][0], K * scale[:, None, None], K)
 
 
 def _lengths(segments: Tensor, mask: Tensor) -> Tensor:

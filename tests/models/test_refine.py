@@ -340,3 +340,26 @@ def test_up_vectors_do_not_depend_on_the_batch_they_are_computed_in():
     for n in (1, 6, 17, 35):
         parts = [up_from_pitch_roll(p, r) for p, r in zip(pitch.split(n), roll.split(n), strict=True)]
         assert torch.equal(torch.cat(parts), ups)
+
+
+def test_the_search_without_autograd_answers_and_caches_ordinary_tensors():
+    from ngp_kornia.models import refine
+
+    K, R = camera(6.0, -1.0)
+    seg, mask = atlanta_segments(K, R, clutter=15, seed=10)
+    saved = dict(refine._CONSTANTS)
+    refine._CONSTANTS.clear()  # built first inside the search's inference mode
+    try:
+        with torch.no_grad():
+            found = search_horizon(calibration(K, R), seg, mask)
+        assert not any(t.is_inference() for t in found)
+        assert not any(t.is_inference() for ts in refine._CONSTANTS.values() for t in ts)
+        found.up.add_(0.0)  # an ordinary tensor: in-place updates allowed
+        ups = up_from_pitch_roll(torch.tensor([[6.0, 4.0]]), torch.tensor([[-1.0, 0.5]])).requires_grad_()
+        support, dirs, _ = horizon_support(ups, seg.float().requires_grad_(), mask, K.float())
+        (support.sum() + dirs.sum()).backward()
+        assert ups.grad is not None and bool(torch.isfinite(ups.grad).all())
+        assert torch.equal(search_horizon(calibration(K, R), seg, mask).support, found.support)  # with autograd
+    finally:
+        refine._CONSTANTS.clear()
+        refine._CONSTANTS.update(saved)

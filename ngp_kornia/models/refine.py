@@ -194,7 +194,7 @@ def _kernel(cam: _Cam, vps: Tensor, kernel_deg: float, mask: Tensor | None, keep
     v = vps.reshape(B, H * P, 3)
     grad = torch.is_grad_enabled() and (v.requires_grad or cam.line_t.requires_grad or cam.mid_terms.requires_grad)
     num, den = _ratio(cam, v, not grad)
-    if float(den.amin()) > tiny:  # tiny, a power of 2, is the same number in the tensor's dtype
+    if den.amin().item() > tiny:  # tiny, a power of 2, is the same number in the tensor's dtype
         sin2 = torch.div(num, den, out=None if grad else num)
     else:
         sin2 = torch.where(den > tiny, num / den.clamp_min(tiny), 1.0)

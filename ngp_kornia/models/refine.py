@@ -2,7 +2,7 @@
 the horizon (one or two per building block, not only the frame's two) and move the horizon where the lines
 support it best.
 
-Method (all batched over B with the segment mask; no loop over images; about 4 ms of one CPU core per image with
+Method (all batched over B with the segment mask; no loop over images; about 3 ms of one CPU core per image with
 512 segments):
 
 1. **Zenith.** The up vector is refined by least squares on its inlier segments (those pointing at the zenith

@@ -95,6 +95,8 @@ def _multinomial(weights: Tensor, count: int, generator: Generators) -> Tensor:
     generators = list(generator)
     if len(generators) != len(weights):
         raise ValueError(f"got {len(generators)} generators for a batch of {len(weights)}; give one per image")
+    if len(generators) == 1:  # one image: its row is the whole tensor, no split needed
+        return torch.multinomial(weights, count, replacement=True, generator=generators[0])
     pairs = zip(weights.split(1), generators, strict=True)
     rows = [torch.multinomial(w, count, replacement=True, generator=g) for w, g in pairs]
     if len(rows) <= 1:  # a single image needs no concatenation

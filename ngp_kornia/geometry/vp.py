@@ -156,8 +156,11 @@ def segment_vp_angle(segments: Tensor, vps: Tensor) -> Tensor:
     KORNIA_CHECK_SHAPE(segments, ["B", "N", "2", "2"])
     KORNIA_CHECK_SHAPE(vps, ["*", "3"])
     v = normalize(vps).reshape(vps.shape[0], -1, 1, 3)  # (B, V, 1, 3)
-    mid = segments.mean(-2)[:, None]  # (B, 1, N, 2)
-    s = (segments[..., 1, :] - segments[..., 0, :])[:, None]
+    start, end = segments[..., 0, :], segments[..., 1, :]
+    # mean(-2) sums the two endpoints and halves them too (a zero's sign aside, which the absolute values drop), but
+    # reduces over a dim that is not the innermost one in a slow generic loop
+    mid = ((start + end) * 0.5)[:, None]  # (B, 1, N, 2)
+    s = (end - start)[:, None]
     d = v[..., :2] - mid * v[..., 2:]
     cross = (s[..., 0] * d[..., 1] - s[..., 1] * d[..., 0]).abs()
     dot = (s * d).sum(-1).abs()

@@ -223,7 +223,8 @@ def _line_residual(vps: Tensor, segments: Tensor, mask: Tensor) -> Tensor:
     The angles are taken as their sines (in radians): below :data:`RESIDUAL_INLIER` degrees the two differ by less
     than 0.02%, and squared sines need no square root, absolute value or arcsine per segment and VP."""
     seg = segments.to(vps)
-    mid, direction = seg.mean(-2), seg[..., 1, :] - seg[..., 0, :]
+    start, end = seg[..., 0, :], seg[..., 1, :]
+    mid, direction = (start + end) * 0.5, end - start  # mean(-2)'s values (up to a zero's sign, squared away), faster
     ray = vps[:, None, :, :2] - vps[:, None, :, 2:] * mid[:, :, None]  # (B, N, 3, 2), towards each VP
     cross = direction[..., None, 0] * ray[..., 1] - direction[..., None, 1] * ray[..., 0]
     length_sq = direction.square().sum(-1)
@@ -441,6 +442,11 @@ def _constants(values: tuple[tuple[float, ...], ...], dtype: torch.dtype, device
     return [torch.tensor(v).to(device=device, dtype=dtype) for v in values]
 
 
+def _detached(t: Tensor) -> Tensor:
+    """``t.detach()``, skipped (a few microseconds per tensor) for a tensor that holds no gradient."""
+    return t.detach() if t.requires_grad else t
+
+
 @lru_cache(maxsize=1)
 def _shipped() -> TrustModel:
     return TrustModel.load(TRUST_FILE)
@@ -488,11 +494,11 @@ def attach_trust(
     """
     model = model or _shipped()
     with torch.no_grad():
-        frames = FrameCandidates(**{k: v.detach() for k, v in frames.__dict__.items()})
+        frames = FrameCandidates(**{k: _detached(v) for k, v in frames.__dict__.items()})
         if shared is not None:
-            shared = SharedInputs(*(t.detach() for t in shared))
+            shared = SharedInputs(*(_detached(t) for t in shared))
         if refinement is not None:
-            refinement = Refinement(*(t.detach() for t in refinement))
+            refinement = Refinement(*(_detached(t) for t in refinement))
         features = trust_features(
             result, frames, scores, segments, mask, top_k, kernel_angle, shared, refinement, residual_vps
         )  # under no_grad: nothing it computes holds a gradient

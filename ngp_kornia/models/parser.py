@@ -28,6 +28,7 @@ from ngp_kornia.geometry import (
     horizon_from_zenith,
     image_center,
     intrinsics_matrix,
+    normalize,
     pseudo_focal,
     rotation_from_vps,
     segment_lengths,
@@ -445,7 +446,7 @@ class NeuralGeometricParser(nn.Module):
         valid = frames.valid.any(-1)
         focal, top_k_weights = topk_weighted_average(scores, frames.focal, cfg.top_k, frames.valid)
         # the zenith's average has the same weights: the top-k average of the structure tensors, without ranking again
-        zenith = dominant_eigenvector((top_k_weights[..., None, None] * structure_tensor(frames.zenith)).sum(1))
+        zenith = dominant_eigenvector(_weighted_zenith_tensor(frames.zenith, top_k_weights, cfg.top_k))
         best = scores.argmax(-1)
         if stages is not None:
             stages.update(final_frames=frames, final_scores=scores, top_k_weights=top_k_weights, best=best)
@@ -497,6 +498,30 @@ def _constant(values: tuple[tuple[float, ...], ...], dtype: torch.dtype, device:
     return tuple(torch.tensor(v).to(device=device, dtype=dtype) for v in values)
 
 
+def _weighted_zenith_tensor(zenith: Tensor, weights: Tensor, k: int) -> Tensor:
+    """``(weights[..., None, None] * structure_tensor(zenith)).sum(1)`` for (B, F) weights that are zero outside their
+    top ``k``: the tensors of those k frames only, laid among zeros so that the sum adds the same values in the same
+    order (the F tensors cost 0.25 ms on the parser's 1536 frames).
+
+    The rows are normalised as torch normalises ``zenith`` (B, F, 3) in its layout: where a row's entries are not
+    adjacent (the frames' zeniths are columns of their VP matrices) it sums the squares in order and takes a
+    correctly rounded root; where they are, fused multiply-adds, which :func:`normalize` of the gathered rows repeats.
+    """
+    B, F = weights.shape
+    if F <= k or (zenith.stride(-1) != 1 and zenith.dtype != torch.float32):  # the root below is float32's
+        return (weights[..., None, None] * structure_tensor(zenith)).sum(1)
+    index = weights.topk(k, dim=1).indices  # every frame with weight (and some without)
+    rows = zenith.gather(1, index[..., None].expand(B, k, 3))
+    if zenith.stride(-1) == 1:
+        unit = normalize(rows)
+    else:
+        sq = rows * rows
+        norm = (sq[..., 0] + sq[..., 1] + sq[..., 2]).double().sqrt_().float()
+        unit = rows / norm[..., None].clamp_min(torch.finfo(rows.dtype).eps)
+    tensors = weights.gather(1, index)[..., None, None] * (unit.unsqueeze(-1) * unit.unsqueeze(-2))
+    return tensors.new_zeros(B, F, 3, 3).scatter_(1, index[..., None, None].expand(B, k, 3, 3), tensors).sum(1)
+
+
 def pseudo_lines(segments: Tensor, mask: Tensor, height: int, width: int) -> tuple[Tensor, Tensor, Tensor]:
     """(B, N, 2, 2) pixel segments -> the pseudo camera's segments, their (B, N, 3) lines and (B, N) pixel lengths
     (zero where the mask is False)."""
@@ -519,12 +544,13 @@ def checked_segments(segments: Tensor, mask: Tensor | None, batch: int) -> tuple
         raise InputError(
             f"mask must be a bool tensor of shape {tuple(segments.shape[:2])}, got {mask.dtype} {tuple(mask.shape)}"
         )
-    finite = torch.isfinite(segments).flatten(2).all(-1)
-    bad = mask & ~finite
-    if bool(bad.any()):
-        b, n = (int(v) for v in bad.nonzero()[0])
-        raise InputError(
-            f"segment {n} of image {b} has NaN or infinite coordinates ({int(bad.sum())} such segments); "
-            "drop them or set their mask to False"
-        )
+    # a finite sum means every coordinate is finite, the usual case: no per-segment test then
+    if not bool(torch.isfinite(segments.sum())):
+        bad = mask & ~torch.isfinite(segments).flatten(2).all(-1)
+        if bool(bad.any()):
+            b, n = (int(v) for v in bad.nonzero()[0])
+            raise InputError(
+                f"segment {n} of image {b} has NaN or infinite coordinates ({int(bad.sum())} such segments); "
+                "drop them or set their mask to False"
+            )
     return torch.where(mask[..., None, None], segments, torch.zeros_like(segments)), mask

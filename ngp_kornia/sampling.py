@@ -392,8 +392,10 @@ def _focal_from_pair(pair: Tensor) -> tuple[Tensor, Tensor]:
     px, py, ww = (v[0] * v[1]).unbind(-1)
     num = -(px + py)  # the sum over x and y, up to the sign of a zero, which decides nothing below
     tiny = 1e-12 if pair.dtype == torch.float64 else 1e-9
-    valid = (ww.abs() > tiny) & (num * torch.sign(ww) > 0)
-    f2 = torch.where(valid, num / torch.where(valid, ww, 1.0), 1.0)
+    # num / ww has the sign of num * sign(ww) where |ww| > tiny (|ww| <= 1: no underflow to zero), and is the f^2
+    # of the valid pairs: one division serves the test and the value
+    f2 = num / ww
+    valid = (ww.abs() > tiny) & (f2 > 0)
     return torch.where(valid, f2.clamp_min(torch.finfo(f2.dtype).eps).sqrt(), 0.0), valid
 
 

@@ -146,10 +146,12 @@ def _steps(counts: list[int], like: Tensor) -> Tensor:
 @lru_cache(maxsize=16)
 def _cell_index(batch: int, height: int, width: int, cell: int, device: torch.device) -> Tensor:
     """(batch * height * width,) the index of the ``cell`` x ``cell`` cell (row-major, image after image) each pixel
-    of a batch of maps falls in."""
-    y, x = torch.arange(height, device=device) // cell, torch.arange(width, device=device) // cell
-    index = (y[:, None] * (width // cell) + x).flatten()
-    return (torch.arange(batch, device=device)[:, None] * ((height // cell) * (width // cell)) + index).flatten()
+    of a batch of maps falls in; an ordinary tensor even when first built in inference mode (cached, it may serve
+    callers with autograd later)."""
+    with torch.inference_mode(False):
+        y, x = torch.arange(height, device=device) // cell, torch.arange(width, device=device) // cell
+        index = (y[:, None] * (width // cell) + x).flatten()
+        return (torch.arange(batch, device=device)[:, None] * ((height // cell) * (width // cell)) + index).flatten()
 
 
 def _segment_pixels(segments: Tensor, mask: Tensor, height: int, width: int) -> tuple[Tensor, Tensor]:

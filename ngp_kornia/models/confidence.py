@@ -438,8 +438,10 @@ def principal_point_terms(
 
 @lru_cache(maxsize=32)
 def _constants(values: tuple[tuple[float, ...], ...], dtype: torch.dtype, device: torch.device) -> list[Tensor]:
-    """The model's coefficient vectors as tensors, built once per model, dtype and device (read only)."""
-    return [torch.tensor(v).to(device=device, dtype=dtype) for v in values]
+    """The model's coefficient vectors as tensors, built once per model, dtype and device (read only; ordinary
+    tensors even when first built in inference mode, so callers with autograd can use them too)."""
+    with torch.inference_mode(False):
+        return [torch.tensor(v).to(device=device, dtype=dtype) for v in values]
 
 
 def _detached(t: Tensor) -> Tensor:

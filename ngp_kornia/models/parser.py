@@ -494,8 +494,10 @@ class NeuralGeometricParser(nn.Module):
 
 @lru_cache(maxsize=32)
 def _constant(values: tuple[tuple[float, ...], ...], dtype: torch.dtype, device: torch.device) -> tuple[Tensor, ...]:
-    """Constant vectors built once per dtype and device (read only: every use makes a new tensor from them)."""
-    return tuple(torch.tensor(v).to(device=device, dtype=dtype) for v in values)
+    """Constant vectors built once per dtype and device (read only: every use makes a new tensor from them);
+    ordinary tensors even when first built in inference mode, so callers with autograd can use them too."""
+    with torch.inference_mode(False):
+        return tuple(torch.tensor(v).to(device=device, dtype=dtype) for v in values)
 
 
 def _weighted_zenith_tensor(zenith: Tensor, weights: Tensor, k: int) -> Tensor:

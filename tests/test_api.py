@@ -52,6 +52,47 @@ def test_result_fields_and_shapes(photo):
         assert key in d
 
 
+def test_result_tensors_are_ordinary_tensors(photo):
+    """The parser runs in inference mode; what comes back can still be edited in place and used with autograd."""
+    for cal in (calibrate(photo), calibrate(torch.rand(2, 3, 48, 64), weights="none"), calibrate([photo])[0]):
+        for name in ("K", "R", "focal", "horizon", "vps", "confidence", "pitch_std", "valid"):
+            assert not getattr(cal, name).is_inference(), name
+        cal.K[..., 0, 0] = 100.0  # the caller's copy to change
+        focal = cal.focal.clone().requires_grad_()
+        (focal * cal.fov_v).sum().backward()
+        assert torch.equal(focal.grad, cal.fov_v)
+
+
+def test_parser_with_autograd_after_calibrate(photo):
+    """calibrate() builds the parser's cached constants in inference mode; a differentiable call after it (as in
+    training, or a loss through the calibration) must still backpropagate to the image."""
+    calibrate(photo, weights="full")
+    rgb = cv2.cvtColor(cv2.imread(str(photo)), cv2.COLOR_BGR2RGB)
+    image = (torch.from_numpy(rgb).permute(2, 0, 1)[None].float() / 255).requires_grad_()
+    out = load_parser("full")(image)
+    (out.score + out.focal + out.confidence + out.pitch_std).sum().backward()
+    assert image.grad is not None and torch.isfinite(image.grad).all() and image.grad.abs().sum() > 0
+
+
+def test_cached_constants_first_built_in_inference_mode_are_ordinary_tensors():
+    """The parser's caches serve calibrate() (inference mode) and differentiable callers alike."""
+    from ngp_kornia.geometry import line_maps
+    from ngp_kornia.models import confidence, parser
+
+    built = [
+        (parser._constant, (((0.0, 1.0),), torch.float32, torch.device("cpu"))),
+        (confidence._constants, (((0.5, 1.5),), torch.float32, torch.device("cpu"))),
+        (line_maps._cell_index, (1, 8, 8, 4, torch.device("cpu"))),
+    ]
+    for cached, args in built:
+        cached.cache_clear()
+        with torch.inference_mode():
+            cached(*args)
+        value = cached(*args)  # from the cache
+        assert not any(t.is_inference() for t in (value if isinstance(value, (tuple, list)) else [value])), cached
+        cached.cache_clear()
+
+
 def test_batched_tensor_gives_batched_result():
     images = torch.rand(3, 3, 48, 64)
     cal = calibrate(images, weights="none")

@@ -102,6 +102,11 @@ class Calibration:
             out[f.name] = t.to(*args, **kwargs) if t.is_floating_point() else t.to(device=t.device)
         return Calibration(**out)
 
+    def clone(self) -> Calibration:
+        """A copy with every tensor cloned, like :meth:`torch.Tensor.clone`."""
+        values = {f.name: getattr(self, f.name) for f in fields(self)}
+        return Calibration(**{name: None if t is None else t.clone() for name, t in values.items()})
+
     def to_dict(self) -> dict | list[dict]:
         """Plain JSON-able values: a dict for one image, a list of dicts for a batch.
 

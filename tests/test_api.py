@@ -36,6 +36,17 @@ def test_path_array_and_tensor_inputs_agree(photo):
     assert torch.allclose(a.horizon, c.horizon)
 
 
+@pytest.mark.parametrize("weights", ["none", "zsnet"])
+def test_weights_without_fsnet_give_the_same_answer_from_a_file_as_from_its_pixels(photo, weights):
+    """Without FSNet a file's pixels are not converted for the parser (only its size counts): same answer as the
+    tensor of the same pixels, whose lines are detected from them."""
+    rgb = cv2.cvtColor(cv2.imread(str(photo)), cv2.COLOR_BGR2RGB)
+    tensor = torch.from_numpy(rgb).permute(2, 0, 1).float() / 255
+    a, b = calibrate(photo, weights=weights), calibrate(tensor, weights=weights)
+    for name in ("K", "R", "horizon", "vps", "score", "confidence", "pitch_std"):
+        assert torch.equal(getattr(a, name), getattr(b, name)), name
+
+
 def test_result_fields_and_shapes(photo):
     cal = calibrate(photo)
     assert cal.K.shape == (3, 3) and cal.R.shape == (3, 3) and cal.vps.shape == (3, 3)

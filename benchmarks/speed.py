@@ -201,11 +201,12 @@ def table(results: dict[int, dict]) -> str:
                 + " | ".join(cells)
                 + f" | {over} | {load} |"
             )
+    floors = []
     for busy, res in results.items():
         over = [f"{name} {row['whole_over_lsd_alone']:.2f}x" for name, row in res["methods"].items()
                 if "whole_over_lsd_alone" in row]
-        if over:
-            lines.append(f"\n{busy} busy: whole call over {FLOOR} (whole image, one strip): " + ", ".join(over))
+        floors += [f"{busy} busy: whole call over {FLOOR} (whole image, one strip): " + ", ".join(over)] if over else []
+    lines += [""] + floors if floors else []
     return "\n".join(lines)
 
 

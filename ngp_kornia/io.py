@@ -20,6 +20,7 @@ Files are read safely:
 from __future__ import annotations
 
 import ctypes
+import functools
 import os
 import re
 import struct
@@ -310,10 +311,19 @@ _JPEG_DAMAGE = ("Corrupt JPEG data", "Premature end of JPEG file", "Invalid JPEG
 
 
 def _flush_c_stdio() -> None:
+    flush = _c_fflush()
+    if flush is not None:
+        flush(None)
+
+
+@functools.cache
+def _c_fflush():
+    """The C library's ``fflush``, looked up once (loading the library builds a new ctypes class each time, about
+    0.25 ms); None where there is no C library to flush (not on POSIX): nothing was buffered by it then."""
     try:
-        ctypes.CDLL(None).fflush(None)
-    except (OSError, AttributeError):  # no C library to flush (not on POSIX): nothing was buffered by it
-        pass
+        return ctypes.CDLL(None).fflush
+    except (OSError, AttributeError):
+        return None
 
 
 def _decode(data: np.ndarray) -> tuple[np.ndarray | None, str]:

@@ -200,17 +200,17 @@ def _lsd_in_strips(image: np.ndarray, strips: int) -> np.ndarray:
 def _clip_rows(seg: np.ndarray, low: float, high: float) -> np.ndarray:
     """The parts of segments within rows ``low < y <= high`` (a segment lying on ``low`` belongs to the strip above),
     ends moved onto the band's edge exactly; in their order."""
-    y = seg[..., 1]
-    seg = seg[(y.max(-1) > low) & (y.min(-1) <= high)]
-    y = seg[..., 1]
-    cut = ((y <= low) | (y > high)).any(-1)  # most segments lie inside and stay as they are
+    # each segment's top and bottom row from its two ends (a reduction over the pair is several times slower)
+    top, bottom = np.minimum(seg[:, 0, 1], seg[:, 1, 1]), np.maximum(seg[:, 0, 1], seg[:, 1, 1])
+    near = (bottom > low) & (top <= high)
+    seg = seg[near]
+    cut = (top[near] <= low) | (bottom[near] > high)  # most segments lie inside and stay as they are
     if not cut.any():
         return seg
     part, kept = _clip_part(seg[cut].astype(np.float64), low, high)
-    seg = seg.copy()
-    seg[cut] = part
+    seg[cut] = part  # seg is already a copy (boolean indexing)
     keep = np.ones(len(seg), bool)
-    keep[np.nonzero(cut)[0][~kept]] = False
+    keep[cut] = kept
     return seg[keep]
 
 
@@ -221,10 +221,10 @@ def _clip_part(seg: np.ndarray, low: float, high: float) -> tuple[np.ndarray, np
     with np.errstate(divide="ignore", invalid="ignore"):
         t_low, t_high = (low - y[:, 0]) / dy, (high - y[:, 0]) / dy
     flat = dy == 0  # inside the band (kept above), so the whole segment
-    t_in = np.where(flat, 0.0, np.clip(np.minimum(t_low, t_high), 0.0, 1.0))
-    t_out = np.where(flat, 1.0, np.clip(np.maximum(t_low, t_high), 0.0, 1.0))
-    a, d = seg[:, 0], seg[:, 1] - seg[:, 0]
-    out = np.stack([a + t_in[:, None] * d, a + t_out[:, None] * d], 1)
+    t = np.stack([np.minimum(t_low, t_high), np.maximum(t_low, t_high)], 1).clip(0.0, 1.0)
+    t = np.where(flat[:, None], (0.0, 1.0), t)  # (N, 2): where each clipped end lies on the segment
+    t_in, t_out = t[:, 0], t[:, 1]
+    out = seg[:, :1] + t[..., None] * (seg[:, 1:] - seg[:, :1])
     moved = np.stack([t_in > 0, t_out < 1], 1)  # ends cut at an edge: put them on it exactly, for the join
     edge = np.where(np.abs(out[..., 1] - low) < np.abs(out[..., 1] - high), low, high)
     out[..., 1] = np.where(moved, edge, out[..., 1])
@@ -234,8 +234,8 @@ def _clip_part(seg: np.ndarray, low: float, high: float) -> tuple[np.ndarray, np
 def _join_at_cut(upper: np.ndarray, lower: np.ndarray, cut: int) -> np.ndarray:
     """Segments above and below a cut, each line's two pieces that meet on the cut joined into one."""
     on_up, on_low = upper[..., 1] == cut, lower[..., 1] == cut
-    ui = np.nonzero(on_up.sum(-1) == 1)[0]  # pieces with one end on the cut (not lying along it)
-    li = np.nonzero(on_low.sum(-1) == 1)[0]
+    ui = np.nonzero(on_up[:, 0] != on_up[:, 1])[0]  # pieces with one end on the cut (not lying along it)
+    li = np.nonzero(on_low[:, 0] != on_low[:, 1])[0]
     if len(ui) == 0 or len(li) == 0:
         return np.concatenate([upper, lower])
     # each piece as (point on the cut, far end)
@@ -245,16 +245,19 @@ def _join_at_cut(upper: np.ndarray, lower: np.ndarray, cut: int) -> np.ndarray:
     normal = np.stack([-du[:, 1], du[:, 0]], -1)
     gap = np.abs(normal @ low[:, 0].T - (normal * up[:, 0]).sum(-1, keepdims=True))
     match = (np.abs(du @ dl.T) >= math.cos(math.radians(_JOIN_ANGLE))) & (gap <= _JOIN_GAP)
-    pairs, used_up, used_low = [], set(), set()
-    # the closest pairs first, each piece in one pair at most
-    for i, j in sorted(zip(*np.nonzero(match), strict=True), key=lambda ij: gap[ij]):
-        if i not in used_up and j not in used_low:
-            used_up.add(i), used_low.add(j)
-            pairs.append(np.stack([up[i, 1], low[j, 1]]))
-    rest_up = np.delete(upper, ui[list(used_up)], 0)
-    rest_low = np.delete(lower, li[list(used_low)], 0)
-    joined = np.stack(pairs) if pairs else np.zeros((0, 2, 2), np.float32)
-    return np.concatenate([rest_up, rest_low, joined]).astype(np.float32)
+    # the closest pairs first (a stable sort: ties in row order), each piece in one pair at most
+    ii, jj = np.nonzero(match)
+    order = np.argsort(gap[ii, jj], kind="stable")
+    pairs, used_low = {}, set()
+    for i, j in zip(ii[order].tolist(), jj[order].tolist(), strict=True):
+        if i not in pairs and j not in used_low:
+            pairs[i] = j
+            used_low.add(j)
+    pick_up, pick_low = list(pairs), list(pairs.values())
+    rest_up, rest_low = np.ones(len(upper), bool), np.ones(len(lower), bool)
+    rest_up[ui[pick_up]], rest_low[li[pick_low]] = False, False
+    joined = np.stack([up[pick_up, 1], low[pick_low, 1]], 1)  # (pairs, 2, 2), empty when none
+    return np.concatenate([upper[rest_up], lower[rest_low], joined]).astype(np.float32)
 
 
 def _unit(v: np.ndarray) -> np.ndarray:

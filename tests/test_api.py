@@ -88,11 +88,10 @@ def test_parser_with_autograd_after_calibrate(photo):
 def test_cached_constants_first_built_in_inference_mode_are_ordinary_tensors():
     """The parser's caches serve calibrate() (inference mode) and differentiable callers alike."""
     from ngp_kornia.geometry import line_maps
-    from ngp_kornia.models import confidence, parser
+    from ngp_kornia.models.constants import constant_tensors
 
     built = [
-        (parser._constant, (((0.0, 1.0),), torch.float32, torch.device("cpu"))),
-        (confidence._constants, (((0.5, 1.5),), torch.float32, torch.device("cpu"))),
+        (constant_tensors, (((0.0, 1.0), (0.5, 1.5)), torch.float32, torch.device("cpu"))),
         (line_maps._cell_index, (1, 8, 8, 4, torch.device("cpu"))),
     ]
     for cached, args in built:

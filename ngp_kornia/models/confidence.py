@@ -39,6 +39,7 @@ from ngp_kornia.geometry import (
     to_pseudo_camera,
     topk_weighted_average,
 )
+from ngp_kornia.models.constants import constant_tensors
 from ngp_kornia.models.refine import Refinement, search_horizon
 from ngp_kornia.models.result import Calibration
 from ngp_kornia.sampling import FrameCandidates
@@ -114,7 +115,7 @@ def _border_heights(lines: Tensor, height: int, width: int) -> Tensor:
     sign = torch.where(lines[..., 1] < 0, -1.0, 1.0).to(lines) / ab
     a, b, c = (lines * sign[..., None]).unbind(-1)
     b = b.clamp_min(1e-6)
-    (xs,) = _constants(((-0.5, width - 0.5),), lines.dtype, lines.device)
+    (xs,) = constant_tensors(((-0.5, width - 0.5),), lines.dtype, lines.device)
     y = -(a[..., None] * xs + c[..., None]) / b[..., None]
     return (y / height).clamp(-100.0, 100.0)
 
@@ -370,7 +371,7 @@ class TrustModel:
     def confidence(self, features: TrustFeatures) -> Tensor:
         """(B,) probability that the horizon error is below :attr:`threshold`."""
         x = confidence_inputs(features)
-        mean, scale, weights = _constants((self.mean, self.scale, self.weights), x.dtype, x.device)
+        mean, scale, weights = constant_tensors((self.mean, self.scale, self.weights), x.dtype, x.device)
         return torch.sigmoid(((x - mean) / scale) @ weights + self.bias)
 
     def stds(
@@ -389,11 +390,12 @@ class TrustModel:
         # the three parameters side by side, (B, 3): the same arithmetic per element as one at a time
         spread = torch.stack([getattr(features, spread) for spread in STD_SPREADS.values()], -1)
         coefficients = tuple(zip(*(self.std[name] for name in STD_SPREADS), strict=True))
-        a, b, c = _constants(coefficients, spread.dtype, spread.device)
+        a, b, c = constant_tensors(coefficients, spread.dtype, spread.device)
         noise = self.residual_exponent * torch.log(features.line_residual + 0.05)
         out = torch.exp(a + b * torch.log(spread + 0.01) + c * logit[:, None] + noise[:, None])
         if floor is not None:
-            (gain,) = _constants((tuple(self.principal_point[name] for name in STD_SPREADS),), out.dtype, out.device)
+            gains = (tuple(self.principal_point[name] for name in STD_SPREADS),)
+            (gain,) = constant_tensors(gains, out.dtype, out.device)
             out = torch.hypot(out, gain * torch.stack([floor[name] for name in STD_SPREADS], -1))
         return dict(zip(STD_SPREADS, out.unbind(-1), strict=True))
 
@@ -434,14 +436,6 @@ def principal_point_terms(
         "roll": ray * tilt,
         "fov_v": torch.rad2deg(sigma * height / (f.square() + height**2 / 4.0)),
     }
-
-
-@lru_cache(maxsize=32)
-def _constants(values: tuple[tuple[float, ...], ...], dtype: torch.dtype, device: torch.device) -> list[Tensor]:
-    """The model's coefficient vectors as tensors, built once per model, dtype and device (read only; ordinary
-    tensors even when first built in inference mode, so callers with autograd can use them too)."""
-    with torch.inference_mode(False):
-        return [torch.tensor(v).to(device=device, dtype=dtype) for v in values]
 
 
 def _detached(t: Tensor) -> Tensor:

@@ -12,7 +12,6 @@ from __future__ import annotations
 import math
 import numbers
 from dataclasses import dataclass
-from functools import lru_cache
 
 import torch
 from torch import Tensor, nn
@@ -40,6 +39,7 @@ from ngp_kornia.geometry import (
     zenith_from_up,
 )
 from ngp_kornia.models.confidence import SharedInputs, attach_trust
+from ngp_kornia.models.constants import constant_tensors
 from ngp_kornia.models.fsnet import frame_scores
 from ngp_kornia.models.polish import POLISH_SCALES, polish_frame
 from ngp_kornia.models.refine import FOCAL_SCALES, choose_horizon, search_horizon
@@ -453,11 +453,11 @@ class NeuralGeometricParser(nn.Module):
         horizontal = frames.horizontal.gather(1, best[:, None, None].expand(-1, 1, 3))[:, 0]
         fallback = prior_focal(cfg, height, width) or 1.0 / math.tan(math.radians(cfg.fallback_fov) / 2.0)
         focal = torch.where(valid, focal, fallback)
-        level, ahead = _constant(((0.0, 1.0, 0.0), (1.0, 0.0, 0.0)), zenith.dtype, zenith.device)
+        level, ahead = constant_tensors(((0.0, 1.0, 0.0), (1.0, 0.0, 0.0)), zenith.dtype, zenith.device)
         zenith = torch.where(valid[:, None], zenith, level)
         horizontal = torch.where(valid[:, None], horizontal, ahead)
         # the pseudo camera has K = diag(f, f, 1); pixels need K_p = [[f_p, 0, c], [0, f_p, c], [0, 0, 1]]
-        K_unit = intrinsics_matrix(focal, _constant(((0.0, 0.0),), focal.dtype, focal.device)[0])
+        K_unit = intrinsics_matrix(focal, constant_tensors(((0.0, 0.0),), focal.dtype, focal.device)[0])
         R = canonical_manhattan_rotation(rotation_from_vps(K_unit, zenith, horizontal))
         f_px = focal * pseudo_focal(height, width)
         K = intrinsics_matrix(f_px, image_center(height, width, like=f_px))
@@ -490,14 +490,6 @@ class NeuralGeometricParser(nn.Module):
             image_size=size.expand(len(f), 2),
             exif_orientation=torch.ones(len(f), dtype=torch.long, device=K.device),  # tensors are taken as they are
         )
-
-
-@lru_cache(maxsize=32)
-def _constant(values: tuple[tuple[float, ...], ...], dtype: torch.dtype, device: torch.device) -> tuple[Tensor, ...]:
-    """Constant vectors built once per dtype and device (read only: every use makes a new tensor from them);
-    ordinary tensors even when first built in inference mode, so callers with autograd can use them too."""
-    with torch.inference_mode(False):
-        return tuple(torch.tensor(v).to(device=device, dtype=dtype) for v in values)
 
 
 def _weighted_zenith_tensor(zenith: Tensor, weights: Tensor, k: int) -> Tensor:

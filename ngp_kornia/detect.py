@@ -22,11 +22,7 @@ accurate on real photos (see BENCHMARKS.md).
 from __future__ import annotations
 
 import math
-import os
 import threading
-from collections.abc import Iterator
-from concurrent.futures import ThreadPoolExecutor
-from contextlib import contextmanager
 from itertools import pairwise
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -38,7 +34,7 @@ from kornia.core.check import KORNIA_CHECK_SHAPE
 from torch import Tensor
 
 from ngp_kornia.io import read_rgb
-from ngp_kornia.threads import usable_cores
+from ngp_kornia.threads import helper_threads, run_on_helpers, thread_budget
 
 if TYPE_CHECKING:  # the settings live beside the parser, which itself calls this module
     from ngp_kornia.models.parser import ParserConfig
@@ -122,34 +118,9 @@ _GRID = 5
 #: a line's pieces on both sides of a cut are joined when their directions differ by at most this (degrees) and
 #: the lower piece's point on the cut lies within _JOIN_GAP pixels of the upper piece's line
 _JOIN_ANGLE, _JOIN_GAP = 2.0, 1.5
-_workers: int | None = None
-_pools: dict[int, ThreadPoolExecutor] = {}
-
-
-@contextmanager
-def line_workers(count: int | None) -> Iterator[None]:
-    """Run LSD's strips on at most ``count`` threads inside the block (None: as many as the process's CPU cores).
-    ``ngp predict`` gives each of its processes its share of the cores this way; the segments do not change."""
-    global _workers
-    saved, _workers = _workers, count
-    try:
-        yield
-    finally:
-        _workers = saved
-
-
-def _thread_count(strips: int) -> int:
-    return max(1, min(strips, usable_cores() if _workers is None else _workers))
-
-
-def _pool() -> ThreadPoolExecutor:
-    # keyed by process: a pool's threads do not survive a fork, and a forked child must not wait for them. As many
-    # threads as the process may use besides a caller's own, started only when needed: calls from several threads
-    # of one process then run their strips side by side instead of queueing for one thread
-    pid = os.getpid()
-    if pid not in _pools:
-        _pools[pid] = ThreadPoolExecutor(max_workers=max(1, usable_cores() - 1), thread_name_prefix="ngp-lsd")
-    return _pools[pid]
+#: LSD's strips run on at most this many threads per call inside the block (None: the process's cores); the
+#: segments do not change. The same cap as :func:`ngp_kornia.threads.helper_threads`, under the name callers know.
+line_workers = helper_threads
 
 
 def _detect_each(views: list[np.ndarray]) -> list[np.ndarray]:
@@ -175,17 +146,17 @@ def _strip_cuts(height: int, strips: int) -> list[int]:
 
 def _lsd_in_strips(image: np.ndarray, strips: int) -> np.ndarray:
     """LSD on ``strips`` horizontal strips of the image (:data:`STRIP_OVERLAP` rows beyond each cut), run at once
-    on up to :func:`_thread_count` threads (OpenCV releases the GIL); every segment is clipped to its strip's rows
-    and a line's pieces on both sides of a cut joined again. (N, 2, 2)."""
+    on up to :func:`~ngp_kornia.threads.thread_budget` threads (OpenCV releases the GIL); every segment is clipped
+    to its strip's rows and a line's pieces on both sides of a cut joined again. (N, 2, 2)."""
     cuts = _strip_cuts(image.shape[0], strips)
     if not cuts:
         return _lsd_segments(image)
     starts = [0] + [c - STRIP_OVERLAP for c in cuts]
     views = [image[a : b + STRIP_OVERLAP] for a, b in zip(starts, [*cuts, image.shape[0]], strict=True)]
-    threads = _thread_count(len(views))
+    threads = thread_budget(len(views))
     parts: list = [None] * len(views)
     groups = [views[i::threads] for i in range(threads)]  # every thread-th strip: this thread takes the first group
-    pending = [_pool().submit(_detect_each, group) for group in groups[1:]]
+    pending = [run_on_helpers(_detect_each, group) for group in groups[1:]]
     for i, found in enumerate([_detect_each(groups[0])] + [p.result() for p in pending]):
         parts[i::threads] = found
     bands = pairwise([-math.inf, *cuts, math.inf])

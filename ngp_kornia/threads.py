@@ -5,8 +5,13 @@ gain nothing on an idle machine and spin against every other process on a busy o
 default call took 8-10x lu-vp-detect's time with two threads and 1.0-1.14x with one (BENCHMARKS.md). :func:`calibrate`,
 :class:`~ngp_kornia.models.NeuralGeometricParser` and ``ngp predict`` therefore run inside :func:`pipeline_threads`,
 which sets torch's (and OpenCV's) thread count for the duration of the call and restores the caller's afterwards,
-also when the call raises. Line detection runs LSD's strips on threads of its own, one per strip as far as the
-process has cores (:mod:`ngp_kornia.detect`); those do not depend on these counts.
+also when the call raises.
+
+A call also uses the process's other cores where they are free, on helper threads that never change a result:
+line detection runs LSD's strips side by side (:mod:`ngp_kornia.detect`), and FSNet's frame-free part (the resized
+image and the shared trunk) runs while the caller's thread samples and scores the frames (:func:`run_beside`). The
+helpers take the caller's thread count and autograd mode; :func:`helper_threads` caps how many threads one call
+uses (``ngp predict`` gives each of its processes its share of the cores).
 
 How many threads: ``ParserConfig.num_threads`` (``calibrate(image, config=ParserConfig(num_threads=N))``) when
 given; else the environment variable ``NGP_NUM_THREADS``; else 1. ``0`` leaves the caller's setting alone (the
@@ -32,7 +37,17 @@ from typing import Any
 import cv2
 import torch
 
-__all__ = ["ENV_VAR", "Lookahead", "pipeline_threads", "resolve_num_threads", "usable_cores"]
+__all__ = [
+    "ENV_VAR",
+    "Beside",
+    "Lookahead",
+    "helper_threads",
+    "pipeline_threads",
+    "resolve_num_threads",
+    "run_beside",
+    "thread_budget",
+    "usable_cores",
+]
 
 #: environment variable with the default thread count of the pipeline (a positive integer, or 0: do not change)
 ENV_VAR = "NGP_NUM_THREADS"
@@ -40,6 +55,8 @@ ENV_VAR = "NGP_NUM_THREADS"
 _lock = threading.Lock()
 _depth = 0
 _saved: tuple[int, int] | None = None
+_cap: int | None = None
+_pools: dict[int, ThreadPoolExecutor] = {}
 
 
 def resolve_num_threads(num_threads: int | None = None) -> int:
@@ -123,6 +140,81 @@ def usable_cores() -> int:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:  # macOS, Windows
         return os.cpu_count() or 1
+
+
+@contextmanager
+def helper_threads(count: int | None) -> Iterator[None]:
+    """Let one call use at most ``count`` threads, its own included, inside the block (None: as many as the
+    process's CPU cores): the strips of line detection and the part of FSNet that runs beside the frame search.
+    ``ngp predict`` gives each of its processes its share of the cores this way; no result changes."""
+    global _cap
+    saved, _cap = _cap, count
+    try:
+        yield
+    finally:
+        _cap = saved
+
+
+def thread_budget(wanted: int) -> int:
+    """How many of ``wanted`` threads a call may use, its own included: at least 1, at most the process's cores
+    (or the count of :func:`helper_threads`)."""
+    return max(1, min(wanted, usable_cores() if _cap is None else _cap))
+
+
+def _helper_pool() -> ThreadPoolExecutor:
+    # keyed by process: a pool's threads do not survive a fork, and a forked child must not wait for them. As many
+    # threads as the process may use besides a caller's own, started only when needed: calls from several threads
+    # of one process then run their work side by side instead of queueing for one thread
+    pid = os.getpid()
+    if pid not in _pools:
+        _pools[pid] = ThreadPoolExecutor(max_workers=max(1, usable_cores() - 1), thread_name_prefix="ngp-helper")
+    return _pools[pid]
+
+
+def run_on_helpers(fn: Callable[..., Any], *args: Any) -> Future:
+    """``fn(*args)`` on a helper thread (see :func:`helper_threads`)."""
+    return _helper_pool().submit(fn, *args)
+
+
+class Beside:
+    """``fn(*args)`` computed on a helper thread while the caller goes on (:func:`run_beside`); :meth:`result`
+    returns it, or computes it in the caller's thread where no helper has started on it yet."""
+
+    def __init__(self, fn: Callable[..., Any], args: tuple, parallel: bool) -> None:
+        self._fn, self._args, self._future = fn, args, None
+        if parallel:
+            modes = torch.get_num_threads(), torch.is_grad_enabled(), torch.is_inference_mode_enabled()
+            self._future = run_on_helpers(self._in_callers_mode, *modes)
+
+    def _in_callers_mode(self, threads: int, grad: bool, inference: bool) -> Any:
+        # torch's thread count and autograd modes belong to each thread: the helper takes the caller's, so the
+        # arithmetic, and the result to the last bit, are those of the caller's thread
+        if torch.get_num_threads() != threads:
+            torch.set_num_threads(threads)
+        with torch.inference_mode(inference), torch.set_grad_enabled(grad):
+            return self._fn(*self._args)
+
+    @classmethod
+    def inline(cls, fn: Callable[..., Any], *args: Any) -> Beside:
+        """``fn(*args)``, computed in the caller's thread when :meth:`result` asks for it."""
+        return cls(fn, args, parallel=False)
+
+    def result(self) -> Any:
+        if self._future is None or self._future.cancel():  # not started: the helper is busy with other work
+            return self._fn(*self._args)
+        return self._future.result()
+
+
+def run_beside(fn: Callable[..., Any], *args: Any) -> Beside:
+    """Start ``fn(*args)`` on a helper thread when the call may use two threads (:func:`thread_budget`) and autograd
+    is off (a gradient never crosses threads here), else leave it to :meth:`Beside.result`. Meant for torch or
+    OpenCV work that releases the GIL while the caller's thread runs other work.
+
+    Example:
+        >>> run_beside(lambda a, b: a + b, 2, 3).result()
+        5
+    """
+    return Beside(fn, args, thread_budget(2) > 1 and not torch.is_grad_enabled())
 
 
 class Lookahead:

@@ -315,11 +315,12 @@ def test_strips_find_the_lines_of_the_whole_image():
 
 def test_strips_run_on_the_process_share_of_the_cores():
     import ngp_kornia.detect as detect
+    from ngp_kornia.threads import thread_budget, usable_cores
 
     with detect.line_workers(1):  # ngp predict's processes each get their share
-        assert detect._thread_count(2) == 1
+        assert thread_budget(2) == 1
     with detect.line_workers(8):
-        assert detect._thread_count(2) == 2  # never more threads than strips
+        assert thread_budget(2) == min(2, usable_cores())  # never more threads than strips, nor than cores
 
 
 def test_calls_from_several_threads_share_the_strip_threads():

@@ -159,3 +159,50 @@ def test_results_do_not_depend_on_the_environments_thread_count(tmp_path):
     one, two = _child_rows(tmp_path, "1"), _child_rows(tmp_path, "2")
     assert len(json.loads(one)) == 20
     assert one == two
+
+
+def test_work_beside_runs_on_a_helper_in_the_callers_modes():
+    from ngp_kornia.threads import helper_threads, run_beside, usable_cores
+
+    if usable_cores() < 2:
+        pytest.skip("needs two cores: with one, the work runs in the caller's thread")
+
+    started = threading.Event()
+
+    def where():
+        started.set()
+        return threading.current_thread() is threading.main_thread(), torch.get_num_threads(), (
+            torch.is_inference_mode_enabled()
+        )
+
+    with pipeline_threads(1), torch.inference_mode():
+        work = run_beside(where)
+        started.wait(timeout=60)  # the caller goes on with other work meanwhile; here it waits for the helper
+        in_main, threads, inference = work.result()
+    assert not in_main and threads == 1 and inference  # the caller's thread count and inference mode
+    with helper_threads(1), torch.no_grad():
+        assert run_beside(where).result()[0]  # no spare thread allowed: the caller computes it
+    assert run_beside(where).result()[0]  # with autograd on, never beside (a gradient does not cross threads)
+
+
+def test_work_beside_raises_in_the_caller():
+    from ngp_kornia.threads import run_beside
+
+    def fail():
+        raise ValueError("inside the helper")
+
+    with torch.no_grad(), pytest.raises(ValueError, match="inside the helper"):
+        run_beside(fail).result()
+
+
+def test_answers_do_not_depend_on_fsnets_image_side_running_beside():
+    """FSNet's frame-free part runs on a helper thread while the frames are scored; on one thread (a process's
+    share of one core in ngp predict) the answer is the same to the last bit."""
+    from ngp_kornia.threads import helper_threads
+
+    image = render_scene(4, size=(320, 240)).image
+    beside = calibrate(image).to_dict()
+    with helper_threads(1):
+        alone = calibrate(image).to_dict()
+    for name, value in beside.items():
+        assert torch.equal(value, alone[name]) if isinstance(value, torch.Tensor) else value == alone[name], name

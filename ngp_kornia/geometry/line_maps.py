@@ -8,12 +8,22 @@ differentiable with respect to the per-segment values (so closeness maps pass gr
 from __future__ import annotations
 
 from functools import lru_cache
+from typing import NamedTuple
 
 import torch
 from kornia.core.check import KORNIA_CHECK, KORNIA_CHECK_SHAPE
 from torch import Tensor
 
-__all__ = ["line_map", "closeness_maps", "manhattan_score_maps", "line_map_and_pooled_maps", "rasterize_segments"]
+__all__ = [
+    "DrawnPixels",
+    "closeness_maps",
+    "drawn_pixels",
+    "line_map",
+    "line_map_and_pooled_maps",
+    "manhattan_score_maps",
+    "pooled_maps",
+    "rasterize_segments",
+]
 
 
 def rasterize_segments(
@@ -98,22 +108,65 @@ def line_map_and_pooled_maps(
     KORNIA_CHECK_SHAPE(segments, ["B", "N", "2", "2"])
     KORNIA_CHECK_SHAPE(mask, ["B", "N"])
     KORNIA_CHECK_SHAPE(values, ["B", "N", "C"])
-    B, N, C = values.shape
-    area, rows, cols = height * width, height // cell, width // cell
-    lines = values.new_zeros(B * area)
+    drawn = drawn_pixels(segments, mask, height, width)
+    return drawn.line_map, pooled_maps(drawn, values, cell)
+
+
+class DrawnPixels(NamedTuple):
+    """The pixels a batch of segments covers in a map (:func:`drawn_pixels`), kept to pool many channels of
+    per-segment values over them later (:func:`pooled_maps`); what does not depend on the values.
+
+    Attributes:
+        line_map: (B, 1, H, W) the line map (Eq. 13).
+        seg: (P,) for each (segment, pixel) pair, the segment's index in the flattened (B * N) segments.
+        key: (P,) the pair's pixel, an index into the flattened (B, H, W) maps.
+        pixels: (D,) the drawn pixels, sorted.
+        num_segments: N, segments per image (padding included).
+    """
+
+    line_map: Tensor
+    seg: Tensor
+    key: Tensor
+    pixels: Tensor
+    num_segments: int
+
+
+def drawn_pixels(segments: Tensor, mask: Tensor, height: int, width: int) -> DrawnPixels:
+    """The line map (Eq. 13) of (B, N, 2, 2) segments in a ``height`` x ``width`` map's pixels, and the pixels they
+    cover, for :func:`pooled_maps`."""
+    KORNIA_CHECK_SHAPE(segments, ["B", "N", "2", "2"])
+    KORNIA_CHECK_SHAPE(mask, ["B", "N"])
+    B, N = mask.shape
+    if N == 0 or not bool(mask.any()):
+        none = torch.zeros(0, dtype=torch.long, device=segments.device)
+        return DrawnPixels(segments.new_zeros(B, 1, height, width), none, none, none, N)
+    seg, key = _segment_pixels(segments, mask, height, width)
+    # a dense mark per pixel lists the drawn pixels in the order of their index (each cell sums its pixels in
+    # that order), without sorting the pairs
+    drawn = torch.zeros(B * height * width, dtype=torch.bool, device=key.device).index_fill_(0, key, True)
+    lines = drawn.to(segments.dtype).view(B, 1, height, width)
+    return DrawnPixels(lines, seg, key, drawn.nonzero().squeeze(1), N)
+
+
+def pooled_maps(drawn: DrawnPixels, values: Tensor, cell: int) -> Tensor:
+    """Per channel of the (B, N, C) per-segment ``values``, the block means over ``cell`` x ``cell`` pixels of the
+    maps :func:`rasterize_segments` would draw over the pixels of ``drawn``: (B, C, H // cell, W // cell).
+    Differentiable with respect to ``values``."""
+    KORNIA_CHECK_SHAPE(values, ["B", "N", "C"])
+    B, _, height, width = drawn.line_map.shape
+    N, C = values.shape[1:]
+    KORNIA_CHECK(cell > 0 and height % cell == 0 and width % cell == 0, f"{height}x{width} is not a multiple of {cell}")
+    KORNIA_CHECK(
+        values.shape[0] == B and N == drawn.num_segments, "values must have the drawn segments' batch and count"
+    )
+    rows, cols = height // cell, width // cell
     pooled = values.new_zeros(B * rows * cols, C)
-    if N > 0 and C > 0 and bool(mask.any()):
-        seg, key = _segment_pixels(segments, mask, height, width)
-        # a dense mark per pixel lists the drawn pixels in the order of their index (each cell sums its pixels in
-        # that order), without sorting the pairs
-        drawn = torch.zeros(B * area, dtype=torch.bool, device=key.device).index_fill_(0, key, True)
-        lines = drawn.to(values.dtype)
-        pixels = drawn.nonzero().squeeze(1)
-        per_pixel = _pixel_max(values.reshape(B * N, C).contiguous(), seg, key, pixels, B * area)
+    if len(drawn.key) > 0 and C > 0:
+        seg, key, pixels = drawn.seg, drawn.key, drawn.pixels
+        per_pixel = _pixel_max(values.reshape(B * N, C).contiguous(), seg, key, pixels, B * height * width)
         cells = _cell_index(B, height, width, cell, key.device).index_select(0, pixels)
         pooled = pooled.index_add(0, cells, per_pixel)
-    pooled = (pooled / (cell * cell)).view(B, rows, cols, C).permute(0, 3, 1, 2)
-    return lines.view(B, 1, height, width), pooled
+    return (pooled / (cell * cell)).view(B, rows, cols, C).permute(0, 3, 1, 2)
 
 
 def _pixel_max(values: Tensor, seg: Tensor, key: Tensor, pixels: Tensor, size: int) -> Tensor:

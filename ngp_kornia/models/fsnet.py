@@ -36,10 +36,12 @@ from kornia.core.check import KORNIA_CHECK, KORNIA_CHECK_SHAPE
 from torch import Tensor, nn
 
 from ngp_kornia.geometry import (
+    DrawnPixels,
     canonical_manhattan_rotation,
-    line_map_and_pooled_maps,
+    drawn_pixels,
     line_vp_cosine,
     normalize,
+    pooled_maps,
     rasterize_segments,
     segment_lengths,
     segments_to_lines,
@@ -50,6 +52,7 @@ from ngp_kornia.sampling import FrameCandidates
 
 __all__ = [
     "FSNet",
+    "FSNetImageInputs",
     "FSNetInputs",
     "NUM_PARAMS",
     "NUM_SUPPORT",
@@ -58,7 +61,11 @@ __all__ = [
     "frame_closeness",
     "frame_scores",
     "frame_support",
+    "fsnet_frame_inputs",
+    "fsnet_image_inputs",
     "fsnet_inputs",
+    "fsnet_line_inputs",
+    "with_images",
 ]
 
 #: per-candidate parameters: 9 VP coordinates (three unit VPs, row-major) and the focal length
@@ -91,6 +98,31 @@ class FSNetInputs(NamedTuple):
     line_map: Tensor
     closeness: Tensor
     params: Tensor
+
+
+class FSNetImageInputs(NamedTuple):
+    """What FSNet's inputs take from the image and its segments alone, before any frame candidate
+    (:func:`fsnet_image_inputs`): this part can be built, and the shared trunk run on it, while the frames are
+    still being sampled and scored.
+
+    Attributes:
+        images: (B, 3, S_h, S_w) the images resized to the network input; None in the result of
+            :func:`fsnet_line_inputs`, until :func:`with_images` fills it in.
+        segments: (B, N, 2, 2) the segments in the pixels of the network input.
+        drawn: with pooled closeness maps, the segments' pixels at the network input and the line map
+            (:class:`~ngp_kornia.geometry.DrawnPixels`); None where the line map is drawn with the full closeness
+            maps.
+        image_size: (H, W) of the original images.
+        input_size: (S_h, S_w) of the network input.
+        pool: the cell of the pooled closeness maps, or None for full maps.
+    """
+
+    images: Tensor | None
+    segments: Tensor
+    drawn: DrawnPixels | None
+    image_size: tuple[int, int]
+    input_size: tuple[int, int]
+    pool: int | None
 
 
 def canonical_frame_vps(frames: FrameCandidates) -> Tensor:
@@ -221,20 +253,63 @@ def fsnet_inputs(
         >>> [tuple(t.shape) for t in x]
         [(1, 3, 32, 32), (1, 1, 32, 32), (1, 2, 3, 32, 32), (1, 2, 10)]
     """
+    image_inputs = fsnet_image_inputs(images, segments, mask, size, pool)
+    return fsnet_frame_inputs(image_inputs, segments, mask, frames, kernel_angle, chunk_size, support, lines)
+
+
+def fsnet_image_inputs(
+    images: Tensor, segments: Tensor, mask: Tensor, size: int | tuple[int, int] = 224, pool: int | None = None
+) -> FSNetImageInputs:
+    """The part of :func:`fsnet_inputs` that needs no frame candidate: the resized images, the segments at the
+    network input and, with ``pool``, the pixels they cover and the line map. Arguments as :func:`fsnet_inputs`."""
     KORNIA_CHECK_SHAPE(images, ["B", "3", "H", "W"])
     KORNIA_CHECK_SHAPE(segments, ["B", "N", "2", "2"])
     KORNIA_CHECK_SHAPE(mask, ["B", "N"])
+    return with_images(fsnet_line_inputs(segments.to(images), mask, images.shape[-2:], size, pool), images)
+
+
+def fsnet_line_inputs(
+    segments: Tensor, mask: Tensor, image_size: tuple[int, int], size: int | tuple[int, int] = 224, pool=None
+) -> FSNetImageInputs:
+    """:func:`fsnet_image_inputs` without the image: the segments of an ``image_size`` (H, W) image scaled to the
+    network input and, with ``pool``, their pixels and line map; ``images`` is None (see :func:`with_images`)."""
+    H, W = image_size
+    out_h, out_w = (size, size) if isinstance(size, int) else tuple(size)
+    # pixel centres map to pixel centres: x' = (x + 0.5) * S / W - 0.5
+    scale = torch.tensor([out_w / W, out_h / H], device=segments.device, dtype=segments.dtype)
+    scaled = (segments + 0.5) * scale - 0.5
+    drawn = None if pool is None else drawn_pixels(scaled, mask, out_h, out_w)
+    return FSNetImageInputs(None, scaled, drawn, (H, W), (out_h, out_w), pool)
+
+
+def with_images(inputs: FSNetImageInputs, images: Tensor) -> FSNetImageInputs:
+    """``inputs`` of :func:`fsnet_line_inputs` with the (B, 3, H, W) images resized to the network input."""
+    KORNIA_CHECK(tuple(images.shape[-2:]) == tuple(inputs.image_size), "the images must have the segments' size")
+    same = tuple(images.shape[-2:]) == inputs.input_size
+    return inputs._replace(images=images if same else area_resize(images, inputs.input_size))
+
+
+def fsnet_frame_inputs(
+    image_inputs: FSNetImageInputs,
+    segments: Tensor,
+    mask: Tensor,
+    frames: FrameCandidates,
+    kernel_angle: float | None = 88.0,
+    chunk_size: int = 32,
+    support: bool = False,
+    lines: Tensor | None = None,
+) -> FSNetInputs:
+    """:func:`fsnet_inputs` from its frame-free part ``image_inputs`` (:func:`fsnet_image_inputs` of the same
+    images, segments and mask); the other arguments as :func:`fsnet_inputs`."""
     KORNIA_CHECK(chunk_size > 0, "chunk_size must be positive")
-    H, W = images.shape[-2:]
-    out_size = (size, size) if isinstance(size, int) else tuple(size)
-    same = (H, W) == out_size
-    resized = images if same else area_resize(images, out_size)
-    segments = segments.to(images)
-    vps = canonical_frame_vps(frames).to(images)  # (B, F, 3, 3)
+    resized = image_inputs.images
+    H, W = image_inputs.image_size
+    segments = segments.to(resized)
+    vps = canonical_frame_vps(frames).to(resized)  # (B, F, 3, 3)
     lines = segments_to_lines(to_pseudo_camera(segments, H, W)) if lines is None else lines
     values = frame_closeness(lines, vps, kernel_angle)
-    lmap, closeness = _draw_maps(segments, mask, values, (H, W), out_size, chunk_size, pool)
-    params = [vps.flatten(-2), frames.focal.to(images)[..., None]]
+    lmap, closeness = _draw_maps(image_inputs, mask, values, chunk_size)
+    params = [vps.flatten(-2), frames.focal.to(resized)[..., None]]
     if support:
         params.append(frame_support(lines, segment_lengths(segments), mask, vps))
     return FSNetInputs(resized, lmap, closeness, torch.cat(params, -1))
@@ -299,29 +374,23 @@ def frame_closeness(lines: Tensor, vps: Tensor, kernel_angle: float | None = 88.
 
 
 def _draw_maps(
-    segments: Tensor,
-    mask: Tensor,
-    values: Tensor,
-    image_size: tuple[int, int],
-    out_size: tuple[int, int],
-    chunk_size: int,
-    pool: int | None,
+    image_inputs: FSNetImageInputs, mask: Tensor, values: Tensor, chunk_size: int
 ) -> tuple[Tensor, Tensor]:
     """The line map (B, 1, S_h, S_w) and the closeness maps (B, F, 3, S_h, S_w) (or their ``pool`` x ``pool``
-    cell means) of segments in the pixels of ``image_size``, drawn at ``out_size`` with values (B, F, 3, N)."""
-    (H, W), (out_h, out_w) = image_size, out_size
+    cell means) of the segments of ``image_inputs``, drawn at the network input with values (B, F, 3, N)."""
+    out_h, out_w = image_inputs.images.shape[-2:]
     B, num = values.shape[:2]
-    # pixel centres map to pixel centres: x' = (x + 0.5) * S / W - 0.5
-    scale = torch.tensor([out_w / W, out_h / H], device=segments.device, dtype=segments.dtype)
-    scaled = (segments + 0.5) * scale - 0.5
     values = values.flatten(1, 2).transpose(1, 2)  # (B, N, F * 3)
-    if pool is None:
+    drawn, pool = image_inputs.drawn, image_inputs.pool
+    if drawn is None:
         # the line map L is one more channel of ones: the segments' pixels are found once for all maps
         ones = torch.ones_like(values[..., :1])
-        maps = rasterize_segments(scaled, mask, torch.cat([ones, values], -1), out_h, out_w, 3 * chunk_size + 1)
+        maps = rasterize_segments(
+            image_inputs.segments, mask, torch.cat([ones, values], -1), out_h, out_w, 3 * chunk_size + 1
+        )
         return maps[:, :1], maps[:, 1:].reshape(B, num, 3, out_h, out_w)
-    lmap, closeness = line_map_and_pooled_maps(scaled, mask, values, out_h, out_w, pool)
-    return lmap, closeness.reshape(B, num, 3, out_h // pool, out_w // pool)
+    closeness = pooled_maps(drawn, values, pool)
+    return drawn.line_map, closeness.reshape(B, num, 3, out_h // pool, out_w // pool)
 
 
 def _mlp(sizes: Sequence[int]) -> nn.Sequential:
@@ -458,24 +527,42 @@ class FSNet(nn.Module):
         }
 
     def prepare_inputs(
-        self, images: Tensor, segments: Tensor, mask: Tensor, frames: FrameCandidates, lines: Tensor | None = None
+        self,
+        images: Tensor,
+        segments: Tensor,
+        mask: Tensor,
+        frames: FrameCandidates,
+        lines: Tensor | None = None,
+        image_inputs: FSNetImageInputs | None = None,
     ) -> FSNetInputs:
         """:func:`fsnet_inputs` at this network's input size and closeness kernel; the shared variant gets its
         closeness maps already pooled to the trunk's resolution (the same scores, without the full maps).
-        ``lines``: the segments' pseudo-camera lines when already computed."""
-        size = self.input_size
-        return fsnet_inputs(
-            images,
-            segments,
-            mask,
-            frames,
-            size,
-            self.kernel_angle,
-            self.chunk_size,
-            self.use_support,
-            pool=self.pool_cell(size, size),
-            lines=lines,
+        ``lines``: the segments' pseudo-camera lines when already computed; ``image_inputs``: the frame-free part
+        (:meth:`prepare_image_inputs`) when already built."""
+        if image_inputs is None:
+            image_inputs = self.prepare_image_inputs(images, segments, mask)
+        return fsnet_frame_inputs(
+            image_inputs, segments, mask, frames, self.kernel_angle, self.chunk_size, self.use_support, lines
         )
+
+    def prepare_image_inputs(self, images: Tensor, segments: Tensor, mask: Tensor) -> FSNetImageInputs:
+        """The part of :meth:`prepare_inputs` that needs no frame candidate (:func:`fsnet_image_inputs`)."""
+        size = self.input_size
+        return fsnet_image_inputs(images, segments, mask, size, pool=self.pool_cell(size, size))
+
+    def prepare_line_inputs(self, segments: Tensor, mask: Tensor, image_size: tuple[int, int]) -> FSNetImageInputs:
+        """:meth:`prepare_image_inputs` without the image (:func:`fsnet_line_inputs`; :func:`with_images` adds
+        it), for segments of an ``image_size`` (H, W) image."""
+        size = self.input_size
+        return fsnet_line_inputs(segments, mask, image_size, size, pool=self.pool_cell(size, size))
+
+    def image_context(self, image_inputs: FSNetImageInputs) -> tuple[Tensor | None, Tensor | None] | None:
+        """What the shared trunk makes of an image before any candidate (for ``forward(..., context=...)``): its
+        context map and the line map pooled to it; None where the trunk needs the full maps of :meth:`forward`'s
+        arguments (the faithful variant, or maps drawn at full resolution)."""
+        if self.variant == "faithful" or image_inputs.drawn is None:
+            return None
+        return self._trunk(image_inputs.images, image_inputs.drawn.line_map)
 
     def pool_cell(self, height: int, width: int) -> int | None:
         """The cell size (the trunk's stride) at which the shared variant takes pooled closeness maps for an input
@@ -486,7 +573,14 @@ class FSNet(nn.Module):
             return None
         return stride if height % stride == 0 and width % stride == 0 else None
 
-    def forward(self, images: Tensor, line_map: Tensor, closeness: Tensor, params: Tensor) -> Tensor:
+    def forward(
+        self,
+        images: Tensor,
+        line_map: Tensor,
+        closeness: Tensor,
+        params: Tensor,
+        context: tuple[Tensor | None, Tensor | None] | None = None,
+    ) -> Tensor:
         """Score frame candidates.
 
         Args:
@@ -495,6 +589,8 @@ class FSNet(nn.Module):
             closeness: (B, F, 3, H, W) closeness maps A_x, A_y, A_z per candidate (Eq. 15); the shared variant
                 also takes them pooled to (B, F, 3, H / c, W / c) with ``c`` = :meth:`pool_cell`.
             params: (B, F, 10) per candidate: three unit VPs (pseudo camera, row-major) and the focal length.
+            context: the shared trunk's output for these images and line map (:meth:`image_context`) when already
+                computed; None runs the trunk.
 
         Returns:
             (B, F) logits; ``sigmoid`` estimates s_vh (Eq. 20).
@@ -525,7 +621,7 @@ class FSNet(nn.Module):
                 for i in range(0, num, step)
             ]
         else:
-            context, low_l = self._trunk(images, line_map)
+            context, low_l = self._trunk(images, line_map) if context is None else context
             chunks = [
                 self._head(context, low_l, closeness[:, i : i + step], params[:, i : i + step], W)
                 for i in range(0, num, step)

@@ -40,7 +40,7 @@ from ngp_kornia.geometry import (
 )
 from ngp_kornia.models.confidence import SharedInputs, attach_trust
 from ngp_kornia.models.constants import constant_tensors
-from ngp_kornia.models.fsnet import frame_scores
+from ngp_kornia.models.fsnet import FSNetImageInputs, frame_scores, with_images
 from ngp_kornia.models.polish import POLISH_SCALES, polish_frame
 from ngp_kornia.models.refine import FOCAL_SCALES, choose_horizon, search_horizon
 from ngp_kornia.models.result import Calibration
@@ -57,7 +57,7 @@ from ngp_kornia.sampling import (
     split_by_pseudo_horizon,
     top_frames,
 )
-from ngp_kornia.threads import pipeline_threads
+from ngp_kornia.threads import Beside, pipeline_threads, run_beside
 
 __all__ = ["NeuralGeometricParser", "ParserConfig", "ParserTrace", "prior_focal"]
 
@@ -329,11 +329,16 @@ class NeuralGeometricParser(nn.Module):
         # one generator per image, each seeded alike: an image's answer does not depend on its batch or position
         generators = [torch.Generator().manual_seed(cfg.seed) for _ in range(len(images))]
         stages = {"segments": segments, "mask": mask} if return_trace else None
+        # FSNet's image side (resized image, line map, shared trunk) needs no frame: on a spare core it runs while
+        # this thread samples and scores the frames
+        image_side = None if self.fsnet is None else self._start_fsnet_image_side(images, segments, mask)
         # the segments' lines and lengths serve the scores, FSNet's inputs and the trust fields: computed once
         pseudo = pseudo_lines(segments, mask, height, width)
         frames, scores = self.score_frames(segments, mask, height, width, generators, stages, pseudo)
         if self.fsnet is not None:
-            frames, scores = self.rescore_frames(images, segments, mask, frames, scores, stages, pseudo[1])
+            frames, scores = self.rescore_frames(
+                images, segments, mask, frames, scores, stages, pseudo[1], image_side.result()
+            )
         result, top_k_weights = self._calibrate(frames, scores, height, width, stages)
         known_focal = cfg.focal is not None or cfg.fov_v is not None
         search_vps = result.vps  # the frame search's VPs: the residual of their lines is a trust input
@@ -408,21 +413,42 @@ class NeuralGeometricParser(nn.Module):
         manhattan: Tensor,
         stages: dict | None = None,
         lines: Tensor | None = None,
+        image_side: tuple[FSNetImageInputs, tuple | None] | None = None,
     ) -> tuple[FrameCandidates, Tensor]:
         """Keep the best ``num_scored`` frames by Manhattan score and score them with FSNet: ``s_vh * m_i`` (Eq. 22),
         or ``s_vh`` alone without ``use_manhattan``. Returns the kept frames and their (B, K) scores. ``lines``: the
-        segments' pseudo-camera lines when already computed."""
+        segments' pseudo-camera lines when already computed; ``image_side``: :meth:`fsnet_image_side` of the same
+        images, segments and mask when already computed."""
         cfg = self.config
         index = top_frames(frames, manhattan, cfg.num_scored)
         frames, manhattan = select_frames(frames, index), manhattan.gather(1, index)
         # FSNet runs in its own dtype (float32 weights on a float64 image, say): lines in another dtype are redone
         dtype = next(self.fsnet.parameters()).dtype
         lines = lines if lines is not None and lines.dtype == dtype else None
-        inputs = self.fsnet.prepare_inputs(images.to(dtype), segments.to(dtype), mask, frames, lines)
-        s_vh = torch.sigmoid(self.fsnet(*inputs)).to(manhattan)
+        image_inputs, context = self.fsnet_image_side(images, segments, mask) if image_side is None else image_side
+        inputs = self.fsnet.prepare_inputs(images.to(dtype), segments.to(dtype), mask, frames, lines, image_inputs)
+        s_vh = torch.sigmoid(self.fsnet(*inputs, context=context)).to(manhattan)
         if stages is not None:
             stages.update(scored_index=index, fsnet_scores=s_vh)
         return frames, frame_scores(s_vh, manhattan, frames.valid, cfg.use_manhattan)
+
+    def fsnet_image_side(self, images: Tensor, segments: Tensor, mask: Tensor) -> tuple[FSNetImageInputs, tuple | None]:
+        """FSNet's inputs that need no frame candidate (:meth:`FSNet.prepare_image_inputs`) and its shared trunk's
+        output on them (:meth:`FSNet.image_context`), in FSNet's dtype."""
+        return self._start_fsnet_image_side(images, segments, mask, beside=False).result()
+
+    def _start_fsnet_image_side(self, images: Tensor, segments: Tensor, mask: Tensor, beside: bool = True) -> Beside:
+        """:meth:`fsnet_image_side`, its image part (resizing, the trunk) run beside the caller where a core is
+        free (:func:`~ngp_kornia.threads.run_beside`). The segments' part stays in this thread: it is many small
+        operations, which would slow both threads down."""
+        dtype = next(self.fsnet.parameters()).dtype
+        partial = self.fsnet.prepare_line_inputs(segments.to(dtype), mask, images.shape[-2:])
+        start = run_beside if beside else Beside.inline
+        return start(self._fsnet_image_context, images.to(dtype), partial)
+
+    def _fsnet_image_context(self, images: Tensor, partial: FSNetImageInputs) -> tuple[FSNetImageInputs, tuple | None]:
+        image_inputs = with_images(partial, images)
+        return image_inputs, self.fsnet.image_context(image_inputs)
 
     def zenith_weights(self, lines_z: Tensor, lines_z_ok: Tensor, zenith: Tensor, zenith_ok: Tensor) -> Tensor:
         """Weights of the zenith candidates: the ZSNet score p_z on Z_c (p_z > delta_c, Eq. 12) and zero elsewhere;

@@ -321,3 +321,25 @@ def test_area_resize_is_opencvs_area_filter_with_gradients_for_the_pixels():
     assert torch.equal(with_grad.detach(), out)  # the same values whether or not the pixels need gradients
     with_grad.sum().backward()
     assert torch.isfinite(pixels.grad).all() and pixels.grad.abs().sum() > 0
+
+
+def test_the_trunk_computed_ahead_gives_the_same_scores():
+    """The parser builds FSNet's frame-free inputs and runs the shared trunk before the frames are known; the
+    scores are those of the inputs built all at once."""
+    from ngp_kornia.models.fsnet import fsnet_frame_inputs, fsnet_line_inputs, with_images
+
+    net = tiny("shared", input_size=32).eval()
+    g = torch.Generator().manual_seed(1)
+    segments = torch.rand(2, 30, 2, 2, generator=g) * torch.tensor([64.0, 48.0])
+    mask = torch.rand(2, 30, generator=g) > 0.2
+    R = rotation_from_angles(torch.rand(12, generator=g) * 20, torch.rand(12, generator=g) * 10).view(2, 6, 3, 3)
+    fr = frames(R, torch.rand(2, 6, generator=g) + 0.8)
+    images = torch.rand(2, 3, 48, 64, generator=g)
+    with torch.no_grad():
+        whole = net(*net.prepare_inputs(images, segments, mask, fr))
+        size, cell = net.input_size, net.pool_cell(net.input_size, net.input_size)
+        ahead = with_images(fsnet_line_inputs(segments, mask, (48, 64), size, cell), images)
+        context = net.image_context(ahead)
+        inputs = fsnet_frame_inputs(ahead, segments, mask, fr, net.kernel_angle, net.chunk_size, net.use_support)
+        split = net(*inputs, context=context)
+    assert context is not None and torch.equal(whole, split)

@@ -139,9 +139,10 @@ def _add_prior_arguments(command: argparse.ArgumentParser) -> None:
     command.add_argument(
         "--principal-point-std",
         type=float,
-        default=0.02,
+        default=None,
         help="how far the principal point may be off the image centre (a standard deviation per axis, fraction of "
-        "the image height); only widens pitch_std, roll_std, fov_v_std; 0 when it is known to be at the centre",
+        "the image height; default 0.025); only widens pitch_std, roll_std, fov_v_std; 0 when it is known to be at "
+        "the centre",
     )
     command.add_argument(
         "--working-size",
@@ -162,8 +163,8 @@ def _trust_config(args: argparse.Namespace):
     """The ParserConfig of --principal-point-std, --working-size and --polish-frame (checked in main())."""
     from ngp_kornia.models import ParserConfig
 
-    size = {} if args.working_size is None else {"working_size": args.working_size}
-    return ParserConfig(principal_point_std=args.principal_point_std, polish_frame=args.polish_frame, **size)
+    given = {"working_size": args.working_size, "principal_point_std": args.principal_point_std}
+    return ParserConfig(polish_frame=args.polish_frame, **{k: v for k, v in given.items() if v is not None})
 
 
 def _prior(args: argparse.Namespace, image: str, rgb: np.ndarray) -> dict:
@@ -460,7 +461,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if getattr(args, "weights", None) is not None:
         _check_weights(parser, args.command, args.weights)
-    if getattr(args, "principal_point_std", None) is not None:
+    if hasattr(args, "principal_point_std"):
         from ngp_kornia.errors import ConfigError
 
         try:

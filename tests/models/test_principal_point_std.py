@@ -28,7 +28,7 @@ def test_bad_values_are_a_clear_config_error(bad):
 
 
 def test_default_is_for_unknown_cameras_and_zero_is_allowed():
-    assert ParserConfig().principal_point_std == 0.02
+    assert ParserConfig().principal_point_std == 0.025
     assert ParserConfig(principal_point_std=0).principal_point_std == 0
     assert ParserConfig(principal_point_std=0.25).principal_point_std == 0.25
 

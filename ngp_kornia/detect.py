@@ -34,7 +34,7 @@ from kornia.core.check import KORNIA_CHECK_SHAPE
 from torch import Tensor
 
 from ngp_kornia.io import read_rgb
-from ngp_kornia.threads import helper_threads, run_on_helpers, thread_budget
+from ngp_kornia.threads import Beside, helper_threads, thread_budget
 
 if TYPE_CHECKING:  # the settings live beside the parser, which itself calls this module
     from ngp_kornia.models.parser import ParserConfig
@@ -156,7 +156,9 @@ def _lsd_in_strips(image: np.ndarray, strips: int) -> np.ndarray:
     threads = thread_budget(len(views))
     parts: list = [None] * len(views)
     groups = [views[i::threads] for i in range(threads)]  # every thread-th strip: this thread takes the first group
-    pending = [run_on_helpers(_detect_each, group) for group in groups[1:]]
+    # a strip no helper has started by the time this thread is done (the helpers busy with another call's work) is
+    # detected here instead of waited for
+    pending = [Beside.start(_detect_each, group) for group in groups[1:]]
     for i, found in enumerate([_detect_each(groups[0])] + [p.result() for p in pending]):
         parts[i::threads] = found
     bands = pairwise([-math.inf, *cuts, math.inf])

@@ -171,7 +171,7 @@ def _helper_pool() -> ThreadPoolExecutor:
     return _pools[pid]
 
 
-def run_on_helpers(fn: Callable[..., Any], *args: Any) -> Future:
+def _run_on_helpers(fn: Callable[..., Any], *args: Any) -> Future:
     """``fn(*args)`` on a helper thread (see :func:`helper_threads`)."""
     return _helper_pool().submit(fn, *args)
 
@@ -184,7 +184,7 @@ class Beside:
         self._fn, self._args, self._future = fn, args, None
         if parallel:
             modes = torch.get_num_threads(), torch.is_grad_enabled(), torch.is_inference_mode_enabled()
-            self._future = run_on_helpers(self._in_callers_mode, *modes)
+            self._future = _run_on_helpers(self._in_callers_mode, *modes)
 
     def _in_callers_mode(self, threads: int, grad: bool, inference: bool) -> Any:
         # torch's thread count and autograd modes belong to each thread: the helper takes the caller's, so the
@@ -198,6 +198,11 @@ class Beside:
     def inline(cls, fn: Callable[..., Any], *args: Any) -> Beside:
         """``fn(*args)``, computed in the caller's thread when :meth:`result` asks for it."""
         return cls(fn, args, parallel=False)
+
+    @classmethod
+    def start(cls, fn: Callable[..., Any], *args: Any) -> Beside:
+        """``fn(*args)`` handed to a helper thread now, whatever the autograd mode (work without gradients)."""
+        return cls(fn, args, parallel=True)
 
     def result(self) -> Any:
         if self._future is None or self._future.cancel():  # not started: the helper is busy with other work

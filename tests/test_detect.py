@@ -334,3 +334,24 @@ def test_calls_from_several_threads_share_the_strip_threads():
     with ThreadPoolExecutor(4) as callers:
         got = list(callers.map(detect_segments_gray, grays * 3, timeout=120))
     assert all(np.array_equal(a, b) for a, b in zip(got, expected * 3, strict=True))
+
+
+def test_strips_are_detected_in_the_callers_thread_while_the_helpers_are_busy():
+    # another call's work may hold every helper thread: the caller detects the waiting strip itself, and gets the
+    # same segments, instead of waiting for a helper
+    import threading
+
+    from ngp_kornia.data.synth.render import render_scene
+    from ngp_kornia.threads import _helper_pool
+
+    gray = cv2.cvtColor(render_scene(5, size=(640, 480)).image, cv2.COLOR_RGB2GRAY)
+    expected = detect_segments_gray(gray)
+    release = threading.Event()
+    pool = _helper_pool()
+    blockers = [pool.submit(release.wait, 60) for _ in range(pool._max_workers)]
+    try:
+        got = detect_segments_gray(gray)  # would wait for a helper without the fallback
+    finally:
+        release.set()
+    assert all(b.result(timeout=60) for b in blockers)
+    assert np.array_equal(got, expected)

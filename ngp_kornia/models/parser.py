@@ -441,10 +441,11 @@ class NeuralGeometricParser(nn.Module):
     def _start_fsnet_image_side(self, images: Tensor, segments: Tensor, mask: Tensor, beside: bool = True) -> Beside:
         """:meth:`fsnet_image_side`, its image part (resizing, the trunk) run beside the caller where a core is
         free (:func:`~ngp_kornia.threads.run_beside`). The segments' part stays in this thread: it is many small
-        operations, which would slow both threads down."""
+        operations, which would slow both threads down. On a GPU it all stays in this thread: work queued from
+        another thread would not follow the caller's CUDA stream."""
         dtype = next(self.fsnet.parameters()).dtype
         partial = self.fsnet.prepare_line_inputs(segments.to(dtype), mask, images.shape[-2:])
-        start = run_beside if beside else Beside.inline
+        start = run_beside if beside and images.device.type == "cpu" else Beside.inline
         return start(self._fsnet_image_context, images.to(dtype), partial)
 
     def _fsnet_image_context(self, images: Tensor, partial: FSNetImageInputs) -> tuple[FSNetImageInputs, tuple | None]:

@@ -269,7 +269,11 @@ def fsnet_image_inputs(
 
 
 def fsnet_line_inputs(
-    segments: Tensor, mask: Tensor, image_size: tuple[int, int], size: int | tuple[int, int] = 224, pool=None
+    segments: Tensor,
+    mask: Tensor,
+    image_size: tuple[int, int],
+    size: int | tuple[int, int] = 224,
+    pool: int | None = None,
 ) -> FSNetImageInputs:
     """:func:`fsnet_image_inputs` without the image: the segments of an ``image_size`` (H, W) image scaled to the
     network input and, with ``pool``, their pixels and line map; ``images`` is None (see :func:`with_images`)."""
@@ -302,6 +306,7 @@ def fsnet_frame_inputs(
     """:func:`fsnet_inputs` from its frame-free part ``image_inputs`` (:func:`fsnet_image_inputs` of the same
     images, segments and mask); the other arguments as :func:`fsnet_inputs`."""
     KORNIA_CHECK(chunk_size > 0, "chunk_size must be positive")
+    KORNIA_CHECK(image_inputs.images is not None, "image_inputs has no images yet: fill them in with with_images()")
     resized = image_inputs.images
     H, W = image_inputs.image_size
     segments = segments.to(resized)

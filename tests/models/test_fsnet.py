@@ -156,14 +156,18 @@ def test_chunked_drawing_matches_drawing_all_channels_at_once():
         assert torch.equal(rasterize_segments(segments, mask, values, 50, 60, chunk_channels=7), reference)
 
 
-def test_shared_variant_scores_pooled_maps_as_the_full_maps():
-    net = tiny("shared", input_size=32).eval()  # stride 8: pooled to 4 x 4
+def random_scene(width: int, height: int = 48):
+    """Two images with 30 random segments each (some masked) and 6 random frames: (segments, mask, frames, images)."""
     g = torch.Generator().manual_seed(1)
-    segments = torch.rand(2, 30, 2, 2, generator=g) * torch.tensor([80.0, 48.0])
+    segments = torch.rand(2, 30, 2, 2, generator=g) * torch.tensor([float(width), float(height)])
     mask = torch.rand(2, 30, generator=g) > 0.2
     R = rotation_from_angles(torch.rand(12, generator=g) * 20, torch.rand(12, generator=g) * 10).view(2, 6, 3, 3)
-    fr = frames(R, torch.rand(2, 6, generator=g) + 0.8)
-    images = torch.rand(2, 3, 48, 80, generator=g)
+    return segments, mask, frames(R, torch.rand(2, 6, generator=g) + 0.8), torch.rand(2, 3, height, width, generator=g)
+
+
+def test_shared_variant_scores_pooled_maps_as_the_full_maps():
+    net = tiny("shared", input_size=32).eval()  # stride 8: pooled to 4 x 4
+    segments, mask, fr, images = random_scene(80)
     full = fsnet_inputs(images, segments, mask, fr, 32)
     pooled = net.prepare_inputs(images, segments, mask, fr)
     assert net.pool_cell(32, 32) == 8 and pooled.closeness.shape == (2, 6, 3, 4, 4)
@@ -329,12 +333,7 @@ def test_the_trunk_computed_ahead_gives_the_same_scores():
     from ngp_kornia.models.fsnet import fsnet_frame_inputs, fsnet_line_inputs, with_images
 
     net = tiny("shared", input_size=32).eval()
-    g = torch.Generator().manual_seed(1)
-    segments = torch.rand(2, 30, 2, 2, generator=g) * torch.tensor([64.0, 48.0])
-    mask = torch.rand(2, 30, generator=g) > 0.2
-    R = rotation_from_angles(torch.rand(12, generator=g) * 20, torch.rand(12, generator=g) * 10).view(2, 6, 3, 3)
-    fr = frames(R, torch.rand(2, 6, generator=g) + 0.8)
-    images = torch.rand(2, 3, 48, 64, generator=g)
+    segments, mask, fr, images = random_scene(64)
     with torch.no_grad():
         whole = net(*net.prepare_inputs(images, segments, mask, fr))
         size, cell = net.input_size, net.pool_cell(net.input_size, net.input_size)

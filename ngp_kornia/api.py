@@ -17,8 +17,9 @@ from ngp_kornia.errors import WeightsError
 from ngp_kornia.exif import exif_focal
 from ngp_kornia.io import as_batch, read_rgb_oriented
 from ngp_kornia.models import Calibration, NeuralGeometricParser, ParserConfig
+from ngp_kornia.models.fsnet import area_resize
 from ngp_kornia.models.weights import load_network, network_name, shipped_weights
-from ngp_kornia.threads import Lookahead, pipeline_threads
+from ngp_kornia.threads import Lookahead, pipeline_threads, while_waiting
 
 __all__ = ["DEFAULT_WEIGHTS", "WEIGHTS", "calibrate", "load_parser", "with_orientation"]
 
@@ -129,17 +130,17 @@ def calibrate(
         return _calibrate_list(image, weights, seed, config, focal=focal, fov_v=fov_v, exif=exif)
     cfg = _call_config(config, seed, focal, fov_v, exif)
     with pipeline_threads(cfg.num_threads):  # one thread unless configured; the caller's count is restored
-        return _calibrate_inputs(image, _inputs(image, cfg, _reads_pixels(weights)), weights)
+        return _calibrate_inputs(image, _inputs(image, cfg, _fsnet_size(weights)), weights)
 
 
 def _calibrate_inputs(image, inputs: tuple, weights) -> Calibration:
     """The rest of :func:`calibrate` for one input, given what :func:`_inputs` made of it."""
-    batch, segments, mask, orientation, cfg = inputs
+    batch, segments, mask, orientation, cfg, resized = inputs
     parser = _on_device(_parser(weights, cfg, copy=False), batch.device)  # the cached networks, read only
     # inference mode skips autograd's per-operation bookkeeping (about a tenth of the parser's time); the fields
     # are cloned out of it, so the caller gets ordinary tensors that can be edited in place or used with autograd
     with torch.inference_mode():
-        result = parser(batch, segments, mask)
+        result = parser(batch, segments, mask, fsnet_images=resized)
     result = result.clone()
     if isinstance(image, Tensor) and image.dim() == 4:
         return result
@@ -158,30 +159,47 @@ def _call_config(config: ParserConfig | None, seed: int, focal, fov_v, exif: boo
     return cfg
 
 
-def _reads_pixels(weights) -> bool:
-    """Whether the weight set's parser reads the image's pixels: FSNet does; the rest of the parser works on the
-    line segments and needs only the image's size."""
-    return any(type(net).__name__ == "FSNet" for net in _networks(weights))
+def _fsnet_size(weights) -> int | None:
+    """The input side of the weight set's FSNet, None without one: only FSNet reads the image's pixels, the rest of
+    the parser works on the line segments and needs only the image's size."""
+    return next((net.input_size for net in _networks(weights) if type(net).__name__ == "FSNet"), None)
 
 
-def _inputs(image, cfg: ParserConfig, pixels: bool = True) -> tuple:
-    """(batch, segments, mask, EXIF orientation, config) of one input: tensors as they are (the parser detects
-    their lines), files and arrays read once with their lines detected on the 8-bit pixels (and, with ``exif``,
-    the file's focal length as the prior). With ``pixels`` False (a parser without FSNet) the batch of a file or
-    array is a stand-in of the image's shape with no pixel converted (about 1 ms less on a 640x480 photo)."""
+def _inputs(image, cfg: ParserConfig, fsnet_size: int | None = None) -> tuple:
+    """(batch, segments, mask, EXIF orientation, config, FSNet's image) of one input: tensors as they are (the
+    parser detects their lines), files and arrays read once with their lines detected on the 8-bit pixels (and,
+    with ``exif``, the file's focal length as the prior).
+
+    For a parser with FSNet (``fsnet_size``, its input side), the image resized to FSNet's input is made while
+    this thread would wait for the last strip of line detection, when it does: the batch is then a stand-in of the
+    image's shape (the parser needs nothing else of it). Otherwise the batch holds the pixels and the parser
+    resizes them; without FSNet it is the stand-in and no pixel is converted (about 1 ms less on a 640x480 photo)."""
     if isinstance(image, Tensor):
-        return as_batch(image)[0], None, None, None, cfg
+        return as_batch(image)[0], None, None, None, cfg, None
     rgb, orientation = read_rgb_oriented(image)
-    if pixels:
-        # numpy divides the 8-bit pixels straight into float32 (the same values as float() then / 255, in one
-        # pass over the image instead of two); the permuted view keeps the channels-last layout
-        batch = torch.from_numpy(np.divide(rgb, np.float32(255.0), dtype=np.float32)).permute(2, 0, 1)[None]
+    stand_in = torch.zeros((), dtype=torch.float32).expand(1, 3, *rgb.shape[:2])
+    if fsnet_size is None:
+        segments, mask = detect_segments(rgb, cfg)
+        batch, resized = stand_in, None
     else:
-        batch = torch.zeros((), dtype=torch.float32).expand(1, 3, *rgb.shape[:2])
-    segments, mask = detect_segments(rgb, cfg)
+        with while_waiting(_fsnet_image, rgb, fsnet_size) as resizing:
+            segments, mask = detect_segments(rgb, cfg)
+        batch, resized = (stand_in, resizing.result()) if resizing.ran else (_pixels(rgb), None)
     if cfg.exif and cfg.focal is None and cfg.fov_v is None and isinstance(image, (str, Path)):
         cfg = replace(cfg, focal=exif_focal(image, *rgb.shape[:2]))
-    return batch, segments, mask, orientation, cfg
+    return batch, segments, mask, orientation, cfg, resized
+
+
+def _pixels(rgb: np.ndarray) -> Tensor:
+    """The (1, 3, H, W) float batch of an 8-bit RGB image: numpy divides the pixels straight into float32 (the same
+    values as float() then / 255, in one pass over the image instead of two); the permuted view keeps the
+    channels-last layout."""
+    return torch.from_numpy(np.divide(rgb, np.float32(255.0), dtype=np.float32)).permute(2, 0, 1)[None]
+
+
+def _fsnet_image(rgb: np.ndarray, size: int) -> Tensor:
+    """The image as FSNet takes it: what the parser makes of :func:`_pixels` (``area_resize`` to its input)."""
+    return area_resize(_pixels(rgb), (size, size))
 
 
 def _on_device(parser: NeuralGeometricParser, device: torch.device) -> NeuralGeometricParser:
@@ -209,8 +227,8 @@ def _calibrate_list(
     last = len(images) - 1
     # the next item is read and its lines detected on a second thread while the parser works on this one: the
     # same inputs as one call per item (the segments do not depend on threads), so the same results
-    pixels = _reads_pixels(weights)
-    with pipeline_threads(cfg.num_threads), Lookahead(lambda i: _inputs(images[i], cfg, pixels)) as ahead:
+    size = _fsnet_size(weights)
+    with pipeline_threads(cfg.num_threads), Lookahead(lambda i: _inputs(images[i], cfg, size)) as ahead:
         return [
             _calibrate_inputs(item, ahead.get(i, i + 1 if i < last else None), weights) for i, item in enumerate(images)
         ]

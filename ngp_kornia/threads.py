@@ -8,8 +8,9 @@ which sets torch's (and OpenCV's) thread count for the duration of the call and 
 also when the call raises.
 
 A call also uses the process's other cores where they are free, on helper threads that never change a result:
-line detection runs LSD's strips side by side (:mod:`ngp_kornia.detect`), and FSNet's frame-free part (the resized
-image and the shared trunk) runs while the caller's thread samples and scores the frames (:func:`run_beside`). The
+line detection runs LSD's strips side by side (:mod:`ngp_kornia.detect`), the thread whose strip ends first resizes
+the image for FSNet (:func:`while_waiting`), and FSNet's shared trunk runs while the caller's thread samples and
+scores the frames (:func:`run_beside`). The
 helpers take the caller's thread count and autograd mode; :func:`helper_threads` caps how many threads one call
 uses (``ngp predict`` gives each of its processes its share of the cores).
 
@@ -46,6 +47,7 @@ __all__ = [
     "resolve_num_threads",
     "run_beside",
     "thread_budget",
+    "while_waiting",
     "usable_cores",
 ]
 
@@ -57,6 +59,7 @@ _depth = 0
 _saved: tuple[int, int] | None = None
 _cap: int | None = None
 _pools: dict[int, ThreadPoolExecutor] = {}
+_waiting = threading.local()  # per thread: the jobs it runs while it would wait for a helper (while_waiting)
 
 
 def resolve_num_threads(num_threads: int | None = None) -> int:
@@ -176,6 +179,21 @@ def _run_on_helpers(fn: Callable[..., Any], *args: Any) -> Future:
     return _helper_pool().submit(fn, *args)
 
 
+def _modes() -> tuple[int, bool, bool]:
+    """This thread's torch thread count and autograd modes, for work done on its behalf in another thread."""
+    return torch.get_num_threads(), torch.is_grad_enabled(), torch.is_inference_mode_enabled()
+
+
+def _in_modes(modes: tuple[int, bool, bool], fn: Callable[..., Any], *args: Any) -> Any:
+    # torch's thread count and autograd modes belong to each thread: a helper takes the caller's, so the
+    # arithmetic, and the result to the last bit, are those of the caller's thread
+    threads, grad, inference = modes
+    if torch.get_num_threads() != threads:
+        torch.set_num_threads(threads)
+    with torch.inference_mode(inference), torch.set_grad_enabled(grad):
+        return fn(*args)
+
+
 class Beside:
     """``fn(*args)`` computed on a helper thread while the caller goes on (:func:`run_beside`); :meth:`result`
     returns it, or computes it in the caller's thread where no helper has started on it yet."""
@@ -183,16 +201,9 @@ class Beside:
     def __init__(self, fn: Callable[..., Any], args: tuple, parallel: bool) -> None:
         self._fn, self._args, self._future = fn, args, None
         if parallel:
-            modes = torch.get_num_threads(), torch.is_grad_enabled(), torch.is_inference_mode_enabled()
-            self._future = _run_on_helpers(self._in_callers_mode, *modes)
-
-    def _in_callers_mode(self, threads: int, grad: bool, inference: bool) -> Any:
-        # torch's thread count and autograd modes belong to each thread: the helper takes the caller's, so the
-        # arithmetic, and the result to the last bit, are those of the caller's thread
-        if torch.get_num_threads() != threads:
-            torch.set_num_threads(threads)
-        with torch.inference_mode(inference), torch.set_grad_enabled(grad):
-            return self._fn(*self._args)
+            self._future = _run_on_helpers(_in_modes, _modes(), fn, *args)
+            for job in _waiting_jobs():  # the helper takes them up when done with fn, unless this thread has
+                self._future.add_done_callback(job.take_up)
 
     @classmethod
     def inline(cls, fn: Callable[..., Any], *args: Any) -> Beside:
@@ -207,7 +218,79 @@ class Beside:
     def result(self) -> Any:
         if self._future is None or self._future.cancel():  # not started: the helper is busy with other work
             return self._fn(*self._args)
+        if not self._future.done():  # the helper is still at it: this thread does its waiting jobs first
+            for job in _waiting_jobs():
+                job.take_up()
         return self._future.result()
+
+
+def _waiting_jobs() -> list[Deferred]:
+    return _waiting.__dict__.setdefault("jobs", [])
+
+
+class Deferred:
+    """``fn(*args)`` computed once, by the first thread to take it up (:meth:`run`, :meth:`result`, or a helper done
+    with its work, see :func:`while_waiting`); an exception is kept and raised by :meth:`result`, so a job done
+    while waiting never breaks the work waited for."""
+
+    def __init__(self, fn: Callable[..., Any], args: tuple) -> None:
+        self._fn, self._args, self._outcome = fn, args, None
+        self._lock = threading.Lock()
+        self._modes = _modes()
+        self.open = True  # whether a thread that would wait, or a helper done with its work, may take it up
+
+    @property
+    def ran(self) -> bool:
+        """Whether it has been computed (or is being computed) by now."""
+        return self._outcome is not None or self._lock.locked()
+
+    def take_up(self, _done: Future | None = None) -> None:
+        """Compute it now where it is open and no thread has taken it up (a helper's done-callback)."""
+        if self.open:
+            self.run(wait=False)
+
+    def run(self, wait: bool = True) -> None:
+        """Compute it unless it is done; where another thread is computing it, wait for that (or, with ``wait``
+        False, return at once)."""
+        if self._outcome is not None or not self._lock.acquire(blocking=wait):
+            return
+        try:
+            if self._outcome is None:
+                self._outcome = (True, _in_modes(self._modes, self._fn, *self._args))
+        except Exception as err:
+            self._outcome = (False, err)
+        finally:
+            self._lock.release()
+
+    def result(self) -> Any:
+        self.run()
+        ok, value = self._outcome
+        if not ok:
+            raise value
+        return value
+
+
+@contextmanager
+def while_waiting(fn: Callable[..., Any], *args: Any) -> Iterator[Deferred]:
+    """Inside the block, ``fn(*args)`` fills the first gap in this thread's work shared with helpers: where this
+    thread would wait for a helper (:meth:`Beside.result`) it computes it itself, and a helper done with the work
+    it was handed (:meth:`Beside.start`) before that takes it up. :meth:`Deferred.result` returns it, computed then
+    or on demand. Line detection's strips end unevenly, and the thread that ends first would otherwise wait idle.
+
+    Example:
+        >>> with while_waiting(lambda a: a * 2, 21) as job:
+        ...     pass
+        >>> job.result()
+        42
+    """
+    job = Deferred(fn, args)
+    jobs = _waiting_jobs()
+    jobs.append(job)
+    try:
+        yield job
+    finally:
+        jobs.remove(job)
+        job.open = False
 
 
 def run_beside(fn: Callable[..., Any], *args: Any) -> Beside:

@@ -206,3 +206,112 @@ def test_answers_do_not_depend_on_fsnets_image_side_running_beside():
         alone = calibrate(image).to_dict()
     for name, value in beside.items():
         assert torch.equal(value, alone[name]) if isinstance(value, torch.Tensor) else value == alone[name], name
+
+
+def _two_cores():
+    from ngp_kornia.threads import usable_cores
+
+    if usable_cores() < 2:
+        pytest.skip("needs two cores: with one, no work is handed to a helper")
+
+
+def _held_helper_work():
+    """Work a helper has started and goes on with for a moment after the caller asks for its result."""
+    from ngp_kornia.threads import Beside
+
+    started, release = threading.Event(), threading.Event()
+
+    def work():
+        started.set()
+        return release.wait(timeout=60)
+
+    beside = Beside.start(work)
+    assert started.wait(timeout=60)
+    threading.Timer(0.2, release.set).start()
+    return beside
+
+
+def test_a_thread_does_its_waiting_job_instead_of_waiting_idle():
+    """While a helper is still at its work, the caller computes the job of ``while_waiting`` itself."""
+    from ngp_kornia.threads import while_waiting
+
+    _two_cores()
+    with torch.no_grad(), while_waiting(lambda: threading.current_thread() is threading.main_thread()) as job:
+        work = _held_helper_work()
+        assert work.result()
+        assert job.ran  # done while the helper was still at its work...
+    assert job.result()  # ...by the caller
+
+
+def test_a_helper_done_first_takes_up_the_waiting_job():
+    from ngp_kornia.threads import Beside, while_waiting
+
+    _two_cores()
+    gate, done = threading.Event(), threading.Event()
+
+    def job():
+        done.set()
+        return threading.current_thread() is threading.main_thread()
+
+    with torch.no_grad(), while_waiting(job) as waiting:
+        work = Beside.start(gate.wait, 60)
+        gate.set()
+        assert done.wait(timeout=60)  # this thread is still busy: the helper, done with its work, takes the job up
+        assert work.result()
+    assert waiting.result() is False
+
+
+def test_a_waiting_job_left_alone_is_computed_on_demand_and_keeps_its_error():
+    from ngp_kornia.threads import helper_threads, run_beside, while_waiting
+
+    def fail():
+        raise ValueError("inside the job")
+
+    with torch.no_grad(), helper_threads(1), while_waiting(fail) as job:
+        assert run_beside(lambda: 2).result() == 2
+        assert not job.ran  # one thread: nothing was handed to a helper, so nothing was waited for
+    with pytest.raises(ValueError, match="inside the job"):
+        job.result()
+
+
+def test_a_failing_waiting_job_does_not_break_the_work_waited_for():
+    from ngp_kornia.threads import while_waiting
+
+    _two_cores()
+
+    def fail():
+        raise ValueError("inside the job")
+
+    with torch.no_grad(), while_waiting(fail) as job:
+        work = _held_helper_work()
+        assert work.result()
+        assert job.ran
+    with pytest.raises(ValueError, match="inside the job"):
+        job.result()
+
+
+def test_calibrate_resizes_fsnets_image_while_waiting_for_line_detection(monkeypatch):
+    """With two threads, FSNet's resized image is made in line detection's gap and handed to the parser: the
+    answer is the one the parser gives when it resizes the image itself."""
+    import ngp_kornia.api as api
+    from ngp_kornia.threads import helper_threads
+
+    _two_cores()
+    image = render_scene(6, size=(320, 240)).image
+    handed = []
+    parser_call = NeuralGeometricParser.forward
+
+    def spy(self, *args, fsnet_images=None, **kwargs):
+        handed.append(fsnet_images is not None)
+        return parser_call(self, *args, fsnet_images=fsnet_images, **kwargs)
+
+    monkeypatch.setattr(NeuralGeometricParser, "forward", spy)
+    made = [calibrate(image).to_dict() for _ in range(5)]
+    with helper_threads(1):
+        alone = calibrate(image).to_dict()
+    assert any(handed[:5]) and not handed[5]
+    for result in made:
+        for name, value in result.items():
+            assert torch.equal(value, alone[name]) if isinstance(value, torch.Tensor) else value == alone[name], name
+    assert api._fsnet_size("none") is None
+    assert api._fsnet_size("default") == api.load_parser("default").fsnet.input_size

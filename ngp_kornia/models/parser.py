@@ -292,7 +292,12 @@ class NeuralGeometricParser(nn.Module):
         self.fsnet = fsnet
 
     def forward(
-        self, images: Tensor, segments: Tensor | None = None, mask: Tensor | None = None, return_trace: bool = False
+        self,
+        images: Tensor,
+        segments: Tensor | None = None,
+        mask: Tensor | None = None,
+        return_trace: bool = False,
+        fsnet_images: Tensor | None = None,
     ) -> Calibration | tuple[Calibration, ParserTrace]:
         """Calibrate a batch.
 
@@ -303,20 +308,24 @@ class NeuralGeometricParser(nn.Module):
                 mask keeps must be finite (NaN or infinite ones are refused); padding may hold anything.
             mask: (B, N) bool, required with ``segments``.
             return_trace: also return the intermediate stages.
+            fsnet_images: optional (B, 3, S, S) images already resized to FSNet's input side ``S`` with its filter
+                (:func:`~ngp_kornia.models.fsnet.area_resize`): FSNet reads these instead of resizing ``images``,
+                whose pixels are then not read (a tensor of their shape will do). Ignored without FSNet.
 
         Returns:
             a batched :class:`Calibration`; with ``return_trace``, the pair ``(calibration, trace)``, the trace a
             :class:`ParserTrace` of the stages (the same computation: the calibration does not change).
         """
         with pipeline_threads(self.config.num_threads):  # one thread unless configured; the caller's count is restored
-            return self._forward(images, segments, mask, return_trace)
+            return self._forward(images, segments, mask, return_trace, fsnet_images)
 
     def _forward(
-        self, images: Tensor, segments: Tensor | None, mask: Tensor | None, return_trace: bool
+        self, images: Tensor, segments: Tensor | None, mask: Tensor | None, return_trace: bool, fsnet_images=None
     ) -> Calibration | tuple[Calibration, ParserTrace]:
         if images.dtype in (torch.float16, torch.bfloat16):  # computed in float32, returned in the input's dtype
             low = None if segments is None else segments.float()
-            out = self._forward(images.float(), low, mask, return_trace)
+            resized = None if fsnet_images is None else fsnet_images.float()
+            out = self._forward(images.float(), low, mask, return_trace, resized)
             return (out[0].to(images.dtype), out[1]) if return_trace else out.to(images.dtype)
         cfg = self.config
         height, width = images.shape[-2:]
@@ -332,7 +341,7 @@ class NeuralGeometricParser(nn.Module):
         stages = {"segments": segments, "mask": mask} if return_trace else None
         # FSNet's image side (resized image, line map, shared trunk) needs no frame: on a spare core it runs while
         # this thread samples and scores the frames
-        image_side = None if self.fsnet is None else self._start_fsnet_image_side(images, segments, mask)
+        image_side = None if self.fsnet is None else self._start_fsnet_image_side(images, segments, mask, fsnet_images)
         # the segments' lines and lengths serve the scores, FSNet's inputs and the trust fields: computed once
         pseudo = pseudo_lines(segments, mask, height, width)
         frames, scores = self.score_frames(segments, mask, height, width, generators, stages, pseudo)
@@ -438,18 +447,33 @@ class NeuralGeometricParser(nn.Module):
         output on them (:meth:`FSNet.image_context`), in FSNet's dtype."""
         return self._start_fsnet_image_side(images, segments, mask, beside=False).result()
 
-    def _start_fsnet_image_side(self, images: Tensor, segments: Tensor, mask: Tensor, beside: bool = True) -> Beside:
+    def _start_fsnet_image_side(
+        self, images: Tensor, segments: Tensor, mask: Tensor, resized: Tensor | None = None, beside: bool = True
+    ) -> Beside:
         """:meth:`fsnet_image_side`, its image part (resizing, the trunk) run beside the caller where a core is
         free (:func:`~ngp_kornia.threads.run_beside`). The segments' part stays in this thread: it is many small
         operations, which would slow both threads down. On a GPU it all stays in this thread: work queued from
-        another thread would not follow the caller's CUDA stream."""
+        another thread would not follow the caller's CUDA stream. ``resized``: the images at FSNet's input, when
+        already made (the ``fsnet_images`` of :meth:`forward`)."""
         dtype = next(self.fsnet.parameters()).dtype
         partial = self.fsnet.prepare_line_inputs(segments.to(dtype), mask, images.shape[-2:])
+        if resized is not None:
+            partial = partial._replace(images=self._checked_fsnet_images(resized, len(images)).to(dtype))
         start = run_beside if beside and images.device.type == "cpu" else Beside.inline
         return start(self._fsnet_image_context, images.to(dtype), partial)
 
+    def _checked_fsnet_images(self, resized: Tensor, batch: int) -> Tensor:
+        side = self.fsnet.input_size
+        if not isinstance(resized, Tensor) or tuple(resized.shape) != (batch, 3, side, side):
+            shape = tuple(resized.shape) if isinstance(resized, Tensor) else type(resized).__name__
+            raise ValueError(
+                f"fsnet_images must be the {batch} images resized to FSNet's input, shape {(batch, 3, side, side)}; "
+                f"got {shape}. Leave it out to let the parser resize the images."
+            )
+        return resized
+
     def _fsnet_image_context(self, images: Tensor, partial: FSNetImageInputs) -> tuple[FSNetImageInputs, tuple | None]:
-        image_inputs = with_images(partial, images)
+        image_inputs = partial if partial.images is not None else with_images(partial, images)
         return image_inputs, self.fsnet.image_context(image_inputs)
 
     def zenith_weights(self, lines_z: Tensor, lines_z_ok: Tensor, zenith: Tensor, zenith_ok: Tensor) -> Tensor:

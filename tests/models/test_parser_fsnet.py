@@ -81,3 +81,25 @@ def test_no_grad_inference_keeps_no_graph(scene):
     with torch.no_grad():
         out = parser(image.requires_grad_(False), segments, mask)
     assert not out.focal.requires_grad and not out.R.requires_grad
+
+
+def test_fsnet_images_already_resized_give_the_same_answer(scene):
+    """The pixels FSNet reads can come resized already (calibrate() makes them during line detection): the parser
+    then reads nothing else of the image, and the answer is the one it gives when it resizes the image itself."""
+    from ngp_kornia.models.fsnet import area_resize
+
+    image, segments, mask = scene
+    parser = NeuralGeometricParser(fsnet=tiny_fsnet())
+    with torch.no_grad():
+        own = parser(image, segments, mask)[0].to_dict()
+        resized = area_resize(image, (64, 64))
+        given = parser(torch.zeros_like(image), segments, mask, fsnet_images=resized)[0].to_dict()
+    for name, value in own.items():
+        assert torch.equal(value, given[name]) if isinstance(value, torch.Tensor) else value == given[name], name
+
+
+def test_fsnet_images_of_the_wrong_size_are_refused(scene):
+    image, segments, mask = scene
+    parser = NeuralGeometricParser(fsnet=tiny_fsnet())
+    with torch.no_grad(), pytest.raises(ValueError, match=r"resized to FSNet's input, shape \(1, 3, 64, 64\)"):
+        parser(image, segments, mask, fsnet_images=image)

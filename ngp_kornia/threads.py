@@ -8,11 +8,11 @@ which sets torch's (and OpenCV's) thread count for the duration of the call and 
 also when the call raises.
 
 A call also uses the process's other cores where they are free, on helper threads that never change a result:
-line detection runs LSD's strips side by side (:mod:`ngp_kornia.detect`), the thread whose strip ends first resizes
-the image for FSNet (:func:`while_waiting`), and FSNet's shared trunk runs while the caller's thread samples and
-scores the frames (:func:`run_beside`). The
-helpers take the caller's thread count and autograd mode; :func:`helper_threads` caps how many threads one call
-uses (``ngp predict`` gives each of its processes its share of the cores).
+line detection runs LSD's strips side by side (:mod:`ngp_kornia.detect`); in :func:`~ngp_kornia.calibrate` of a file
+or an array, the thread whose strip ends first resizes the image for FSNet (:func:`while_waiting`); and FSNet's
+shared trunk runs while the caller's thread samples and scores the frames (:func:`run_beside`). The helpers take the
+caller's thread count and autograd mode; :func:`helper_threads` caps how many threads one call uses (``ngp predict``
+gives each of its processes its share of the cores).
 
 How many threads: ``ParserConfig.num_threads`` (``calibrate(image, config=ParserConfig(num_threads=N))``) when
 given; else the environment variable ``NGP_NUM_THREADS``; else 1. ``0`` leaves the caller's setting alone (the

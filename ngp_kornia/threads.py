@@ -41,14 +41,15 @@ import torch
 __all__ = [
     "ENV_VAR",
     "Beside",
+    "Deferred",
     "Lookahead",
     "helper_threads",
     "pipeline_threads",
     "resolve_num_threads",
     "run_beside",
     "thread_budget",
-    "while_waiting",
     "usable_cores",
+    "while_waiting",
 ]
 
 #: environment variable with the default thread count of the pipeline (a positive integer, or 0: do not change)

@@ -320,7 +320,12 @@ class NeuralGeometricParser(nn.Module):
             return self._forward(images, segments, mask, return_trace, fsnet_images)
 
     def _forward(
-        self, images: Tensor, segments: Tensor | None, mask: Tensor | None, return_trace: bool, fsnet_images=None
+        self,
+        images: Tensor,
+        segments: Tensor | None,
+        mask: Tensor | None,
+        return_trace: bool,
+        fsnet_images: Tensor | None = None,
     ) -> Calibration | tuple[Calibration, ParserTrace]:
         if images.dtype in (torch.float16, torch.bfloat16):  # computed in float32, returned in the input's dtype
             low = None if segments is None else segments.float()

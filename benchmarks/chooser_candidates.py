@@ -1,6 +1,6 @@
 """Choosing among more than two horizons: the frame's and the refinement's best few coarse hypotheses.
 
-The refinement (:mod:`ngp_kornia.models.refine`) scores a grid of hypotheses (pitch offsets at the refined roll,
+The refinement (:mod:`ngp_kornia.pipeline.horizon`) scores a grid of hypotheses (pitch offsets at the refined roll,
 times focal scales). Here every image's hypotheses are ranked by line support and thinned so that no two kept
 horizons lie within ``--separation`` image heights of each other; the best ``--count`` of them and the frame's own
 horizon are the candidates. Three rules pick one:
@@ -34,8 +34,8 @@ from fit_chooser import _errors, load_set
 from ngp_kornia.api import _inputs, load_parser
 from ngp_kornia.geometry import horizon_from_zenith, zenith_from_up
 from ngp_kornia.metrics import horizon_auc
-from ngp_kornia.models import ParserConfig
-from ngp_kornia.models.refine import (
+from ngp_kornia.pipeline import ParserConfig
+from ngp_kornia.pipeline.horizon import (
     FOCAL_SCALES,
     _camera_segments,
     _coarse_search,

@@ -29,10 +29,10 @@ import cv2
 import torch
 
 from ngp_kornia.api import load_parser
-from ngp_kornia.detect import detect_segments_gray, pad_segments
 from ngp_kornia.io import read_rgb
 from ngp_kornia.metrics import horizon_auc, horizon_error
-from ngp_kornia.models import ParserConfig
+from ngp_kornia.pipeline import ParserConfig
+from ngp_kornia.pipeline.segments import detect_segments_gray, pad_segments
 
 
 def _datasets(args) -> dict[str, list]:

@@ -1,6 +1,6 @@
 """A learned choice between the frame's horizon and the horizon refinement's best hypothesis, fitted on renders
 and measured against the shipped rule (replace the frame's horizon where the hypothesis' line support is higher
-by more than 8%, :func:`ngp_kornia.models.refine.refine_horizon`). Measured not better on the real sets, so not
+by more than 8%, :func:`ngp_kornia.pipeline.horizon.refine_horizon`). Measured not better on the real sets, so not
 shipped; see BENCHMARKS.md, "A learned horizon chooser".
 
 The chooser is a logistic model of "the hypothesis is closer to the truth" on what both candidates carry
@@ -53,11 +53,11 @@ from ngp_kornia.geometry import (
     to_pseudo_camera,
     zenith_from_up,
 )
+from ngp_kornia.geometry.frames import FrameCandidates
 from ngp_kornia.metrics import horizon_auc, horizon_error
-from ngp_kornia.models import ParserConfig
-from ngp_kornia.models.refine import Refinement, _with_up, search_horizon
-from ngp_kornia.models.result import Calibration
-from ngp_kornia.sampling import FrameCandidates
+from ngp_kornia.pipeline import ParserConfig
+from ngp_kornia.pipeline.horizon import Refinement, _with_up, search_horizon
+from ngp_kornia.pipeline.result import Calibration
 
 MARGIN = 0.08  # the shipped rule
 

@@ -16,7 +16,7 @@ Two steps, so the expensive one runs once per data set and seed::
         --model ngp_kornia/weights/trust.json --out ngp_kornia/weights/trust.json
 
 The confidence is a logistic regression (L2 penalty 1e-2 on standardised inputs, Newton's method) of
-``horizon error < threshold`` on :func:`ngp_kornia.models.confidence.confidence_inputs`. Each standard deviation is
+``horizon error < threshold`` on :func:`ngp_kornia.pipeline.trust.confidence_inputs`. Each standard deviation is
 ``exp(a + b * log(spread + 0.01) + c * logit(confidence))``: (b, c) and a first ``a`` by least squares on
 ``log |error|``, then ``a`` shifted so that 68.3% of the fitting errors lie within one standard deviation (the
 share a normal distribution puts there). Fit on renders only, never on the real photos used to check it.
@@ -24,7 +24,7 @@ share a normal distribution puts there). Fit on renders only, never on the real 
 Step 3: with the principal point off the centre by ``principal_point_std`` image heights per axis (the renders'
 ``RenderConfig.principal_point_std``; the records carry the answer's focal length and pitch), each standard
 deviation becomes ``hypot(line term, k * t)`` with ``t`` from
-:func:`ngp_kornia.models.confidence.principal_point_terms`; ``k`` per parameter is the smallest gain (by bisection)
+:func:`ngp_kornia.pipeline.trust.principal_point_terms`; ``k`` per parameter is the smallest gain (by bisection)
 that puts 68.3% of the errors within one standard deviation, 0 where the line term alone already does.
 """
 
@@ -40,13 +40,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
-import ngp_kornia.models.parser as parser_module
+import ngp_kornia.pipeline.parser as parser_module
 from ngp_kornia import calibrate
 from ngp_kornia.evaluation import LabelledImage as Sample
 from ngp_kornia.evaluation import load_renders as load_rendered
 from ngp_kornia.evaluation import load_yud, weights_and_config
 from ngp_kornia.metrics import fov_error, horizon_error, pitch_error, roll_error, up_vector_error
-from ngp_kornia.models.confidence import (
+from ngp_kornia.pipeline.trust import (
     INPUT_NAMES,
     STD_SPREADS,
     TRUST_FILE,

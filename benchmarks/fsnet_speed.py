@@ -8,7 +8,7 @@ Each variant is timed in eval mode under ``torch.no_grad`` with the default sett
 17 channels per candidate; shared: a half-width, three-stage ResNet-18 trunk once per image plus a light head per
 candidate), after a warm-up call, as the median (and the minimum) of several runs interleaved across the variants,
 with torch's thread count as it is (``--threads`` to set it). The time to build the inputs
-(:func:`ngp_kornia.models.fsnet.fsnet_inputs`: resizing, line map, closeness maps) is reported separately.
+(:func:`ngp_kornia.nets.fsnet.fsnet_inputs`: resizing, line map, closeness maps) is reported separately.
 Multiply-accumulates (GMAC) come from ``torch.utils.flop_counter`` and do not depend on the machine's load, unlike
 the times: other jobs may share the CPU, so the load average is printed with them.
 """
@@ -26,8 +26,8 @@ import torch
 from torch.utils.flop_counter import FlopCounterMode
 
 from ngp_kornia.geometry import rotation_from_angles
-from ngp_kornia.models.fsnet import FSNet, FSNetInputs, fsnet_inputs
-from ngp_kornia.sampling import FrameCandidates
+from ngp_kornia.geometry.frames import FrameCandidates
+from ngp_kornia.nets.fsnet import FSNet, FSNetInputs, fsnet_inputs
 
 
 def interleaved_timings(fns: dict[str, Callable[[], object]], runs: dict[str, int]) -> dict[str, tuple[float, float]]:

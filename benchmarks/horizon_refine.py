@@ -15,7 +15,7 @@ Usage::
         --rendered render_dir --limit-rendered 300 --seeds 0,1,2,3,4 [--weights default] [--out r.json] \
         [--refine margin=0.05 --refine focal_scales=1.0/1.1,frame_roll=true] [--timing N]
 
-Each ``--refine`` is one variant, keyword arguments of :func:`ngp_kornia.models.refine.refine_horizon`
+Each ``--refine`` is one variant, keyword arguments of :func:`ngp_kornia.pipeline.horizon.refine_horizon`
 (default: one variant "on" with the shipped settings).
 
 Seconds per image (``--timing N``): ``ngp_kornia.calibrate`` on the first N images of each real set, with the
@@ -40,11 +40,11 @@ from ngp_kornia import calibrate
 from ngp_kornia.api import load_parser
 from ngp_kornia.data.manifest import CSVManifest
 from ngp_kornia.data.yud import YorkUrbanDB, _loadmat
-from ngp_kornia.detect import detect_segments
 from ngp_kornia.io import read_rgb
 from ngp_kornia.metrics import fov_error, horizon_auc, horizon_error, up_vector_error
-from ngp_kornia.models import ParserConfig
-from ngp_kornia.models.refine import refine_horizon
+from ngp_kornia.pipeline import ParserConfig
+from ngp_kornia.pipeline.horizon import refine_horizon
+from ngp_kornia.pipeline.segments import detect_segments
 
 
 def yud_samples(root: Path) -> list[dict]:

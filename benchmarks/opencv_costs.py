@@ -15,9 +15,9 @@ import time
 import cv2
 
 from ngp_kornia.data.yud import YorkUrbanDB
-from ngp_kornia.detect import detect_segments
 from ngp_kornia.io import read_rgb
-from ngp_kornia.models import ParserConfig
+from ngp_kornia.pipeline import ParserConfig
+from ngp_kornia.pipeline.segments import detect_segments
 
 
 def _imread(path):

@@ -1,10 +1,11 @@
 """Throughput of the procedural renderer, alone and followed by OpenCV's LSD, per CPU core.
 
 One process, one thread (OpenCV, torch and the BLAS / OpenMP pools are limited to one thread), ``--count`` scenes
-rendered with :func:`ngp_kornia.data.synth.render.render_scene` from fixed seeds (derived from ``(--seed, i)``
-exactly as :func:`ngp_kornia.data.synth.render.render_dataset` does: the scenes of ``ngp render --seed S``),
+rendered with :func:`ngp_kornia.training.synth.render.render_scene` from fixed seeds (derived from ``(--seed, i)``
+exactly as :func:`ngp_kornia.training.synth.render.render_dataset` does: the scenes of ``ngp render --seed S``),
 at each size. For every scene it times ``render_scene`` and then the greyscale conversion plus
-:func:`ngp_kornia.detect.detect_segments_gray` on the rendered image (the line detection the training data needs).
+:func:`ngp_kornia.pipeline.segments.detect_segments_gray` on the rendered image (the line detection the training
+data needs).
 
 Usage::
 
@@ -29,8 +30,8 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
-from ngp_kornia.data.synth.render import KINDS, render_scene  # noqa: E402
-from ngp_kornia.detect import detect_segments_gray  # noqa: E402
+from ngp_kornia.pipeline.segments import detect_segments_gray  # noqa: E402
+from ngp_kornia.training.synth.render import KINDS, render_scene  # noqa: E402
 
 
 def scene_seed(seed: int, i: int) -> int:

@@ -23,9 +23,9 @@ import torch
 from ngp_kornia.api import load_parser
 from ngp_kornia.evaluation import load_renders, load_yud
 from ngp_kornia.geometry import frame_manhattan_scores, segment_lengths
+from ngp_kornia.geometry.frames import select_frames, top_frames
 from ngp_kornia.io import load_image
 from ngp_kornia.metrics import frame_horizon_error, horizon_auc
-from ngp_kornia.sampling import select_frames, top_frames
 
 
 def image_rows(sample, parser, tops: list[int], kernels: list[float]) -> dict[str, float]:

@@ -48,12 +48,12 @@ import torch
 
 import ngp_kornia.api as api
 from ngp_kornia import calibrate
-from ngp_kornia.detect import detect_segments_gray
 from ngp_kornia.evaluation import load_manifest, load_yud
 from ngp_kornia.evaluation import lu_vp_detect_method as make_lu
 from ngp_kornia.evaluation.methods import weights_and_config
 from ngp_kornia.io import read_rgb_oriented
-from ngp_kornia.models import ParserConfig
+from ngp_kornia.pipeline import ParserConfig
+from ngp_kornia.pipeline.segments import detect_segments_gray
 
 _BUSY = "import time\nend = time.time() + {seconds}\nwhile time.time() < end:\n    pass\n"
 

@@ -80,7 +80,7 @@ def instrument(parser) -> StageTimer:
 
 def stage_table(image: str, weights: str, repeat: int, with_lu: bool) -> str:
     import ngp_kornia.api as api
-    import ngp_kornia.detect as lines
+    import ngp_kornia.pipeline.segments as lines
 
     parser = load_parser(weights)
     timer = instrument(parser)

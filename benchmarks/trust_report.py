@@ -33,8 +33,8 @@ import numpy as np
 import torch
 
 from ngp_kornia.metrics import horizon_auc
-from ngp_kornia.models import ParserConfig
-from ngp_kornia.models.confidence import TRUST_FILE, TrustFeatures, TrustModel, principal_point_terms
+from ngp_kornia.pipeline import ParserConfig
+from ngp_kornia.pipeline.trust import TRUST_FILE, TrustFeatures, TrustModel, principal_point_terms
 
 GROSS = 0.1
 

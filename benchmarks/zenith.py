@@ -25,14 +25,14 @@ import cv2
 import numpy as np
 import torch
 
-from ngp_kornia.data.synth.render import render_scene
 from ngp_kornia.data.yud import YorkUrbanDB
-from ngp_kornia.detect import detect_segments, detect_segments_gray
 from ngp_kornia.evaluation import LabelledImage, load_yud, lu_vp_detect_method
 from ngp_kornia.geometry import homogeneous_to_pseudo_camera, pseudo_focal
 from ngp_kornia.metrics import zenith_error_deg
-from ngp_kornia.models import NeuralGeometricParser, ParserConfig
-from ngp_kornia.models.weights import load_network
+from ngp_kornia.nets.weights import load_network
+from ngp_kornia.pipeline import NeuralGeometricParser, ParserConfig
+from ngp_kornia.pipeline.segments import detect_segments, detect_segments_gray
+from ngp_kornia.training.synth.render import render_scene
 
 #: the seeds of the rendered test split of ``ngp-train``'s RenderedDataModule (scene i is ``render_scene(seed + i)``)
 TEST_SEED = 2_000_000

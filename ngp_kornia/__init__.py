@@ -26,7 +26,7 @@ if TYPE_CHECKING:
         WeightsError,
     )
     from ngp_kornia.io import ImageError
-    from ngp_kornia.models import Calibration, NeuralGeometricParser, ParserConfig
+    from ngp_kornia.pipeline import Calibration, NeuralGeometricParser, ParserConfig
 
 # The public names are imported on first use (torch and OpenCV take a second or two to import): the ``ngp``
 # command can then answer Ctrl+C during its start-up with a message instead of a traceback.
@@ -34,7 +34,7 @@ _ERRORS = "CheckpointError ConfigError ImageReadError InputError ManifestError N
 _HOMES = {
     "calibrate": "ngp_kornia.api",
     "ImageError": "ngp_kornia.io",
-    **dict.fromkeys(("Calibration", "NeuralGeometricParser", "ParserConfig"), "ngp_kornia.models"),
+    **dict.fromkeys(("Calibration", "NeuralGeometricParser", "ParserConfig"), "ngp_kornia.pipeline"),
     **dict.fromkeys(_ERRORS.split(), "ngp_kornia.errors"),
 }
 

@@ -12,13 +12,13 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ngp_kornia.detect import detect_segments
 from ngp_kornia.errors import WeightsError
 from ngp_kornia.exif import exif_focal
 from ngp_kornia.io import as_batch, read_rgb_oriented
-from ngp_kornia.models import Calibration, NeuralGeometricParser, ParserConfig
-from ngp_kornia.models.fsnet import area_resize
-from ngp_kornia.models.weights import load_network, network_name, shipped_weights
+from ngp_kornia.nets.fsnet import area_resize
+from ngp_kornia.nets.weights import load_network, network_name, shipped_weights
+from ngp_kornia.pipeline import Calibration, NeuralGeometricParser, ParserConfig
+from ngp_kornia.pipeline.segments import detect_segments
 from ngp_kornia.threads import Lookahead, pipeline_threads, while_waiting
 
 __all__ = ["DEFAULT_WEIGHTS", "WEIGHTS", "calibrate", "load_parser", "with_orientation"]
@@ -101,7 +101,7 @@ def calibrate(
             candidates scored by the shipped ZSNet), ``"fsnet"`` (frames rescored by the shipped FSNet), ``"full"``
             (both), or the path of a weights file (or a list of paths: one ZSNet and one FSNet file).
         seed: seed of the random candidate sampling; the same input and seed give the same result.
-        config: pipeline settings (:class:`ngp_kornia.models.ParserConfig`); its ``num_threads`` sets the torch and
+        config: pipeline settings (:class:`ngp_kornia.pipeline.ParserConfig`); its ``num_threads`` sets the torch and
             OpenCV threads of the call (default: ``$NGP_NUM_THREADS`` or 1), the caller's count is restored after.
         focal: a known focal length in pixels of the input image (a prior; overrides the config's).
         fov_v: a known vertical field of view in degrees (a prior; ``focal`` wins when both are given).

@@ -18,7 +18,7 @@ from kornia.core.exceptions import BaseError as KorniaCheckError
 from ngp_kornia.errors import NGPError, OutputError
 
 if TYPE_CHECKING:
-    from ngp_kornia.models import ParserConfig
+    from ngp_kornia.pipeline import ParserConfig
 
 __all__ = ["main"]
 
@@ -126,7 +126,7 @@ def _add_render(sub) -> None:
         "--config",
         help='a JSON file of RenderConfig settings, e.g. {"stairs": 1.5, "fronto_prob": 0.3, "pitch": [-45, 55]} '
         "(the hard cases, the camera imperfections principal_point_std and radial_distortion, and every range of "
-        "ngp_kornia.data.synth.render.RenderConfig)",
+        "ngp_kornia.training.synth.render.RenderConfig)",
     )
 
 
@@ -161,7 +161,7 @@ def _add_prior_arguments(command: argparse.ArgumentParser) -> None:
 
 def _trust_config(args: argparse.Namespace):
     """The ParserConfig of --principal-point-std, --working-size and --polish-frame (checked in main())."""
-    from ngp_kornia.models import ParserConfig
+    from ngp_kornia.pipeline import ParserConfig
 
     given = {"working_size": args.working_size, "principal_point_std": args.principal_point_std}
     return ParserConfig(polish_frame=args.polish_frame, **{k: v for k, v in given.items() if v is not None})
@@ -214,7 +214,7 @@ def _write_image(path: Path, rgb: np.ndarray) -> None:
 
 
 def _write_overlay(path: Path, rgb: np.ndarray, calibration, config: ParserConfig | None = None) -> None:
-    from ngp_kornia.detect import detect_segments
+    from ngp_kornia.pipeline.segments import detect_segments
     from ngp_kornia.viz import draw_calibration
 
     segments = detect_segments(rgb, config)[0][0].numpy()  # the lines the calibration saw (same settings)
@@ -372,7 +372,7 @@ def _rectify(args: argparse.Namespace) -> int:
 
 def _demo(args: argparse.Namespace) -> int:
     from ngp_kornia.api import calibrate
-    from ngp_kornia.data.synth.render import render_scene
+    from ngp_kornia.training.synth.render import render_scene
 
     scene = render_scene(args.seed)
     calibration = calibrate(scene.image)
@@ -389,7 +389,7 @@ def _demo(args: argparse.Namespace) -> int:
 
 
 def _render(args: argparse.Namespace) -> int:
-    from ngp_kornia.data.synth.render import render_dataset
+    from ngp_kornia.training.synth.render import render_dataset
 
     try:
         width, height = (int(v) for v in args.size.lower().split("x"))
@@ -424,7 +424,7 @@ def _render_config(path: str | None):
     """The RenderConfig of a JSON settings file (None: the defaults); ValueError naming what is wrong."""
     from dataclasses import fields
 
-    from ngp_kornia.data.synth.render import RenderConfig
+    from ngp_kornia.training.synth.render import RenderConfig
 
     if path is None:
         return None

@@ -17,8 +17,8 @@ from kornia.core.check import KORNIA_CHECK_SHAPE
 from torch import Tensor
 
 from ngp_kornia.geometry.camera import horizon_border_points, horizon_from_zenith, image_center, intrinsics_matrix
+from ngp_kornia.geometry.frames import FrameCandidates
 from ngp_kornia.geometry.line_algebra import pseudo_focal
-from ngp_kornia.sampling import FrameCandidates
 
 __all__ = [
     "angle_error_between_rotations",

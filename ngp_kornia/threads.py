@@ -3,12 +3,13 @@
 The parser's tensors are small (a few thousand candidates, a 224x224 FSNet input), so torch's intra-op threads
 gain nothing on an idle machine and spin against every other process on a busy one: on two loaded cores the
 default call took 8-10x lu-vp-detect's time with two threads and 1.0-1.14x with one (BENCHMARKS.md). :func:`calibrate`,
-:class:`~ngp_kornia.models.NeuralGeometricParser` and ``ngp predict`` therefore run inside :func:`pipeline_threads`,
+:class:`~ngp_kornia.pipeline.NeuralGeometricParser` and ``ngp predict`` therefore run inside :func:`pipeline_threads`,
 which sets torch's (and OpenCV's) thread count for the duration of the call and restores the caller's afterwards,
 also when the call raises.
 
 A call also uses the process's other cores where they are free, on helper threads that never change a result:
-line detection runs LSD's strips side by side (:mod:`ngp_kornia.detect`); in :func:`~ngp_kornia.calibrate` of a file
+line detection runs LSD's strips side by side (:mod:`~ngp_kornia.pipeline.segments`); in
+:func:`~ngp_kornia.calibrate` of a file
 or an array, the thread whose strip ends first resizes the image for FSNet (:func:`while_waiting`); and FSNet's
 shared trunk runs while the caller's thread samples and scores the frames (:func:`run_beside`). The helpers take the
 caller's thread count and autograd mode; :func:`helper_threads` caps how many threads one call uses (``ngp predict``

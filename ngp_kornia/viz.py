@@ -8,7 +8,7 @@ import numpy as np
 import torch
 
 from ngp_kornia.geometry import horizon_border_points, segment_vp_angle
-from ngp_kornia.models.result import Calibration
+from ngp_kornia.pipeline.result import Calibration
 
 __all__ = ["BOX_EDGES", "LEGEND", "draw_axes", "draw_calibration", "draw_frame_box", "frame_box_points"]
 

@@ -33,10 +33,10 @@ import torch
 
 import ngp_kornia
 from ngp_kornia import ConfigError, InputError, NeuralGeometricParser, ParserConfig, calibrate
-from ngp_kornia.data.synth.render import render_scene
 from ngp_kornia.errors import ImageReadError, NGPError, WeightsError
-from ngp_kornia.models.weights import FORMAT, VERSION, save_network
-from ngp_kornia.models.zsnet import ZSNet
+from ngp_kornia.nets.weights import FORMAT, VERSION, save_network
+from ngp_kornia.nets.zsnet import ZSNet
+from ngp_kornia.training.synth.render import render_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 CASES: list[tuple[str, str, Callable[[Path], str]]] = []

@@ -10,9 +10,9 @@ import torch
 import ngp_kornia
 from ngp_kornia import ImageError, calibrate
 from ngp_kornia.api import load_parser
-from ngp_kornia.models.fsnet import FSNet
-from ngp_kornia.models.weights import WeightsError, save_network
-from ngp_kornia.models.zsnet import ZSNet
+from ngp_kornia.nets.fsnet import FSNet
+from ngp_kornia.nets.weights import WeightsError, save_network
+from ngp_kornia.nets.zsnet import ZSNet
 
 
 @pytest.fixture
@@ -88,7 +88,7 @@ def test_parser_with_autograd_after_calibrate(photo):
 def test_cached_constants_first_built_in_inference_mode_are_ordinary_tensors():
     """The parser's caches serve calibrate() (inference mode) and differentiable callers alike."""
     from ngp_kornia.geometry import line_maps
-    from ngp_kornia.models.constants import constant_tensors
+    from ngp_kornia.pipeline.constants import constant_tensors
 
     built = [
         (constant_tensors, (((0.0, 1.0), (0.5, 1.5)), torch.float32, torch.device("cpu"))),
@@ -240,7 +240,7 @@ def test_version_is_exposed():
 
 @pytest.mark.parametrize("weights", ["none", "fsnet", "full"])
 def test_an_image_gets_the_same_answer_in_a_batch_as_alone(weights):
-    from ngp_kornia.data.synth.render import render_scene
+    from ngp_kornia.training.synth.render import render_scene
 
     scenes = [render_scene(s, size=(320, 240)).image for s in (1, 2, 3)]
     images = [torch.from_numpy(image).permute(2, 0, 1).float() / 255 for image in scenes]

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from ngp_kornia import calibrate
-from ngp_kornia.data.synth.render import render_scene
+from ngp_kornia.training.synth.render import render_scene
 
 
 @pytest.fixture(scope="module")

@@ -93,7 +93,7 @@ def test_render_writes_images_and_ground_truth(tmp_path, capsys):
 
 
 def test_render_config_file_renders_what_render_scene_gives_with_it(tmp_path, capsys):
-    from ngp_kornia.data.synth.render import RenderConfig, render_scene
+    from ngp_kornia.training.synth.render import RenderConfig, render_scene
 
     settings = {"stairs": 2.0, "fronto_prob": 1.0, "pitch": [30, 40], "kinds": {"street": 1.0}}
     (tmp_path / "hard.json").write_text(json.dumps(settings))
@@ -134,7 +134,7 @@ def test_rectify_writes_a_png(photo, tmp_path, capsys, mode):
 
 
 def test_rectify_keep_of_a_rendered_scene_keeps_the_pixels(tmp_path, capsys):
-    from ngp_kornia.data.synth.render import render_scene
+    from ngp_kornia.training.synth.render import render_scene
 
     source = tmp_path / "scene.png"
     cv2.imwrite(str(source), cv2.cvtColor(render_scene(1, (320, 240)).image, cv2.COLOR_RGB2BGR))
@@ -237,9 +237,9 @@ def test_libpng_noise_does_not_reach_stderr(tmp_path):
 
 def test_overlay_draws_the_segments_the_calibration_saw(tmp_path, monkeypatch, capsys):
     import ngp_kornia.viz
-    from ngp_kornia.data.synth.render import render_scene
-    from ngp_kornia.detect import detect_segments, detect_segments_gray
-    from ngp_kornia.models import ParserConfig
+    from ngp_kornia.pipeline import ParserConfig
+    from ngp_kornia.pipeline.segments import detect_segments, detect_segments_gray
+    from ngp_kornia.training.synth.render import render_scene
 
     rgb = render_scene(2).image  # 640x480, more segments than the parser keeps
     path = tmp_path / "scene.png"

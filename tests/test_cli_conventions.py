@@ -9,7 +9,7 @@ import pytest
 
 import ngp_kornia
 from ngp_kornia import calibrate, cli
-from ngp_kornia.data.synth.render import render_scene
+from ngp_kornia.training.synth.render import render_scene
 
 
 @pytest.fixture(scope="module")

@@ -4,11 +4,11 @@ CNN's output trains the parser's FSNet too. The README shows the same model."""
 import torch
 from torch import nn
 
-from ngp_kornia.data.synth.render import render_scene
-from ngp_kornia.detect import detect_segments
 from ngp_kornia.geometry import rectify, upright_homography
-from ngp_kornia.models import NeuralGeometricParser, ParserConfig
-from ngp_kornia.models.fsnet import FSNet
+from ngp_kornia.nets.fsnet import FSNet
+from ngp_kornia.pipeline import NeuralGeometricParser, ParserConfig
+from ngp_kornia.pipeline.segments import detect_segments
+from ngp_kornia.training.synth.render import render_scene
 
 
 class UprightClassifier(nn.Module):

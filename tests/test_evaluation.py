@@ -9,7 +9,6 @@ from pathlib import Path
 import pytest
 import torch
 
-from ngp_kornia.data.synth.render import render_dataset
 from ngp_kornia.evaluation import (
     Estimate,
     LabelledImage,
@@ -28,6 +27,7 @@ from ngp_kornia.evaluation import (
 )
 from ngp_kornia.evaluation.suite import main as suite_main
 from ngp_kornia.geometry.camera import horizon_border_points
+from ngp_kornia.training.synth.render import render_dataset
 
 SHARED_YUD = Path(os.environ.get("YUD_ROOT", "/work/shared/data/YorkUrbanDB"))
 W, H = 160, 120

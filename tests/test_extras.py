@@ -39,10 +39,12 @@ def test_the_core_runs_without_the_train_extra(tmp_path):
         """
         import numpy as np
         import ngp_kornia
-        from ngp_kornia import geometry, sampling, metrics, viz
+        from ngp_kornia import geometry, metrics, viz
+        from ngp_kornia.pipeline import candidates
         from ngp_kornia.cli import main
-        from ngp_kornia.data.synth.render import render_scene
-        from ngp_kornia.models import FSNet, NeuralGeometricParser, ZSNet
+        from ngp_kornia.training.synth.render import render_scene
+        from ngp_kornia.nets import FSNet, ZSNet
+        from ngp_kornia.pipeline import NeuralGeometricParser
 
         image = render_scene(2, (160, 120)).image
         print(ngp_kornia.calibrate(image, weights="full").valid.item())

@@ -8,7 +8,6 @@ import pytest
 import torch
 
 from ngp_kornia import ImageReadError, NGPError, calibrate
-from ngp_kornia.data.synth.render import render_scene
 from ngp_kornia.io import (
     MAX_PIXELS,
     apply_orientation,
@@ -18,6 +17,7 @@ from ngp_kornia.io import (
     read_image,
     read_image_file,
 )
+from ngp_kornia.training.synth.render import render_scene
 from tests.image_files import jpeg_with_orientation, png_chunk, png_declaring, png_with_orientation
 
 # ------------------------------------------------------------------------------------------------ pixel limit

@@ -11,8 +11,8 @@ import pytest
 
 from ngp_kornia import calibrate
 from ngp_kornia.cli import main
-from ngp_kornia.data.synth.render import render_scene
 from ngp_kornia.predict import merge_parts, predict_folder
+from ngp_kornia.training.synth.render import render_scene
 
 
 def _write_scenes(folder, seeds):

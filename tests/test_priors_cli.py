@@ -10,10 +10,10 @@ import pytest
 
 from ngp_kornia import calibrate
 from ngp_kornia.cli import main
-from ngp_kornia.data.synth.render import render_scene
 from ngp_kornia.exif import FILM_DIAGONAL_MM
-from ngp_kornia.models import ParserConfig
+from ngp_kornia.pipeline import ParserConfig
 from ngp_kornia.predict import predict_folder
+from ngp_kornia.training.synth.render import render_scene
 from ngp_kornia.viz import draw_calibration
 from tests.test_exif import SHORT, tiff_block
 
@@ -71,7 +71,7 @@ def test_calibrate_reads_exif_only_when_asked(photos):
 
 def test_predict_uses_each_files_exif(photos, tmp_path):
     out = tmp_path / "rows.jsonl"
-    from ngp_kornia.models import ParserConfig
+    from ngp_kornia.pipeline import ParserConfig
 
     predict_folder(photos, out, config=ParserConfig(exif=True))
     rows = {r["image"]: r for r in map(json.loads, out.read_text().splitlines())}

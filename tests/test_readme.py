@@ -5,7 +5,7 @@ from pathlib import Path
 
 import torch
 
-from ngp_kornia.data.synth.render import render_scene
+from ngp_kornia.training.synth.render import render_scene
 
 README = Path(__file__).resolve().parent.parent / "README.md"
 

@@ -13,10 +13,10 @@ import pytest
 import torch
 
 from ngp_kornia import calibrate
-from ngp_kornia.data.synth.render import render_scene
 from ngp_kornia.io import ImageError
-from ngp_kornia.models import NeuralGeometricParser, ParserConfig
+from ngp_kornia.pipeline import NeuralGeometricParser, ParserConfig
 from ngp_kornia.threads import ENV_VAR, pipeline_threads, resolve_num_threads
+from ngp_kornia.training.synth.render import render_scene
 
 
 @pytest.fixture

@@ -12,9 +12,9 @@ import torch
 
 from ngp_kornia import calibrate
 from ngp_kornia.errors import CheckpointError, NGPError, WeightsError
-from ngp_kornia.models.fsnet import FSNet
-from ngp_kornia.models.weights import FORMAT, VERSION, load_network, save_network
-from ngp_kornia.models.zsnet import ZSNet
+from ngp_kornia.nets.fsnet import FSNet
+from ngp_kornia.nets.weights import FORMAT, VERSION, load_network, save_network
+from ngp_kornia.nets.zsnet import ZSNet
 from ngp_kornia.training.command import export_checkpoint
 from ngp_kornia.training.command import main as train_main
 

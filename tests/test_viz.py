@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 import torch
 
-from ngp_kornia.data.synth.render import camera_ground_truth
 from ngp_kornia.geometry import segment_vp_angle
-from ngp_kornia.models.result import Calibration
+from ngp_kornia.pipeline.result import Calibration
+from ngp_kornia.training.synth.render import camera_ground_truth
 from ngp_kornia.viz import AXIS_COLOURS, BOX_EDGES, draw_axes, draw_calibration, draw_frame_box, frame_box_points
 
 SIZE = (320, 240)  # (W, H)

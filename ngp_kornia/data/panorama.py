@@ -269,7 +269,7 @@ def crop_ground_truth(
     fov_v: Tensor | float, pitch: Tensor | float, roll: Tensor | float, yaw: Tensor | float, size: tuple[int, int]
 ) -> dict[str, Tensor]:
     """Calibration ground truth of perspective crops, with the field names of
-    :class:`ngp_kornia.models.result.Calibration`.
+    :class:`ngp_kornia.pipeline.result.Calibration`.
 
     ``R`` is relative to the panorama's world frame (yaw as given), not canonicalised to a Manhattan frame.
 

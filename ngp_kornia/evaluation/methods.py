@@ -19,7 +19,7 @@ from torch import Tensor
 
 from ngp_kornia.evaluation.datasets import LabelledImage
 from ngp_kornia.geometry.camera import horizon_from_zenith, pitch_roll_from_up, zenith_from_up
-from ngp_kornia.models import Calibration, ParserConfig
+from ngp_kornia.pipeline import Calibration, ParserConfig
 
 __all__ = [
     "Estimate",

@@ -23,7 +23,7 @@ except ImportError as err:
     raise ImportError(f"training needs Lightning and jsonargparse ({err}); pip install 'ngp-kornia[train]'") from err
 
 from ngp_kornia.errors import CheckpointError, NGPError
-from ngp_kornia.models.weights import NETWORKS, build_network, load_tensors_safely, save_network
+from ngp_kornia.nets.weights import NETWORKS, build_network, load_tensors_safely, save_network
 
 __all__ = ["config_path", "export_checkpoint", "main", "packaged_configs", "read_checkpoint"]
 

@@ -28,11 +28,11 @@ from torch.utils.data import DataLoader, Dataset
 from ngp_kornia.data.folder import ImageFolder
 from ngp_kornia.data.manifest import CSVManifest
 from ngp_kornia.data.panorama import crop_ground_truth, perspective_crops, sample_crop_params
-from ngp_kornia.data.synth.render import RenderConfig, config_spec, render_scene
-from ngp_kornia.detect import detect_segments, pad_segments
 from ngp_kornia.geometry import rotation_from_angles
 from ngp_kornia.io import load_image, read_image_file
-from ngp_kornia.models.parser import ParserConfig
+from ngp_kornia.pipeline.parser import ParserConfig
+from ngp_kornia.pipeline.segments import detect_segments, pad_segments
+from ngp_kornia.training.synth.render import RenderConfig, config_spec, render_scene
 
 __all__ = [
     "CachedScenes",
@@ -200,7 +200,7 @@ class CachedScenes(Dataset):
 
 
 class RenderedScenes(CachedScenes):
-    """Rendered scenes, one per seed (:func:`ngp_kornia.data.synth.render.render_scene`).
+    """Rendered scenes, one per seed (:func:`ngp_kornia.training.synth.render.render_scene`).
 
     Args:
         seeds: the scenes' seeds.

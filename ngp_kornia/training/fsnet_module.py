@@ -13,11 +13,11 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from ngp_kornia.errors import ConfigError
+from ngp_kornia.geometry.frames import FrameCandidates, select_frames, top_frames
 from ngp_kornia.metrics import frame_horizon_error, horizon_auc
-from ngp_kornia.models.fsnet import FSNet, FSNetInputs, frame_scores
-from ngp_kornia.models.parser import NeuralGeometricParser, ParserConfig
-from ngp_kornia.models.weights import load_network, shipped_weights
-from ngp_kornia.sampling import FrameCandidates, select_frames, top_frames
+from ngp_kornia.nets.fsnet import FSNet, FSNetInputs, frame_scores
+from ngp_kornia.nets.weights import load_network, shipped_weights
+from ngp_kornia.pipeline.parser import NeuralGeometricParser, ParserConfig
 from ngp_kornia.training.base import NetworkModule
 from ngp_kornia.training.datamodules import SceneBatch
 from ngp_kornia.training.losses import frame_classification_loss, frame_labels

@@ -15,8 +15,8 @@ from ngp_kornia.geometry import (
     structure_tensor,
     weighted_structure_tensor,
 )
+from ngp_kornia.geometry.frames import FrameCandidates
 from ngp_kornia.metrics import frame_horizon_error
-from ngp_kornia.sampling import FrameCandidates
 
 __all__ = [
     "zenith_labels",

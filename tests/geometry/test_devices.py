@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from ngp_kornia import geometry as G
-from ngp_kornia.models import NeuralGeometricParser
+from ngp_kornia.pipeline import NeuralGeometricParser
 from tests.synthetic_camera import H, W, camera_from_angles
 
 
@@ -89,7 +89,7 @@ def test_geometry_keeps_device_and_dtype(name, device, dtype):
 
 
 def test_parser_runs_on_the_device(device, dtype):
-    from tests.models.test_parser import manhattan_segments
+    from tests.pipeline.test_parser import manhattan_segments
 
     segments, mask, focal, (h, w) = manhattan_segments(10.0, -5.0, 25.0)
     images = torch.zeros(1, 3, h, w, device=device, dtype=dtype)

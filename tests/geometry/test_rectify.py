@@ -7,7 +7,6 @@ import torch
 from kornia.core.exceptions import BaseError, ShapeError
 from torch.autograd import gradcheck
 
-from ngp_kornia.data.synth.render import render_scene
 from ngp_kornia.geometry.camera import (
     horizon_border_points,
     horizon_from_zenith,
@@ -15,6 +14,7 @@ from ngp_kornia.geometry.camera import (
     rotation_from_angles,
 )
 from ngp_kornia.geometry.rectify import frontal_homography, level_homography, rectify, upright_homography
+from ngp_kornia.training.synth.render import render_scene
 from tests.synthetic_camera import BATCHES, H, W, camera_from_angles
 
 

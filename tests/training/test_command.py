@@ -10,7 +10,7 @@ import pytest
 from lightning.pytorch.loggers import CSVLogger
 
 import ngp_kornia
-from ngp_kornia.models.zsnet import ZSNet
+from ngp_kornia.nets.zsnet import ZSNet
 from ngp_kornia.training.command import config_path, main, packaged_configs
 from ngp_kornia.training.datamodules import RenderedDataModule, RenderedScenes
 from ngp_kornia.training.plots import metric_label, plot_curves, read_metrics

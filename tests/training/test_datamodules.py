@@ -7,8 +7,7 @@ import lightning as L
 import numpy as np
 import torch
 
-from ngp_kornia.data.synth.render import RenderConfig, render_scene
-from ngp_kornia.models.zsnet import ZSNet
+from ngp_kornia.nets.zsnet import ZSNet
 from ngp_kornia.training.datamodules import (
     JoinedScenes,
     ManifestDataModule,
@@ -16,6 +15,7 @@ from ngp_kornia.training.datamodules import (
     RenderedDataModule,
     RenderedScenes,
 )
+from ngp_kornia.training.synth.render import RenderConfig, render_scene
 from ngp_kornia.training.zsnet_module import ZSNetModule
 
 

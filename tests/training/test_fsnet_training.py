@@ -7,9 +7,9 @@ import pytest
 import torch
 
 from ngp_kornia.geometry import horizon_from_zenith, intrinsics_matrix
+from ngp_kornia.geometry.frames import FrameCandidates, select_frames
 from ngp_kornia.metrics import frame_horizon_error
-from ngp_kornia.models.fsnet import FSNet
-from ngp_kornia.sampling import FrameCandidates, select_frames
+from ngp_kornia.nets.fsnet import FSNet
 from ngp_kornia.training.datamodules import RenderedDataModule, SceneBatch
 from ngp_kornia.training.fsnet_module import FSNetModule
 from ngp_kornia.training.losses import frame_classification_loss, frame_labels
@@ -133,7 +133,7 @@ def test_fast_dev_run(tmp_path):
 
 
 def test_init_weights_start_from_the_shipped_fsnet():
-    from ngp_kornia.models.weights import load_network, shipped_weights
+    from ngp_kornia.nets.weights import load_network, shipped_weights
 
     shipped = load_network(shipped_weights("fsnet"), "FSNet")
     module = FSNetModule(FSNet(variant="shared", input_size=128), init_weights="fsnet")

@@ -6,8 +6,8 @@ import torch
 
 from ngp_kornia import calibrate
 from ngp_kornia.metrics import zenith_error_deg
-from ngp_kornia.models.weights import load_network
-from ngp_kornia.models.zsnet import ZSNet
+from ngp_kornia.nets.weights import load_network
+from ngp_kornia.nets.zsnet import ZSNet
 from ngp_kornia.training.command import export_checkpoint
 from ngp_kornia.training.datamodules import RenderedDataModule
 from ngp_kornia.training.losses import zenith_classification_loss, zenith_labels, zenith_localisation_loss

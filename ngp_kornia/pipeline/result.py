@@ -1,0 +1,198 @@
+"""The calibration result: a typed, batched container of tensors with attribute access."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import torch
+from torch import Tensor
+
+from ngp_kornia.pipeline import camera_export as cameras
+
+__all__ = ["Calibration"]
+
+
+@dataclass
+class Calibration:
+    """Camera calibration of one image or a batch (every field has a leading batch dim ``B`` when batched).
+
+    Conventions: pixels x right, y down, origin at the centre of the top-left pixel, in the *input* image's
+    pixels; camera frame x right, y down, z forward; ``R`` maps world directions to camera directions with world y
+    pointing down; pitch > 0 looks up; roll > 0 when the scene's up direction leans right in the image; angles in
+    degrees. See :mod:`ngp_kornia.geometry.camera`.
+
+    Attributes:
+        K: (B, 3, 3) intrinsics (principal point at the image centre).
+        R: (B, 3, 3) world-to-camera rotation of the Manhattan frame; world z is the horizontal scene axis closest
+            to the optical axis, so yaw lies in [-45, 45].
+        focal: (B,) focal length in pixels.
+        fov_v: (B,) vertical field of view, degrees.
+        fov_h: (B,) horizontal field of view, degrees.
+        pitch: (B,) degrees.
+        roll: (B,) degrees.
+        yaw: (B,) degrees, relative to the scene's Manhattan frame.
+        up: (B, 3) unit up vector in camera coordinates.
+        zenith: (B, 3) homogeneous zenith VP in pixels (unit norm; third coordinate 0 when at infinity).
+        horizon: (B, 3) horizon line ``(a, b, c)``, ``a x + b y + c = 0`` in pixels, ``a^2 + b^2 = 1``, ``b >= 0``.
+        vps: (B, 3, 3) the three Manhattan VPs, homogeneous pixels, unit norm; row ``i`` is the VP of world axis
+            ``i`` (row 1 is the zenith direction).
+        score: (B,) score of the best frame candidate (the Manhattan score for the geometric path), in [0, 1].
+        valid: (B,) bool; False when the image offered no valid frame candidate, in which case the result is a
+            level camera with a 60 degree field of view on the long side.
+        image_size: (B, 2) ``(height, width)`` in pixels.
+        exif_orientation: (B,) long: the EXIF orientation tag (1-8) of the file that was applied before
+            calibrating, so every field is in the pixels of the image as displayed (6 and 8: a phone photo stored
+            turned, ...); 1 when nothing was turned: files stored upright, and arrays and tensors, which are taken
+            as they are.
+        confidence: (B,) predicted probability, in [0, 1], that the horizon error is below 0.02 image heights
+            (:mod:`ngp_kornia.pipeline.trust`); 0 where ``valid`` is False. None when not computed.
+        pitch_std: (B,) standard deviation of the pitch, degrees (None when not computed).
+        roll_std: (B,) standard deviation of the roll, degrees.
+        fov_v_std: (B,) standard deviation of the vertical field of view, degrees (0 with a known focal length).
+    """
+
+    K: Tensor
+    R: Tensor
+    focal: Tensor
+    fov_v: Tensor
+    fov_h: Tensor
+    pitch: Tensor
+    roll: Tensor
+    yaw: Tensor
+    up: Tensor
+    zenith: Tensor
+    horizon: Tensor
+    vps: Tensor
+    score: Tensor
+    valid: Tensor
+    image_size: Tensor
+    exif_orientation: Tensor | None = None
+    confidence: Tensor | None = None
+    pitch_std: Tensor | None = None
+    roll_std: Tensor | None = None
+    fov_v_std: Tensor | None = None
+
+    def __post_init__(self) -> None:
+        if self.exif_orientation is None:  # made without it: nothing was turned
+            self.exif_orientation = torch.ones_like(self.focal, dtype=torch.long)
+
+    @property
+    def batched(self) -> bool:
+        return self.focal.dim() == 1
+
+    def __len__(self) -> int:
+        if not self.batched:
+            raise TypeError("an unbatched Calibration has no length")
+        return self.focal.shape[0]
+
+    def __getitem__(self, index: int) -> Calibration:
+        """The calibration of one image of a batch, without the batch dim."""
+        if not self.batched:
+            raise TypeError("an unbatched Calibration cannot be indexed")
+        return Calibration(**{f.name: _index(getattr(self, f.name), index) for f in fields(self)})
+
+    def to(self, *args, **kwargs) -> Calibration:
+        """Move or cast every floating-point tensor, like :meth:`torch.Tensor.to`."""
+        out = {}
+        for f in fields(self):
+            t = getattr(self, f.name)
+            if t is None:
+                out[f.name] = None
+                continue
+            out[f.name] = t.to(*args, **kwargs) if t.is_floating_point() else t.to(device=t.device)
+        return Calibration(**out)
+
+    def clone(self) -> Calibration:
+        """A copy with every tensor cloned, like :meth:`torch.Tensor.clone`."""
+        values = {f.name: getattr(self, f.name) for f in fields(self)}
+        return Calibration(**{name: None if t is None else t.clone() for name, t in values.items()})
+
+    def to_dict(self) -> dict | list[dict]:
+        """Plain JSON-able values: a dict for one image, a list of dicts for a batch.
+
+        Besides the fields: ``height``, ``width``, the principal point ``cx``, ``cy`` (our pixels) and
+        ``distortion``, OpenCV's ``(k1, k2, p1, p2, k3)``, all zero (the model is a distortion-free pinhole).
+        """
+        if self.batched:
+            return [self[i].to_dict() for i in range(len(self))]
+        out = {}
+        for f in fields(self):
+            if getattr(self, f.name) is None:
+                continue
+            value = getattr(self, f.name).detach().cpu()
+            out[f.name] = value.tolist() if value.dim() else value.item()
+        out["height"], out["width"] = (int(v) for v in out.pop("image_size"))
+        out.update(cameras.pinhole_keys(self.K))  # cx, cy and the (zero) distortion of the pinhole model
+        return out
+
+    def __repr__(self) -> str:
+        if self.batched:
+            return f"Calibration(batch={len(self)})"
+        return (
+            f"Calibration(focal={float(self.focal):.1f}px, fov_v={float(self.fov_v):.1f}, "
+            f"pitch={float(self.pitch):.2f}, roll={float(self.roll):.2f}, yaw={float(self.yaw):.2f}, "
+            f"valid={bool(self.valid)}"
+            + (f", confidence={float(self.confidence):.2f})" if self.confidence is not None else ")")
+        )
+
+    # --- the camera types of other tools (ngp_kornia.pipeline.camera_export) ---
+
+    def to_kornia(self):
+        """This calibration as a batched :class:`kornia.geometry.camera.PinholeCamera`.
+
+        Intrinsics are ``K`` and extrinsics ``[R | 0]`` as (B, 4, 4) (B = 1 for an unbatched calibration), height
+        and width are (B,). kornia shares our pixel convention (origin at the top-left pixel's centre), so
+        ``to_kornia().project(X)`` for world points ``X`` (B, 3) gives the pixels ``K R X`` in the input image.
+
+        Example:
+            >>> import torch
+            >>> from ngp_kornia import calibrate
+            >>> camera = calibrate(torch.rand(3, 48, 64)).to_kornia()
+            >>> camera.intrinsics.shape, camera.extrinsics.shape, camera.width.tolist()
+            (torch.Size([1, 4, 4]), torch.Size([1, 4, 4]), [64.0])
+        """
+        return cameras.kornia_camera(self.K, self.R, self.image_size)
+
+    def to_opencv(self):
+        """OpenCV's ``(K, dist)``: float64 numpy arrays, (3, 3) and (5,) zeros (batched: (B, 3, 3) and (B, 5)).
+
+        OpenCV shares our pixel convention (origin at the top-left pixel's centre), so ``K`` is used unchanged, e.g.
+        ``cv2.projectPoints(X, cv2.Rodrigues(R)[0], np.zeros(3), K, dist)``.
+
+        Example:
+            >>> import torch
+            >>> from ngp_kornia import calibrate
+            >>> K, dist = calibrate(torch.rand(3, 48, 64)).to_opencv()
+            >>> K.shape, K.dtype, dist.tolist()
+            ((3, 3), dtype('float64'), [0.0, 0.0, 0.0, 0.0, 0.0])
+        """
+        return cameras.opencv_camera(self.K)
+
+    def to_colmap(self, model: str = "SIMPLE_PINHOLE", camera_id: int = 1) -> dict | list[dict]:
+        """COLMAP's camera: ``{"camera_id", "model", "width", "height", "params", "line"}``.
+
+        COLMAP's pixel origin is the top-left *corner* of the image, ours the *centre* of the top-left pixel, so
+        the principal point is written half a pixel larger: ``cx + 0.5``, ``cy + 0.5`` (a centred principal point
+        is ``(W / 2, H / 2)`` there). ``line`` is the ``cameras.txt`` line ``CAMERA_ID MODEL WIDTH HEIGHT PARAMS[]``.
+
+        Args:
+            model: ``"SIMPLE_PINHOLE"`` (params ``f, cx, cy``) or ``"PINHOLE"`` (``fx, fy, cx, cy``).
+            camera_id: the id of the camera (a batch numbers its cameras from it).
+
+        Returns:
+            a dict, or for a batch a list of dicts.
+
+        Example:
+            >>> import torch
+            >>> from ngp_kornia import calibrate
+            >>> camera = calibrate(torch.rand(3, 48, 64)).to_colmap()
+            >>> camera["line"].split()[:4], camera["params"][1:]
+            (['1', 'SIMPLE_PINHOLE', '64', '48'], [32.0, 24.0])
+        """
+        if self.batched:
+            return [self[i].to_colmap(model, camera_id + i) for i in range(len(self))]
+        return cameras.colmap_camera(self.K, self.image_size, model, camera_id)
+
+
+def _index(value: Tensor | None, index: int) -> Tensor | None:
+    return None if value is None else value[index]

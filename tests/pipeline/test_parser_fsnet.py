@@ -1,0 +1,105 @@
+"""The parser with FSNet: frames rescored from the image, gradients from the outputs to the pixels and weights."""
+
+import pytest
+import torch
+
+from ngp_kornia.nets.fsnet import FSNet
+from ngp_kornia.pipeline import NeuralGeometricParser, ParserConfig
+from ngp_kornia.pipeline.segments import detect_segments
+from ngp_kornia.training.synth.render import render_scene
+
+
+def tiny_fsnet(**kwargs) -> FSNet:
+    torch.manual_seed(0)
+    return FSNet("shared", widths=(8, 16), depths=(1, 1), head_width=8, input_size=64, **kwargs).eval()
+
+
+@pytest.fixture(scope="module")
+def scene():
+    r = render_scene(5, (192, 144))
+    image = torch.from_numpy(r.image).permute(2, 0, 1)[None].float() / 255
+    segments, mask = detect_segments(image, ParserConfig(working_size=192, min_length=8.0, max_segments=256))
+    return image, segments, mask
+
+
+def test_fsnet_scores_only_the_best_frames(scene):
+    image, segments, mask = scene
+    parser = NeuralGeometricParser(ParserConfig(num_scored=6), fsnet=tiny_fsnet())
+    g = torch.Generator().manual_seed(0)
+    frames, manhattan = parser.score_frames(segments, mask, 144, 192, g)
+    kept, scores = parser.rescore_frames(image, segments, mask, frames, manhattan)
+    assert scores.shape == (1, 6) and kept.focal.shape == (1, 6)
+    # the kept frames are the six best by Manhattan score, and each final score is at most its Manhattan score
+    best = manhattan.topk(6, -1).values
+    assert torch.allclose(kept.focal, frames.focal.gather(1, manhattan.topk(6, -1).indices))
+    assert bool((scores <= best + 1e-6).all()) and bool((scores > 0).all())
+
+
+def test_without_manhattan_the_score_is_fsnet_alone(scene):
+    image, segments, mask = scene
+    net = tiny_fsnet()
+    g = torch.Generator().manual_seed(0)
+    product = NeuralGeometricParser(ParserConfig(num_scored=6), fsnet=net)
+    alone = NeuralGeometricParser(ParserConfig(num_scored=6, use_manhattan=False), fsnet=net)
+    frames, manhattan = product.score_frames(segments, mask, 144, 192, g)
+    _, s_product = product.rescore_frames(image, segments, mask, frames, manhattan)
+    _, s_alone = alone.rescore_frames(image, segments, mask, frames, manhattan)
+    assert torch.allclose(s_product, s_alone * manhattan.topk(6, -1).values, atol=1e-6)
+
+
+def test_gradients_reach_the_pixels_and_both_networks(scene):
+    image, segments, mask = scene
+    fsnet = tiny_fsnet()
+    parser = NeuralGeometricParser(ParserConfig(num_scored=8), fsnet=fsnet)
+    pixels = image.clone().requires_grad_(True)
+    out = parser(pixels, segments, mask)
+    assert bool(out.valid.all())
+    for name in ("focal", "zenith", "R", "horizon"):
+        fsnet.zero_grad()
+        pixels.grad = None
+        getattr(out, name).sum().backward(retain_graph=True)
+        assert pixels.grad is not None and bool(torch.isfinite(pixels.grad).all()), name
+        assert float(pixels.grad.abs().sum()) > 0, name
+        grads = [p.grad for p in fsnet.parameters() if p.grad is not None]
+        assert grads and all(bool(torch.isfinite(g).all()) for g in grads), name
+        assert sum(float(g.abs().sum()) for g in grads) > 0, name
+
+
+def test_float64_image_with_float32_fsnet(scene):
+    image, segments, mask = scene
+    parser = NeuralGeometricParser(fsnet=tiny_fsnet())
+    with torch.no_grad():
+        out32 = parser(image, segments, mask)
+        out64 = parser(image.double(), segments.double(), mask)
+    assert out64.focal.dtype == torch.float64
+    assert float(out64.focal[0]) == pytest.approx(float(out32.focal[0]), rel=1e-3)
+
+
+def test_no_grad_inference_keeps_no_graph(scene):
+    image, segments, mask = scene
+    parser = NeuralGeometricParser(fsnet=tiny_fsnet())
+    with torch.no_grad():
+        out = parser(image.requires_grad_(False), segments, mask)
+    assert not out.focal.requires_grad and not out.R.requires_grad
+
+
+def test_fsnet_images_already_resized_give_the_same_answer(scene):
+    """The pixels FSNet reads can come resized already (calibrate() makes them during line detection): the parser
+    then reads nothing else of the image, and the answer is the one it gives when it resizes the image itself."""
+    from ngp_kornia.nets.fsnet import area_resize
+
+    image, segments, mask = scene
+    parser = NeuralGeometricParser(fsnet=tiny_fsnet())
+    with torch.no_grad():
+        own = parser(image, segments, mask)[0].to_dict()
+        resized = area_resize(image, (64, 64))
+        given = parser(torch.zeros_like(image), segments, mask, fsnet_images=resized)[0].to_dict()
+    for name, value in own.items():
+        assert torch.equal(value, given[name]) if isinstance(value, torch.Tensor) else value == given[name], name
+
+
+def test_fsnet_images_of_the_wrong_size_are_refused(scene):
+    image, segments, mask = scene
+    parser = NeuralGeometricParser(fsnet=tiny_fsnet())
+    with torch.no_grad(), pytest.raises(ValueError, match=r"resized to FSNet's input, shape \(1, 3, 64, 64\)"):
+        parser(image, segments, mask, fsnet_images=image)

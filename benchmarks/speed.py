@@ -100,7 +100,7 @@ FLOOR = "LSD alone"
 def lsd_alone():
     """The line detector by itself on the whole working image in one strip (decoding done before the timer)."""
     grays: dict[Path, object] = {}
-    config = ParserConfig(line_strips=1)
+    config = ParserConfig().replace(line_strips=1)
 
     def call(sample):
         if sample.image_path not in grays:

@@ -26,15 +26,30 @@ if TYPE_CHECKING:
         WeightsError,
     )
     from ngp_kornia.io import ImageError
-    from ngp_kornia.pipeline import Calibration, NeuralGeometricParser, ParserConfig
+    from ngp_kornia.pipeline import (
+        Calibration,
+        HorizonSettings,
+        NeuralGeometricParser,
+        ParserConfig,
+        PolishSettings,
+        Priors,
+        SamplingSettings,
+        ScoringSettings,
+        SegmentSettings,
+        TrustSettings,
+    )
 
 # The public names are imported on first use (torch and OpenCV take a second or two to import): the ``ngp``
 # command can then answer Ctrl+C during its start-up with a message instead of a traceback.
+_PIPELINE = (
+    "Calibration HorizonSettings NeuralGeometricParser ParserConfig PolishSettings Priors SamplingSettings "
+    "ScoringSettings SegmentSettings TrustSettings"
+)
 _ERRORS = "CheckpointError ConfigError ImageReadError InputError ManifestError NGPError OutputError WeightsError"
 _HOMES = {
     "calibrate": "ngp_kornia.api",
     "ImageError": "ngp_kornia.io",
-    **dict.fromkeys(("Calibration", "NeuralGeometricParser", "ParserConfig"), "ngp_kornia.pipeline"),
+    **dict.fromkeys(_PIPELINE.split(), "ngp_kornia.pipeline"),
     **dict.fromkeys(_ERRORS.split(), "ngp_kornia.errors"),
 }
 
@@ -43,6 +58,7 @@ __all__ = [
     "Calibration",
     "CheckpointError",
     "ConfigError",
+    "HorizonSettings",
     "ImageError",
     "ImageReadError",
     "InputError",
@@ -51,6 +67,12 @@ __all__ = [
     "NeuralGeometricParser",
     "OutputError",
     "ParserConfig",
+    "PolishSettings",
+    "Priors",
+    "SamplingSettings",
+    "ScoringSettings",
+    "SegmentSettings",
+    "TrustSettings",
     "WeightsError",
     "__version__",
     "calibrate",

@@ -1,4 +1,5 @@
-"""One-call calibration: ``ngp_kornia.calibrate(image)``."""
+"""One-call calibration: ``ngp_kornia.calibrate(image)``, and the one place where a file's priors (its EXIF focal
+length) are read."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ from copy import deepcopy
 from dataclasses import replace
 from functools import lru_cache
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -15,13 +17,13 @@ from torch import Tensor
 from ngp_kornia.errors import WeightsError
 from ngp_kornia.exif import exif_focal
 from ngp_kornia.io import as_batch, read_rgb_oriented
-from ngp_kornia.nets.fsnet import area_resize
 from ngp_kornia.nets.weights import load_network, network_name, shipped_weights
 from ngp_kornia.pipeline import Calibration, NeuralGeometricParser, ParserConfig
+from ngp_kornia.pipeline.priors import Priors, checked_seed
 from ngp_kornia.pipeline.segments import detect_segments
-from ngp_kornia.threads import Lookahead, pipeline_threads, while_waiting
+from ngp_kornia.threads import Lookahead, pipeline_threads, resolve_num_threads
 
-__all__ = ["DEFAULT_WEIGHTS", "WEIGHTS", "calibrate", "load_parser", "with_orientation"]
+__all__ = ["DEFAULT_WEIGHTS", "WEIGHTS", "calibrate", "check_weights", "file_priors", "load_parser", "with_orientation"]
 
 #: weight sets ``calibrate`` accepts by name; paths to weights files (``.pt``) work too.
 WEIGHTS = ("default", "none", "zsnet", "fsnet", "full")
@@ -36,7 +38,18 @@ def _network(path: str) -> torch.nn.Module:
     return load_network(path, network_name(path))
 
 
-def _networks(weights: str | Path | Sequence[str | Path]) -> list[torch.nn.Module]:
+def check_weights(weights: object) -> list[torch.nn.Module]:
+    """The networks of a weight set (see :func:`load_parser`), loaded once and shared read-only.
+
+    Raises:
+        ValueError: an unknown name, or something that is neither a name nor paths of ``.pt`` files.
+        WeightsError: a missing, corrupt or mismatched weights file, or two files of one network.
+    """
+    if weights is None or not isinstance(weights, (str, Path, list, tuple)):
+        raise ValueError(
+            f"weights must be one of {', '.join(WEIGHTS)} or the path of a .pt weights file (or a list of paths), "
+            f"got {weights!r}"
+        )
     if isinstance(weights, str) and weights == "default":
         weights = DEFAULT_WEIGHTS
     if isinstance(weights, str) and weights in _NAMED:
@@ -72,22 +85,23 @@ def load_parser(
     The networks are the caller's own copies, in eval mode: training them (as a layer of a larger model) or moving
     them does not change what :func:`calibrate` computes.
     """
-    return _parser(weights, config, copy=True)
+    return _parser(check_weights(weights), config, copy=True)
 
 
-def _parser(weights, config: ParserConfig | None, copy: bool) -> NeuralGeometricParser:
-    nets = {type(net).__name__: deepcopy(net) if copy else net for net in _networks(weights)}
+def _parser(nets: list[torch.nn.Module], config: ParserConfig | None, copy: bool) -> NeuralGeometricParser:
+    nets = {type(net).__name__: deepcopy(net) if copy else net for net in nets}
     return NeuralGeometricParser(config, zsnet=nets.get("ZSNet"), fsnet=nets.get("FSNet"))
 
 
 def calibrate(
     image: str | Path | np.ndarray | Tensor | Sequence[str | Path | np.ndarray | Tensor],
-    weights: str = "default",
+    weights: str | Path | Sequence[str | Path] = "default",
     seed: int = 0,
     config: ParserConfig | None = None,
     focal: float | None = None,
     fov_v: float | None = None,
     exif: bool = False,
+    num_threads: int | None = None,
 ) -> Calibration | list[Calibration]:
     """Calibrate a camera from one photo (or a batch, or a list of photos) of a man-made scene.
 
@@ -101,12 +115,13 @@ def calibrate(
             candidates scored by the shipped ZSNet), ``"fsnet"`` (frames rescored by the shipped FSNet), ``"full"``
             (both), or the path of a weights file (or a list of paths: one ZSNet and one FSNet file).
         seed: seed of the random candidate sampling; the same input and seed give the same result.
-        config: pipeline settings (:class:`ngp_kornia.pipeline.ParserConfig`); its ``num_threads`` sets the torch and
-            OpenCV threads of the call (default: ``$NGP_NUM_THREADS`` or 1), the caller's count is restored after.
-        focal: a known focal length in pixels of the input image (a prior; overrides the config's).
+        config: the pipeline's settings (:class:`~ngp_kornia.pipeline.settings.ParserConfig`); None for the defaults.
+        focal: a known focal length in pixels of the input image (a prior).
         fov_v: a known vertical field of view in degrees (a prior; ``focal`` wins when both are given).
         exif: for a file without ``focal`` / ``fov_v``, use the focal length its EXIF block records
             (``FocalLengthIn35mmFilm``, or ``FocalLength`` with the sensor resolution); no prior when it has none.
+        num_threads: torch threads of the calling thread during the call (:mod:`ngp_kornia.threads`): None takes
+            ``$NGP_NUM_THREADS`` or else 1; 0 keeps the caller's setting. The caller's count is restored after.
 
     Returns:
         a :class:`Calibration` in the input's pixels (its fields, conventions and the trust fields ``confidence``,
@@ -116,6 +131,7 @@ def calibrate(
     Raises:
         ImageReadError: unreadable, truncated, corrupt, too small (< 32 px), too large or NaN input; the message
             says what to fix.
+        InputError: a seed, prior or thread count that is not one (a bool as a focal length, say).
         WeightsError: a missing, corrupt or mismatched weights file.
         TypeError: an input type or dtype that is not supported.
 
@@ -126,21 +142,62 @@ def calibrate(
         >>> [c.image_size.tolist() for c in calibrate([torch.rand(3, 64, 64), torch.rand(3, 48, 80)])]
         [[64, 64], [48, 80]]
     """
+    call = _Call(check_weights(weights), config or ParserConfig(), checked_seed(seed), Priors(focal, fov_v), exif)
+    if not isinstance(exif, bool):
+        raise TypeError(f"exif must be True or False, got {exif!r}")
+    resolve_num_threads(num_threads)  # a bad count is refused before any image is read
     if isinstance(image, (list, tuple)):
-        return _calibrate_list(image, weights, seed, config, focal=focal, fov_v=fov_v, exif=exif)
-    cfg = _call_config(config, seed, focal, fov_v, exif)
-    with pipeline_threads(cfg.num_threads):  # one thread unless configured; the caller's count is restored
-        return _calibrate_inputs(image, _inputs(image, cfg, _fsnet_size(weights)), weights)
+        return _calibrate_list(image, call, num_threads)
+    with pipeline_threads(num_threads):  # one thread unless asked otherwise; the caller's count is restored
+        return _calibrate_inputs(image, _inputs(image, call), call)
 
 
-def _calibrate_inputs(image, inputs: tuple, weights) -> Calibration:
+class _Call(NamedTuple):
+    """What one ``calibrate()`` call asks for, checked once."""
+
+    nets: list[torch.nn.Module]
+    config: ParserConfig
+    seed: int
+    priors: Priors
+    exif: bool
+
+
+def file_priors(image: object, height: int, width: int, priors: Priors, exif: bool) -> Priors:
+    """The priors of one input: ``priors`` as given, or, with ``exif`` for a file whose priors give no focal length,
+    the focal length its EXIF block records (in pixels of the image as displayed; none when it records none).
+
+    Example:
+        >>> file_priors("photo.jpg", 480, 640, Priors(focal=500.0), exif=True).focal
+        500.0
+    """
+    if exif and not priors.known_focal and isinstance(image, (str, Path)):
+        return replace(priors, focal=exif_focal(image, height, width))
+    return priors
+
+
+def _inputs(image, call: _Call) -> tuple:
+    """(batch, segments, mask, EXIF orientation, priors) of one input: tensors as they are (the parser detects their
+    lines), files and arrays read once with their lines detected on the 8-bit pixels. Without FSNet the parser reads
+    only the image's shape, so the batch is then a stand-in of that shape and no pixel is converted."""
+    if isinstance(image, Tensor):
+        return as_batch(image)[0], None, None, None, call.priors
+    rgb, orientation = read_rgb_oriented(image)
+    segments, mask = detect_segments(rgb, call.config.segments)
+    if any(type(net).__name__ == "FSNet" for net in call.nets):
+        batch = _pixels(rgb)
+    else:
+        batch = torch.zeros((), dtype=torch.float32).expand(1, 3, *rgb.shape[:2])
+    return batch, segments, mask, orientation, file_priors(image, *rgb.shape[:2], call.priors, call.exif)
+
+
+def _calibrate_inputs(image, inputs: tuple, call: _Call) -> Calibration:
     """The rest of :func:`calibrate` for one input, given what :func:`_inputs` made of it."""
-    batch, segments, mask, orientation, cfg, resized = inputs
-    parser = _on_device(_parser(weights, cfg, copy=False), batch.device)  # the cached networks, read only
+    batch, segments, mask, orientation, priors = inputs
+    parser = _on_device(_parser(call.nets, call.config, copy=False), batch.device)  # the cached networks, read only
     # inference mode skips autograd's per-operation bookkeeping (about a tenth of the parser's time); the fields
     # are cloned out of it, so the caller gets ordinary tensors that can be edited in place or used with autograd
     with torch.inference_mode():
-        result = parser(batch, segments, mask, fsnet_images=resized)
+        result = parser(batch, segments, mask, seed=call.seed, priors=priors)
     result = result.clone()
     if isinstance(image, Tensor) and image.dim() == 4:
         return result
@@ -149,57 +206,11 @@ def _calibrate_inputs(image, inputs: tuple, weights) -> Calibration:
     return result if orientation in (None, 1) else with_orientation(result, orientation)
 
 
-def _call_config(config: ParserConfig | None, seed: int, focal, fov_v, exif: bool) -> ParserConfig:
-    """The settings of one call: the caller's config with the call's seed and priors."""
-    cfg = ParserConfig(seed=seed) if config is None else replace(config, seed=seed)
-    if exif:
-        cfg = replace(cfg, exif=True)
-    if focal is not None or fov_v is not None:
-        cfg = replace(cfg, focal=focal, fov_v=fov_v)
-    return cfg
-
-
-def _fsnet_size(weights) -> int | None:
-    """The input side of the weight set's FSNet, None without one: only FSNet reads the image's pixels, the rest of
-    the parser works on the line segments and needs only the image's size."""
-    return next((net.input_size for net in _networks(weights) if type(net).__name__ == "FSNet"), None)
-
-
-def _inputs(image, cfg: ParserConfig, fsnet_size: int | None = None) -> tuple:
-    """(batch, segments, mask, EXIF orientation, config, FSNet's image) of one input: tensors as they are (the
-    parser detects their lines), files and arrays read once with their lines detected on the 8-bit pixels (and,
-    with ``exif``, the file's focal length as the prior).
-
-    For a parser with FSNet (``fsnet_size``, its input side), the image resized to FSNet's input is made while
-    this thread would wait for the last strip of line detection, when it does: the batch is then a stand-in of the
-    image's shape (the parser needs nothing else of it). Otherwise the batch holds the pixels and the parser
-    resizes them; without FSNet it is the stand-in and no pixel is converted (about 1 ms less on a 640x480 photo)."""
-    if isinstance(image, Tensor):
-        return as_batch(image)[0], None, None, None, cfg, None
-    rgb, orientation = read_rgb_oriented(image)
-    stand_in = torch.zeros((), dtype=torch.float32).expand(1, 3, *rgb.shape[:2])
-    if fsnet_size is None:
-        segments, mask = detect_segments(rgb, cfg)
-        batch, resized = stand_in, None
-    else:
-        with while_waiting(_fsnet_image, rgb, fsnet_size) as resizing:
-            segments, mask = detect_segments(rgb, cfg)
-        batch, resized = (stand_in, resizing.result()) if resizing.ran else (_pixels(rgb), None)
-    if cfg.exif and cfg.focal is None and cfg.fov_v is None and isinstance(image, (str, Path)):
-        cfg = replace(cfg, focal=exif_focal(image, *rgb.shape[:2]))
-    return batch, segments, mask, orientation, cfg, resized
-
-
 def _pixels(rgb: np.ndarray) -> Tensor:
     """The (1, 3, H, W) float batch of an 8-bit RGB image: numpy divides the pixels straight into float32 (the same
     values as float() then / 255, in one pass over the image instead of two); the permuted view keeps the
     channels-last layout."""
     return torch.from_numpy(np.divide(rgb, np.float32(255.0), dtype=np.float32)).permute(2, 0, 1)[None]
-
-
-def _fsnet_image(rgb: np.ndarray, size: int) -> Tensor:
-    """The image as FSNet takes it: what the parser makes of :func:`_pixels` (``area_resize`` to its input)."""
-    return area_resize(_pixels(rgb), (size, size))
 
 
 def _on_device(parser: NeuralGeometricParser, device: torch.device) -> NeuralGeometricParser:
@@ -213,22 +224,17 @@ def with_orientation(result: Calibration, orientation: int) -> Calibration:
     return replace(result, exif_orientation=torch.tensor(orientation, device=result.focal.device))
 
 
-def _calibrate_list(
-    images, weights, seed: int, config: ParserConfig | None, focal, fov_v, exif: bool
-) -> list[Calibration]:
+def _calibrate_list(images, call: _Call, num_threads: int | None) -> list[Calibration]:
     """One result per item, each computed alone (so it equals what the item gives alone, whatever its size)."""
     if not images:
         raise ValueError("calibrate() got an empty list; give at least one image (path, array or tensor)")
-    _networks(weights)  # a bad weight set is reported once, before any image is read
     for index, item in enumerate(images):
         if isinstance(item, (list, tuple)):
             raise TypeError(f"calibrate(): item {index} is a {type(item).__name__}; lists of lists are not supported")
-    cfg = _call_config(config, seed, focal, fov_v, exif)
     last = len(images) - 1
     # the next item is read and its lines detected on a second thread while the parser works on this one: the
     # same inputs as one call per item (the segments do not depend on threads), so the same results
-    size = _fsnet_size(weights)
-    with pipeline_threads(cfg.num_threads), Lookahead(lambda i: _inputs(images[i], cfg, size)) as ahead:
+    with pipeline_threads(num_threads), Lookahead(lambda i: _inputs(images[i], call)) as ahead:
         return [
-            _calibrate_inputs(item, ahead.get(i, i + 1 if i < last else None), weights) for i, item in enumerate(images)
+            _calibrate_inputs(item, ahead.get(i, i + 1 if i < last else None), call) for i, item in enumerate(images)
         ]

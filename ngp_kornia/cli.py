@@ -7,7 +7,6 @@ import argparse
 import json
 import os
 import sys
-from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -15,6 +14,7 @@ import cv2
 import numpy as np
 from kornia.core.exceptions import BaseError as KorniaCheckError
 
+from ngp_kornia.cli_options import add_setting_options, config_from_args
 from ngp_kornia.errors import NGPError, OutputError
 
 if TYPE_CHECKING:
@@ -108,6 +108,7 @@ def _add_rectify(sub) -> None:
     rect.add_argument("--weights", default="default", help=WEIGHTS_HELP)
     rect.add_argument("--seed", type=int, default=0, help="seed of the candidate sampling")
     rect.add_argument("--force", action="store_true", help=FORCE_HELP)
+    add_setting_options(rect)
 
 
 def _add_render(sub) -> None:
@@ -136,45 +137,21 @@ def _add_prior_arguments(command: argparse.ArgumentParser) -> None:
     command.add_argument(
         "--exif", action="store_true", help="use the focal length in each file's EXIF, where it has one"
     )
-    command.add_argument(
-        "--principal-point-std",
-        type=float,
-        default=None,
-        help="how far the principal point may be off the image centre (a standard deviation per axis, fraction of "
-        "the image height; default 0.025); only widens pitch_std, roll_std, fov_v_std; 0 when it is known to be at "
-        "the centre",
-    )
-    command.add_argument(
-        "--working-size",
-        type=int,
-        default=None,
-        help="long side in pixels that line detection runs at (default 1280; 640 is faster on large photos and a "
-        "little less accurate; smaller images are used at their own size)",
-    )
-    command.add_argument(
-        "--polish-frame",
-        action="store_true",
-        help="refit the frame's rotation and focal length to the lines of its three VPs (ParserConfig.polish_frame: "
-        "more accurate on renders, about 4 ms more a photo, and a confidence that ranks real photos less well)",
-    )
+    add_setting_options(command)
 
 
-def _trust_config(args: argparse.Namespace):
-    """The ParserConfig of --principal-point-std, --working-size and --polish-frame (checked in main())."""
-    from ngp_kornia.pipeline import ParserConfig
-
-    given = {"working_size": args.working_size, "principal_point_std": args.principal_point_std}
-    return ParserConfig(polish_frame=args.polish_frame, **{k: v for k, v in given.items() if v is not None})
+def _config(args: argparse.Namespace) -> ParserConfig:
+    """The ParserConfig of the command's ``--stage.field`` options (checked in main())."""
+    return config_from_args(args)
 
 
 def _prior(args: argparse.Namespace, image: str, rgb: np.ndarray) -> dict:
     """calibrate()'s prior arguments for one file: --focal, --fov, else the EXIF focal length with --exif."""
-    from ngp_kornia.exif import exif_focal
+    from ngp_kornia.api import file_priors
+    from ngp_kornia.pipeline.priors import Priors
 
-    focal = args.focal
-    if focal is None and args.fov is None and args.exif:
-        focal = exif_focal(image, *rgb.shape[:2])
-    return {"focal": focal, "fov_v": args.fov}
+    priors = file_priors(image, *rgb.shape[:2], Priors(args.focal, args.fov), args.exif)
+    return {"focal": priors.focal, "fov_v": priors.fov_v}
 
 
 #: images read and calibrated together by ``ngp calibrate`` (one ``calibrate()`` call on a list)
@@ -217,7 +194,8 @@ def _write_overlay(path: Path, rgb: np.ndarray, calibration, config: ParserConfi
     from ngp_kornia.pipeline.segments import detect_segments
     from ngp_kornia.viz import draw_calibration
 
-    segments = detect_segments(rgb, config)[0][0].numpy()  # the lines the calibration saw (same settings)
+    settings = None if config is None else config.segments
+    segments = detect_segments(rgb, settings)[0][0].numpy()  # the lines the calibration saw (same settings)
     _write_image(path, draw_calibration(rgb, calibration, segments))
 
 
@@ -227,7 +205,7 @@ def _calibrate_loaded(loaded: list, args: argparse.Namespace) -> list:
     from ngp_kornia.api import calibrate
 
     priors = [_prior(args, image, rgb) for image, rgb, _ in loaded]
-    options = {"weights": args.weights, "seed": args.seed, "config": _trust_config(args)}
+    options = {"weights": args.weights, "seed": args.seed, "config": _config(args)}
     if all(p == priors[0] for p in priors[1:]):
         return calibrate([rgb for _, rgb, _ in loaded], **options, **priors[0]) if loaded else []
     return [calibrate(rgb, **options, **p) for (_, rgb, _), p in zip(loaded, priors, strict=True)]
@@ -265,7 +243,7 @@ def _calibrate(args: argparse.Namespace) -> int:
             print(json.dumps({"image": image, **result.to_dict()}), flush=True)
             try:
                 if args.overlay:
-                    _write_overlay(_overlay_path(args.overlay, image, many), rgb, result)
+                    _write_overlay(_overlay_path(args.overlay, image, many), rgb, result, _config(args))
             except USER_ERRORS as err:
                 failed += 1
                 print(f"ngp: error: {_one_line(err)}", file=sys.stderr, flush=True)
@@ -277,7 +255,7 @@ def _calibrate_or_none(image: str, rgb: np.ndarray, args: argparse.Namespace):
     from ngp_kornia.api import calibrate
 
     try:
-        options = {"weights": args.weights, "seed": args.seed, "config": _trust_config(args)}
+        options = {"weights": args.weights, "seed": args.seed, "config": _config(args)}
         return calibrate(rgb, **options, **_prior(args, image, rgb))
     except USER_ERRORS as err:
         print(f"ngp: error: {image}: {_one_line(err)}", file=sys.stderr, flush=True)
@@ -291,6 +269,7 @@ def _one_line(err: BaseException) -> str:
 def _predict(args: argparse.Namespace) -> int:
     import logging
 
+    from ngp_kornia.pipeline.priors import Priors
     from ngp_kornia.predict import predict_folder, usable_cores
 
     if args.devices < 1:
@@ -314,7 +293,9 @@ def _predict(args: argparse.Namespace) -> int:
             recursive=args.recursive,
             batch_size=args.batch_size,
             seed=args.seed,
-            config=replace(_trust_config(args), focal=args.focal, fov_v=args.fov, exif=args.exif),
+            config=_config(args),
+            priors=Priors(args.focal, args.fov),
+            exif=args.exif,
             progress_bar=sys.stdout.isatty(),
         )
     except USER_ERRORS as err:
@@ -350,7 +331,7 @@ def _rectify(args: argparse.Namespace) -> int:
     try:
         check_output(path, args.force, [args.image])
         rgb = read_image_file(args.image)
-        result = calibrate(rgb, weights=args.weights, seed=args.seed)
+        result = calibrate(rgb, weights=args.weights, seed=args.seed, config=_config(args))
         K, R = result.K[None].double(), result.R[None].double()
         if args.mode == "level":
             homography = level_homography(K, R)
@@ -446,10 +427,10 @@ def _render_config(path: str | None):
 
 def _check_weights(parser: argparse.ArgumentParser, command: str, weights: str) -> None:
     """A bad ``--weights`` is a usage error: reported once, before any image is read, with exit status 2."""
-    from ngp_kornia.api import _networks
+    from ngp_kornia.api import check_weights
 
     try:
-        _networks(weights)
+        check_weights(weights)
     except USER_ERRORS as err:
         subcommands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
         subcommands.choices[command].error(f"--weights: {err}")
@@ -461,13 +442,13 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if getattr(args, "weights", None) is not None:
         _check_weights(parser, args.command, args.weights)
-    if hasattr(args, "principal_point_std"):
+    if hasattr(args, "setting:segments.working_size"):
         from ngp_kornia.errors import ConfigError
 
         try:
-            _trust_config(args)
-        except ConfigError as err:  # it names the setting: ParserConfig.principal_point_std or .working_size
-            parser.error(f"--principal-point-std / --working-size: {err}")
+            _config(args)
+        except ConfigError as err:  # it names the setting, e.g. SegmentSettings.working_size
+            parser.error(str(err))
     commands = {"calibrate": _calibrate, "predict": _predict, "rectify": _rectify, "demo": _demo, "render": _render}
     try:
         return commands[args.command](args)

@@ -24,7 +24,6 @@ import secrets
 import signal
 import warnings
 from collections.abc import Iterator
-from dataclasses import replace
 from pathlib import Path
 from typing import IO, NamedTuple
 
@@ -40,13 +39,14 @@ except ImportError as err:
         f"folder prediction needs Lightning ({err}); install it with: pip install 'ngp-kornia[train]'"
     ) from err
 
-from ngp_kornia.api import load_parser, with_orientation
+from ngp_kornia.api import file_priors, load_parser, with_orientation
 from ngp_kornia.data.folder import IMAGE_EXTENSIONS, ImageFolder
 from ngp_kornia.errors import OutputError
-from ngp_kornia.exif import exif_focal
 from ngp_kornia.io import read_rgb_oriented
 from ngp_kornia.pipeline import Calibration, NeuralGeometricParser, ParserConfig
+from ngp_kornia.pipeline.priors import Priors, checked_seed
 from ngp_kornia.pipeline.segments import detect_segments, line_workers
+from ngp_kornia.pipeline.settings import SegmentSettings
 from ngp_kornia.threads import Lookahead, pipeline_threads, usable_cores
 
 __all__ = [
@@ -81,15 +81,15 @@ class FolderImages(Dataset):
 
     Args:
         folder: the files.
-        config: the line-detection settings (a :class:`ParserConfig`; the defaults when None).
+        settings: the line-detection settings (:class:`SegmentSettings`; the defaults when None).
         stride: the step between the indices one process asks for in turn (its DDP world size): the file it will
             ask for next is read on a second thread (:class:`~ngp_kornia.threads.Lookahead`) while the parser works
             on the current one; None reads each file only when asked (loader worker processes read ahead anyway).
     """
 
-    def __init__(self, folder: ImageFolder, config: ParserConfig | None = None, stride: int | None = 1) -> None:
+    def __init__(self, folder: ImageFolder, settings: SegmentSettings | None = None, stride: int | None = 1) -> None:
         self.folder = folder
-        self.config = config or ParserConfig()
+        self.settings = settings or SegmentSettings()
         self.stride = stride
         self._ahead = Lookahead(self._read)
 
@@ -107,7 +107,7 @@ class FolderImages(Dataset):
         name = path.relative_to(self.folder.root).as_posix()
         try:
             rgb, orientation = read_rgb_oriented(path)
-            segments, mask = detect_segments(rgb, self.config)
+            segments, mask = detect_segments(rgb, self.settings)
         except Exception as err:  # whatever goes wrong with one file is that file's error row
             return FolderItem(index, name, None, _reason(err, path))
         image = torch.from_numpy(rgb).permute(2, 0, 1).float().div(255.0)
@@ -139,15 +139,26 @@ class FolderPredictor(L.LightningModule):
     ``{"image": name, "error": reason}``.
 
     Args:
-        parser: the pipeline (see :func:`ngp_kornia.api.load_parser`); its config holds the seed and the priors.
-        root: the folder the item names are relative to; with ``config.exif`` the files' EXIF focal lengths are
-            read from there.
+        parser: the pipeline (see :func:`ngp_kornia.api.load_parser`).
+        root: the folder the item names are relative to; with ``exif`` the files' EXIF focal lengths are read
+            from there.
+        seed: the sampling seed of every image.
+        priors: what is known of every image's camera.
+        exif: take each file's EXIF focal length where ``priors`` gives none (:func:`ngp_kornia.api.file_priors`).
     """
 
-    def __init__(self, parser: NeuralGeometricParser, root: str | Path | None = None) -> None:
+    def __init__(
+        self,
+        parser: NeuralGeometricParser,
+        root: str | Path | None = None,
+        seed: int = 0,
+        priors: Priors | None = None,
+        exif: bool = False,
+    ) -> None:
         super().__init__()
         self.parser = parser
         self.root = None if root is None else Path(root)
+        self.seed, self.priors, self.exif = checked_seed(seed), priors or Priors(), exif
 
     def calibrate(
         self, image: Tensor, name: str | None = None, segments: Tensor | None = None, mask: Tensor | None = None
@@ -155,16 +166,14 @@ class FolderPredictor(L.LightningModule):
         """Calibrate one (3, H, W) image as :func:`ngp_kornia.calibrate` does for a file (``name``, relative to
         ``root``, is where an EXIF focal length is read from; ``segments`` (1, N, 2, 2) and ``mask`` (1, N): its
         lines when already detected)."""
-        parser, cfg = self.parser, self.parser.config
-        if cfg.exif and cfg.focal is None and cfg.fov_v is None and name is not None and self.root is not None:
-            focal = exif_focal(self.root / name, image.shape[-2], image.shape[-1])
-            if focal is not None:  # the same networks, the image's own prior
-                parser = NeuralGeometricParser(replace(cfg, focal=focal), parser.zsnet, parser.fsnet)
+        priors = self.priors
+        if name is not None and self.root is not None:  # the image's own prior, where its file records one
+            priors = file_priors(self.root / name, image.shape[-2], image.shape[-1], priors, self.exif)
         # the parser detects lines on the image rounded to 8 bits, which are the exact pixels the file decoded to
         # (the float image is uint8 / 255): the same lines, hence the same answer, as calibrate() on the file
         if segments is not None:
             segments, mask = segments.to(self.device), mask.to(self.device)
-        return parser(image[None].to(self.device), segments, mask)[0]
+        return self.parser(image[None].to(self.device), segments, mask, seed=self.seed, priors=priors)[0]
 
     def predict_step(self, batch: list[FolderItem], batch_idx: int) -> list[tuple[int, dict]]:
         rows = []
@@ -369,6 +378,8 @@ def predict_folder(
     num_workers: int = 0,
     config: ParserConfig | None = None,
     progress_bar: bool = False,
+    priors: Priors | None = None,
+    exif: bool = False,
 ) -> dict | None:
     """Calibrate every image of a folder into a JSON Lines file, one row per image in sorted path order.
 
@@ -376,8 +387,7 @@ def predict_folder(
     ``{"image": ..., "error": <reason>}`` for a file that cannot be read or calibrated, whatever the reason. An
     interrupted run (Ctrl+C) leaves ``out`` holding the rows of the images finished so far and returns with
     ``"interrupted": True``; it does not resume. With ``devices > 1`` the work is split over that many CPU processes
-    forked from this one (Lightning's ``"ddp_fork"`` strategy, gloo backend; not on Windows), at most one per image
-    and one per usable CPU core (a larger count is capped, with a warning); this works from a notebook too.
+    forked from this one (``"ddp_fork"``, gloo; not on Windows), at most one per image and per usable core.
 
     Args:
         folder: the folder of images.
@@ -388,7 +398,8 @@ def predict_folder(
         batch_size: images per loader batch (each image is still calibrated on its own).
         seed: seed of the candidate sampling, as for :func:`ngp_kornia.calibrate`.
         num_workers: loader worker processes per device, to read images while the parser runs.
-        config: pipeline settings, with the priors (``focal``, ``fov_v``, ``exif``) for every image.
+        config, priors, exif: the pipeline's settings, what is known of every image's camera (or, with ``exif``,
+            read from its file), as for :func:`ngp_kornia.calibrate`.
         progress_bar: show Lightning's progress bar.
 
     Returns:
@@ -400,15 +411,13 @@ def predict_folder(
         ValueError: no images in ``folder``, ``devices`` or ``batch_size`` below 1, unknown weights.
         OutputError: ``out`` is one of the images, or a folder.
     """
-    if devices < 1:
-        raise ValueError(f"devices must be at least 1, got {devices}")
-    if batch_size < 1:
-        raise ValueError(f"batch size must be at least 1, got {batch_size}")
+    _check_counts(devices, batch_size)
     images = _check_folder(Path(folder), recursive)
     _check_out(Path(out), images)
     devices = min(cap_devices(devices), len(images))  # Lightning's predict sampler refuses a process without an image
-    module = FolderPredictor(load_parser(weights, replace(config or ParserConfig(), seed=seed)), images.root)
-    files = FolderImages(images, module.parser.config, devices if num_workers == 0 else None)  # reads ahead
+    parser = load_parser(weights, config)
+    module = FolderPredictor(parser, images.root, seed, priors, exif)
+    files = FolderImages(images, parser.config.segments, devices if num_workers == 0 else None)  # reads ahead
     loader = DataLoader(files, batch_size=batch_size, num_workers=num_workers, collate_fn=collate_items)
     writer = JsonlWriter(out, devices)
     try:
@@ -418,6 +427,13 @@ def predict_folder(
     if writer.multi and not writer.interrupted:  # the forked processes wrote and merged; this one only waited
         writer.images, writer.errors = count_rows(writer.out)
     return {"images": writer.images, "errors": writer.errors, "interrupted": writer.interrupted}
+
+
+def _check_counts(devices: int, batch_size: int) -> None:
+    if devices < 1:
+        raise ValueError(f"devices must be at least 1, got {devices}")
+    if batch_size < 1:
+        raise ValueError(f"batch size must be at least 1, got {batch_size}")
 
 
 def _run(trainer: L.Trainer, module: FolderPredictor, loader: DataLoader, writer: JsonlWriter) -> None:

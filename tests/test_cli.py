@@ -237,20 +237,20 @@ def test_libpng_noise_does_not_reach_stderr(tmp_path):
 
 def test_overlay_draws_the_segments_the_calibration_saw(tmp_path, monkeypatch, capsys):
     import ngp_kornia.viz
-    from ngp_kornia.pipeline import ParserConfig
+    from ngp_kornia.pipeline import SegmentSettings
     from ngp_kornia.pipeline.segments import detect_segments, detect_segments_gray
     from ngp_kornia.training.synth.render import render_scene
 
     rgb = render_scene(2).image  # 640x480, more segments than the parser keeps
     path = tmp_path / "scene.png"
     cv2.imwrite(str(path), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
-    assert len(detect_segments_gray(cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY), ParserConfig(max_segments=4096))) > 512
+    assert len(detect_segments_gray(cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY), SegmentSettings(max_segments=4096))) > 512
     drawn = []
     draw = ngp_kornia.viz.draw_calibration
     monkeypatch.setattr(ngp_kornia.viz, "draw_calibration", lambda im, c, seg: drawn.append(seg) or draw(im, c, seg))
     assert main(["calibrate", str(path), "--overlay", str(tmp_path / "overlay.png")]) == 0
     expected, mask = detect_segments(rgb)
-    assert len(drawn) == 1 and drawn[0].shape == (ParserConfig().max_segments, 2, 2)
+    assert len(drawn) == 1 and drawn[0].shape == (SegmentSettings().max_segments, 2, 2)
     np.testing.assert_array_equal(drawn[0], expected[0][mask[0]].numpy())
 
 

@@ -6,7 +6,7 @@ from torch import nn
 
 from ngp_kornia.geometry import rectify, upright_homography
 from ngp_kornia.nets.fsnet import FSNet
-from ngp_kornia.pipeline import NeuralGeometricParser, ParserConfig
+from ngp_kornia.pipeline import NeuralGeometricParser, ParserConfig, SegmentSettings
 from ngp_kornia.pipeline.segments import detect_segments
 from ngp_kornia.training.synth.render import render_scene
 
@@ -29,11 +29,11 @@ class UprightClassifier(nn.Module):
 def test_a_loss_after_rectification_trains_the_parser():
     torch.manual_seed(0)
     fsnet = FSNet("shared", widths=(8, 16), depths=(1, 1), head_width=8, input_size=64)
-    model = UprightClassifier(NeuralGeometricParser(ParserConfig(num_scored=8), fsnet=fsnet))
+    model = UprightClassifier(NeuralGeometricParser(ParserConfig().replace(num_scored=8), fsnet=fsnet))
     scenes = [render_scene(seed, (160, 120)) for seed in (1, 4)]
     images = torch.stack([torch.from_numpy(s.image).permute(2, 0, 1).float() / 255 for s in scenes])
     # LSD once, outside the training loop
-    segments, mask = detect_segments(images, ParserConfig(working_size=160, min_length=8.0, max_segments=256))
+    segments, mask = detect_segments(images, SegmentSettings(working_size=160, min_length=8.0, max_segments=256))
 
     logits = model(images, segments, mask)
     loss = nn.functional.cross_entropy(logits, torch.tensor([0, 3]))

@@ -145,8 +145,8 @@ def test_a_raising_method_fails_per_image(renders):
 def test_weights_specs():
     assert parse_weights_spec(None) == ("default", {})
     weights, config = weights_and_config("full:top_k=2,use_manhattan=false")
-    assert weights == "full" and config.top_k == 2 and config.use_manhattan is False
-    with pytest.raises(ValueError, match="unknown ParserConfig fields"):
+    assert weights == "full" and config.scoring.top_k == 2 and config.scoring.use_manhattan is False
+    with pytest.raises(ValueError, match="unknown setting"):
         weights_and_config("none:no_such_field=1")
     with pytest.raises(ValueError, match="is not a int"):
         weights_and_config("none:top_k=many")

@@ -71,9 +71,8 @@ def test_calibrate_reads_exif_only_when_asked(photos):
 
 def test_predict_uses_each_files_exif(photos, tmp_path):
     out = tmp_path / "rows.jsonl"
-    from ngp_kornia.pipeline import ParserConfig
 
-    predict_folder(photos, out, config=ParserConfig(exif=True))
+    predict_folder(photos, out, exif=True)
     rows = {r["image"]: r for r in map(json.loads, out.read_text().splitlines())}
     assert rows["with_exif.jpg"]["focal"] == pytest.approx(EXIF_FOCAL, rel=1e-5)
     assert rows["plain.jpg"]["focal"] == pytest.approx(float(calibrate(str(photos / "plain.jpg")).focal), rel=1e-6)
@@ -94,17 +93,17 @@ def test_cli_principal_point_std_widens_only_the_stds(photos, capsys, tmp_path):
     image = str(photos / "plain.jpg")
     rows = []
     for value in ("0", "0.025", "0.05"):
-        assert main(["calibrate", image, "--principal-point-std", value]) == 0
+        assert main(["calibrate", image, "--trust.principal_point_std", value]) == 0
         rows.append(_rows(capsys)[0])
     assert rows[0]["pitch_std"] < rows[1]["pitch_std"] < rows[2]["pitch_std"]
     assert all(r["pitch"] == rows[0]["pitch"] and r["confidence"] == rows[0]["confidence"] for r in rows)
     assert main(["calibrate", image]) == 0 and _rows(capsys)[0]["pitch_std"] == rows[1]["pitch_std"]  # the default
     out = tmp_path / "rows.jsonl"
-    assert main(["predict", str(photos), "--out", str(out), "--principal-point-std", "0"]) == 0
+    assert main(["predict", str(photos), "--out", str(out), "--trust.principal_point_std", "0"]) == 0
     plain = [json.loads(line) for line in out.read_text().splitlines() if "plain.jpg" in line][0]
     assert plain["pitch_std"] == pytest.approx(rows[0]["pitch_std"], rel=1e-5)
     with pytest.raises(SystemExit) as exit_info:
-        main(["calibrate", image, "--principal-point-std", "-1"])
+        main(["calibrate", image, "--trust.principal_point_std", "-1"])
     assert exit_info.value.code == 2 and "principal_point_std" in capsys.readouterr().err
 
 
@@ -112,30 +111,30 @@ def test_cli_working_size_reaches_the_line_detector(capsys, tmp_path):
     rgb = render_scene(4, size=(800, 600)).image  # larger than 640: the working size decides the detection
     image = tmp_path / "large.png"
     cv2.imwrite(str(image), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
-    assert main(["calibrate", str(image), "--working-size", "640"]) == 0
+    assert main(["calibrate", str(image), "--segments.working_size", "640"]) == 0
     small = _rows(capsys)[0]
     assert main(["calibrate", str(image)]) == 0
     full = _rows(capsys)[0]
-    expected = calibrate(str(image), config=ParserConfig(working_size=640))
+    expected = calibrate(str(image), config=ParserConfig().replace(working_size=640))
     assert small["focal"] == pytest.approx(float(expected.focal), rel=1e-6) and small["focal"] != full["focal"]
     out = tmp_path / "rows.jsonl"
-    assert main(["predict", str(tmp_path), "--out", str(out), "--working-size", "640"]) == 0
+    assert main(["predict", str(tmp_path), "--out", str(out), "--segments.working_size", "640"]) == 0
     assert json.loads(out.read_text().splitlines()[0])["focal"] == pytest.approx(small["focal"], rel=1e-5)
     with pytest.raises(SystemExit) as exit_info:
-        main(["calibrate", str(image), "--working-size", "0"])
-    assert exit_info.value.code == 2 and "working_size" in capsys.readouterr().err
+        main(["calibrate", str(image), "--segments.working_size", "0"])
+    assert exit_info.value.code == 2 and "SegmentSettings.working_size" in capsys.readouterr().err
 
 
 def test_cli_polish_frame_gives_the_polished_answer(capsys, tmp_path):
     rgb = render_scene(3, size=(640, 480)).image  # a scene where the polish moves the frame
     image = tmp_path / "scene.png"
     cv2.imwrite(str(image), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
-    assert main(["calibrate", str(image), "--polish-frame"]) == 0
+    assert main(["calibrate", str(image), "--polish.enabled", "true"]) == 0
     polished = _rows(capsys)[0]
     assert main(["calibrate", str(image)]) == 0
     plain = _rows(capsys)[0]
-    expected = calibrate(str(image), config=ParserConfig(polish_frame=True))
+    expected = calibrate(str(image), config=ParserConfig().replace(enabled=True))
     assert polished["pitch"] == pytest.approx(float(expected.pitch), abs=1e-5) and polished["pitch"] != plain["pitch"]
     out = tmp_path / "rows.jsonl"
-    assert main(["predict", str(tmp_path), "--out", str(out), "--polish-frame"]) == 0
+    assert main(["predict", str(tmp_path), "--out", str(out), "--polish.enabled", "true"]) == 0
     assert json.loads(out.read_text().splitlines()[0])["pitch"] == pytest.approx(polished["pitch"], abs=1e-5)

@@ -9,7 +9,7 @@ import math
 import sys
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field
 from typing import TextIO
 
 import cv2
@@ -20,6 +20,7 @@ from torch import Tensor
 from ngp_kornia.evaluation.datasets import LabelledImage
 from ngp_kornia.geometry.camera import horizon_from_zenith, pitch_roll_from_up, zenith_from_up
 from ngp_kornia.pipeline import Calibration, ParserConfig
+from ngp_kornia.pipeline.settings import locate_setting
 
 __all__ = [
     "Estimate",
@@ -110,26 +111,37 @@ def parse_weights_spec(spec: str | None) -> tuple[str | list[str], dict[str, str
 def weights_and_config(spec: str | None) -> tuple[str | list[str], ParserConfig]:
     """A weights spec (see :func:`parse_weights_spec`) -> (weights for ``calibrate``, ParserConfig with the overrides).
 
+    Overrides name a setting as ``stage.field`` or by a field name only one stage has (``top_k``,
+    ``horizon.refine``); ``seed`` is not a setting and is read by :func:`calibrate_method`.
+
     Raises:
-        ValueError: an override names no ParserConfig field, or its value does not convert to the field's type.
+        ValueError: an override names no setting, or its value does not convert to the setting's type.
 
     Example:
         >>> weights, config = weights_and_config("full:top_k=4")
-        >>> weights, config.top_k
+        >>> weights, config.scoring.top_k
         ('full', 4)
     """
     weights, overrides = parse_weights_spec(spec)
-    types = {f.name: type(getattr(ParserConfig(), f.name)) for f in fields(ParserConfig)}
-    unknown = sorted(set(overrides) - set(types))
-    if unknown:
-        raise ValueError(f"unknown ParserConfig fields {unknown} in the weights spec {spec!r}; known: {sorted(types)}")
+    overrides.pop("seed", None)
     values = {}
     for key, value in overrides.items():
         try:
-            values[key] = value if isinstance(value, bool) else types[key](value)
-        except ValueError:
-            raise ValueError(f"{key}={value!r} in the weights spec {spec!r} is not a {types[key].__name__}") from None
-    return weights, ParserConfig(**values)
+            stage, name = locate_setting(key)
+        except ValueError as err:
+            raise ValueError(f"{err} (in the weights spec {spec!r})") from None
+        values[f"{stage}.{name}"] = _converted(value, getattr(getattr(ParserConfig(), stage), name), key, spec)
+    return weights, ParserConfig().replace(**values)
+
+
+def _converted(value: str | bool, default: object, key: str, spec: str | None) -> object:
+    if isinstance(value, bool) or isinstance(default, bool):
+        return value
+    kind = type(default)
+    try:
+        return tuple(float(v) for v in value.split("/")) if kind is tuple else kind(value)
+    except ValueError:
+        raise ValueError(f"{key}={value!r} in the weights spec {spec!r} is not a {kind.__name__}") from None
 
 
 def calibrate_method(spec: str | None = None, seed: int | None = None) -> Method:
@@ -137,18 +149,16 @@ def calibrate_method(spec: str | None = None, seed: int | None = None) -> Method
 
     Args:
         spec: weights spec (:func:`parse_weights_spec`); ``None`` is the package default.
-        seed: sampling seed; ``None`` keeps the spec's (``ParserConfig.seed``, 0 unless overridden).
+        seed: sampling seed; ``None`` keeps the spec's (``seed=...``, 0 unless given).
     """
     from ngp_kornia.api import calibrate
 
     weights, config = weights_and_config(spec)
-    if seed is not None:
-        config = replace(config, seed=seed)
+    if seed is None:
+        seed = int(parse_weights_spec(spec)[1].get("seed", 0))
 
     def run(image: LabelledImage) -> Estimate:
-        return estimate_from_calibration(
-            calibrate(str(image.image_path), weights=weights, seed=config.seed, config=config)
-        )
+        return estimate_from_calibration(calibrate(str(image.image_path), weights=weights, seed=seed, config=config))
 
     return run
 

@@ -2,13 +2,13 @@
 by a search over scales, each scored by line support.
 
 The frame search samples VPs from pairs of segments and averages the best frames (Eq. 23); no step fits the
-frame to all the segments that point at its VPs. Here, for each focal scale ``s`` in :data:`POLISH_SCALES`
+frame to all the segments that point at its VPs. Here, for each focal scale ``s`` of :attr:`PolishSettings.scales`
 (times the frame's focal length), the rotation is refitted: segments within ``inlier_deg`` (image angle between the
 segment and the ray from its midpoint to the VP) of one of the frame's three VPs are that VP's inliers, and a
 Gauss-Newton step on a small rotation ``w`` minimises ``sum_i L_i (n_i . (d_j + w x d_j))^2`` (``n_i`` the unit
 normal of segment ``i``'s interpretation plane, ``d_j`` the VP direction, ``L_i`` the length), repeated
 ``iterations`` times with the inliers chosen again. Each scale's frame is scored by the line support of its three
-VPs (the fraction of segment length explained, the closeness kernel of :mod:`ngp_kornia.pipeline.horizon`); a scale
+VPs (the fraction of segment length explained, the closeness kernel of :mod:`ngp_kornia.pipeline.line_kernel`); a scale
 other than 1 is taken only where its support beats scale 1's by ``focal_margin``, and the chosen frame replaces
 the search's where its support is higher than the search's frame. The settings were chosen on the real development
 sets and renders together (BENCHMARKS.md).
@@ -22,19 +22,17 @@ import torch
 from torch import Tensor
 
 from ngp_kornia.geometry import canonical_manhattan_rotation
-from ngp_kornia.pipeline.horizon import (
-    _camera_segments,
-    _kernel,
-    _lengths,
-    _scaled_cam,
-    _scaled_focal,
-    _sin2,
+from ngp_kornia.pipeline.line_kernel import (
+    camera_segments,
+    closeness_kernel,
+    masked_lengths,
+    scaled_camera_segments,
+    scaled_focal,
+    squared_sines,
 )
+from ngp_kornia.pipeline.settings import PolishSettings
 
-__all__ = ["POLISH_SCALES", "polish_frame"]
-
-#: focal scales tried around the frame's focal length
-POLISH_SCALES = (0.88, 0.91, 0.94, 0.97, 1.0, 1.03, 1.06, 1.09, 1.12)
+__all__ = ["polish_frame"]
 
 
 def _rotate(R: Tensor, w: Tensor) -> Tensor:
@@ -55,7 +53,7 @@ def _gauss_newton(cam, lengths: Tensor, mask: Tensor, R: Tensor, inlier_deg: flo
     n = cam.normals  # (M, N, 3)
     for _ in range(iterations):
         d = R.transpose(1, 2)  # (M, 3, 3): row j is VP direction j
-        sin2 = _sin2(cam, d)  # (M, 3, N)
+        sin2 = squared_sines(cam, d)  # (M, 3, N)
         best, j = sin2.min(1)
         w = lengths * mask * (best < tol)  # (M, N)
         dj = d.gather(1, j[..., None].expand(-1, -1, 3))  # (M, N, 3) each segment's VP
@@ -74,7 +72,7 @@ def polish_frame(
     R: Tensor,
     segments: Tensor,
     mask: Tensor,
-    scales: tuple[float, ...] = POLISH_SCALES,
+    scales: tuple[float, ...] = PolishSettings().scales,
     inlier_deg: float = 1.5,
     kernel_deg: float = 1.0,
     iterations: int = 3,
@@ -91,17 +89,17 @@ def polish_frame(
     """
     B, S = len(K), len(scales)
     seg = segments.to(K.dtype)
-    cam, lengths = _camera_segments(seg, K), _lengths(seg, mask)
+    cam, lengths = camera_segments(seg, K), masked_lengths(seg, mask)
     scale = torch.tensor(scales, dtype=K.dtype, device=K.device)
     inv = (1.0 / scale)[:, None, None, None]
     stretch = torch.cat([1.0 / inv, 1.0 / inv, torch.ones_like(inv)], -1)
-    cam_s = _scaled_cam(cam, inv, stretch)  # (S * B) rows, scale-major
+    cam_s = scaled_camera_segments(cam, inv, stretch)  # (S * B) rows, scale-major
     lengths_s, mask_s = lengths.repeat(S, 1), mask.repeat(S, 1)
     R_s = _gauss_newton(cam_s, lengths_s, mask_s, R.repeat(S, 1, 1), inlier_deg, iterations)
     total = lengths.sum(-1).clamp_min(1e-12)
-    support = (_kernel(cam_s, R_s.transpose(1, 2)[:, None], kernel_deg, mask_s)[:, 0] * lengths_s).sum(-1)
+    support = (closeness_kernel(cam_s, R_s.transpose(1, 2)[:, None], kernel_deg, mask_s)[:, 0] * lengths_s).sum(-1)
     support = (support.view(S, B) / total).T  # (B, S)
-    frame = (_kernel(cam, R.transpose(1, 2)[:, None], kernel_deg, mask)[:, 0] * lengths).sum(-1) / total
+    frame = (closeness_kernel(cam, R.transpose(1, 2)[:, None], kernel_deg, mask)[:, 0] * lengths).sum(-1) / total
     best_support, best = support.max(-1)
     # another focal length only where it explains clearly more: with one finite horizontal VP the support is flat
     # in the focal length, and its noise would move the answer
@@ -110,6 +108,6 @@ def polish_frame(
     best_support = support.gather(1, best[:, None])[:, 0]
     use = best_support > frame
     R_best = R_s.view(S, B, 3, 3)[best, torch.arange(B)]
-    K_best = _scaled_focal(K, scale[best])
+    K_best = scaled_focal(K, scale[best])
     R_out = torch.where(use[:, None, None], canonical_manhattan_rotation(R_best), R)
     return torch.where(use[:, None, None], K_best, K), R_out, use

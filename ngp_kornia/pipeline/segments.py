@@ -2,30 +2,32 @@
 
 :func:`detect_segments` is the one entry point: every caller (the parser, :func:`ngp_kornia.calibrate`, folder
 prediction, the CLI overlay, the training cache, the benchmarks) gets its segments from it, with the settings of a
-:class:`~ngp_kornia.pipeline.ParserConfig` (``working_size``, ``min_length``, ``max_segments``), so all of them see
-the same lines for the same image.
+:class:`~ngp_kornia.pipeline.settings.SegmentSettings`, so all of them see the same lines for the same image.
 
 LSD runs on the 8-bit greyscale image resized so its long side is at most ``working_size`` (aspect ratio kept); the
 segments are mapped back to the input's pixels (pixel-centre convention), filtered by length and padded to
 ``(B, N, 2, 2)`` with a ``(B, N)`` mask.
 
 LSD runs on ``line_strips`` (default 2) horizontal strips of the image at once, one thread each as far as the process
-has cores (:func:`line_workers`), and a line cut between two strips is joined again: on two idle cores that takes
-0.6x the time of one LSD over the whole image. The segments are not quite the whole image's (LSD's region growing and
-its significance test depend on the image it sees): 94% of their length on York Urban and 98% on the Eurasian Cities
-photos comes back within a pixel. They depend on ``line_strips`` only, never on the threads.
+has cores (at most :func:`line_workers`), and a line cut between two strips is joined again: on two idle cores that
+takes 0.6x the time of one LSD over the whole image. The segments are not quite the whole image's (LSD's region
+growing and its significance test depend on the image it sees): 94% of their length on York Urban and 98% on the
+Eurasian Cities photos comes back within a pixel. They depend on ``line_strips`` only, never on the threads.
 
-``ParserConfig(detector="fld")`` uses OpenCV's FastLineDetector (opencv-contrib's ximgproc) instead: faster, and less
+``SegmentSettings(detector="fld")`` uses OpenCV's FastLineDetector (opencv-contrib's ximgproc) instead: faster, and less
 accurate on real photos (see BENCHMARKS.md).
 """
 
 from __future__ import annotations
 
 import math
+import os
 import threading
+from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 from itertools import pairwise
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -34,10 +36,8 @@ from kornia.core.check import KORNIA_CHECK_SHAPE
 from torch import Tensor
 
 from ngp_kornia.io import read_rgb
-from ngp_kornia.threads import Beside, helper_threads, thread_budget
-
-if TYPE_CHECKING:  # the settings live beside the parser, which itself calls this module
-    from ngp_kornia.pipeline.parser import ParserConfig
+from ngp_kornia.pipeline.settings import DETECTORS, SegmentSettings
+from ngp_kornia.threads import usable_cores
 
 __all__ = [
     "DETECTORS",
@@ -46,10 +46,8 @@ __all__ = [
     "detect_segments_gray",
     "line_workers",
     "pad_segments",
+    "strip_threads",
 ]
-
-#: line detectors ``ParserConfig.detector`` accepts
-DETECTORS = ("lsd", "fld")
 
 _local = threading.local()
 
@@ -74,25 +72,24 @@ def _fld(min_length: float):
     return detectors[length]
 
 
-def detect_segments_gray(gray: np.ndarray, config: ParserConfig | None = None) -> np.ndarray:
+def detect_segments_gray(gray: np.ndarray, settings: SegmentSettings | None = None) -> np.ndarray:
     """Detect segments on one greyscale uint8 image: the LSD step of :func:`detect_segments`.
 
     Args:
         gray: (H, W) uint8 image.
-        config: the settings used: LSD runs on a copy whose long side is at most ``working_size`` pixels, segments
-            shorter than ``min_length`` (working-resolution pixels) are dropped and at most ``max_segments`` kept,
-            the longest first, found by ``detector`` (``"lsd"`` or ``"fld"``), LSD in ``line_strips`` strips.
-            None for the defaults of
-            :class:`~ngp_kornia.pipeline.ParserConfig`.
+        settings: LSD runs on a copy whose long side is at most ``working_size`` pixels, segments shorter than
+            ``min_length`` (working-resolution pixels) are dropped and at most ``max_segments`` kept, the longest
+            first, found by ``detector``, LSD in ``line_strips`` strips; None for the defaults.
 
     Returns:
         (N, 2, 2) float32 segments ``[[x0, y0], [x1, y1]]`` in the input's pixels, longest first.
     """
-    working_size, min_length, max_segments, detector, strips = _settings(config)
+    s = SegmentSettings() if settings is None else settings
+    working_size, min_length, max_segments, detector, strips = (
+        s.working_size, s.min_length, s.max_segments, s.detector, s.line_strips
+    )
     if gray.ndim != 2 or gray.dtype != np.uint8:
         raise ValueError(f"expected an (H, W) uint8 greyscale image, got shape {gray.shape} dtype {gray.dtype}")
-    if detector not in DETECTORS:
-        raise ValueError(f"unknown line detector {detector!r}; choose one of {', '.join(DETECTORS)}")
     h, w = gray.shape
     scale = min(1.0, working_size / max(h, w))
     small = (
@@ -118,9 +115,35 @@ _GRID = 5
 #: a line's pieces on both sides of a cut are joined when their directions differ by at most this (degrees) and
 #: the lower piece's point on the cut lies within _JOIN_GAP pixels of the upper piece's line
 _JOIN_ANGLE, _JOIN_GAP = 2.0, 1.5
-#: LSD's strips run on at most this many threads per call inside the block (None: the process's cores); the
-#: segments do not change. The same cap as :func:`ngp_kornia.threads.helper_threads`, under the name callers know.
-line_workers = helper_threads
+#: the most threads a call's strips run on (None: the process's cores), set by :func:`line_workers`
+_cap: int | None = None
+#: the strips' pools, one per process (a pool's threads do not survive a fork)
+_pools: dict[int, ThreadPoolExecutor] = {}
+
+
+@contextmanager
+def line_workers(count: int | None) -> Iterator[None]:
+    """Let LSD's strips run on at most ``count`` threads inside the block, the caller's own included (None: as many
+    as the process's cores). ``ngp predict`` gives each of its processes its share of the cores this way; the
+    segments do not change."""
+    global _cap
+    saved, _cap = _cap, count
+    try:
+        yield
+    finally:
+        _cap = saved
+
+
+def strip_threads(strips: int) -> int:
+    """How many threads ``strips`` strips run on: at least 1, at most the process's cores (or :func:`line_workers`)."""
+    return max(1, min(strips, usable_cores() if _cap is None else _cap))
+
+
+def _pool() -> ThreadPoolExecutor:
+    pid = os.getpid()
+    if pid not in _pools:
+        _pools[pid] = ThreadPoolExecutor(max_workers=max(1, usable_cores() - 1), thread_name_prefix="ngp-lsd")
+    return _pools[pid]
 
 
 def _detect_each(views: list[np.ndarray]) -> list[np.ndarray]:
@@ -146,20 +169,21 @@ def _strip_cuts(height: int, strips: int) -> list[int]:
 
 def _lsd_in_strips(image: np.ndarray, strips: int) -> np.ndarray:
     """LSD on ``strips`` horizontal strips of the image (:data:`STRIP_OVERLAP` rows beyond each cut), run at once
-    on up to :func:`~ngp_kornia.threads.thread_budget` threads (OpenCV releases the GIL); every segment is clipped
+    on up to :func:`strip_threads` threads (OpenCV releases the GIL); every segment is clipped
     to its strip's rows and a line's pieces on both sides of a cut joined again. (N, 2, 2)."""
     cuts = _strip_cuts(image.shape[0], strips)
     if not cuts:
         return _lsd_segments(image)
     starts = [0] + [c - STRIP_OVERLAP for c in cuts]
     views = [image[a : b + STRIP_OVERLAP] for a, b in zip(starts, [*cuts, image.shape[0]], strict=True)]
-    threads = thread_budget(len(views))
+    threads = strip_threads(len(views))
     parts: list = [None] * len(views)
     groups = [views[i::threads] for i in range(threads)]  # every thread-th strip: this thread takes the first group
-    # a strip no helper has started by the time this thread is done (the helpers busy with another call's work) is
-    # detected here instead of waited for
-    pending = [Beside.start(_detect_each, group) for group in groups[1:]]
-    for i, found in enumerate([_detect_each(groups[0])] + [p.result() for p in pending]):
+    pending = [_pool().submit(_detect_each, group) for group in groups[1:]]
+    first = _detect_each(groups[0])
+    # a group no pool thread has started by now (the pool busy with another call's strips) is detected here
+    rest = [_detect_each(g) if p.cancel() else p.result() for g, p in zip(groups[1:], pending, strict=True)]
+    for i, found in enumerate([first, *rest]):
         parts[i::threads] = found
     bands = pairwise([-math.inf, *cuts, math.inf])
     found = None
@@ -255,21 +279,13 @@ def pad_segments(segments: list[np.ndarray | Tensor], like: Tensor | None = None
     return out, mask
 
 
-def _settings(config: ParserConfig | None) -> tuple[int, float, int, str, int]:
-    if config is None:
-        from ngp_kornia.pipeline.parser import ParserConfig
-
-        config = ParserConfig()
-    return config.working_size, config.min_length, config.max_segments, config.detector, config.line_strips
-
-
 def _to_gray_uint8(image: Tensor) -> np.ndarray:
     rgb = image.detach().float().clamp(0.0, 1.0).mul(255.0).round().to(torch.uint8).permute(1, 2, 0).cpu().numpy()
     return cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2GRAY)
 
 
 def detect_segments(
-    image: str | Path | np.ndarray | Tensor, config: ParserConfig | None = None
+    image: str | Path | np.ndarray | Tensor, settings: SegmentSettings | None = None
 ) -> tuple[Tensor, Tensor]:
     """Detect line segments on an image or a batch: the one line-detection entry point of the package.
 
@@ -279,8 +295,7 @@ def detect_segments(
             greyscale, RGBA, uint16 and float in [0, 1] are converted), which is one image. Arrays and files are
             detected on their 8-bit pixels, tensors on their pixels rounded to 8 bits: a tensor made of an 8-bit
             image (``uint8 / 255``) gives the same segments as the array.
-        config: a :class:`~ngp_kornia.pipeline.ParserConfig` whose ``working_size``, ``min_length`` and
-            ``max_segments`` are used (see :func:`detect_segments_gray`); None for the defaults.
+        settings: the detection settings (see :func:`detect_segments_gray`); None for the defaults.
 
     Returns:
         segments (B, N, 2, 2) in input pixels and mask (B, N), with B = 1 for an unbatched input; on a tensor's
@@ -299,24 +314,24 @@ def detect_segments(
     """
     if not isinstance(image, Tensor):
         gray = cv2.cvtColor(read_rgb(image), cv2.COLOR_RGB2GRAY)
-        return pad_segments([detect_segments_gray(gray, config)])
+        return pad_segments([detect_segments_gray(gray, settings)])
     if not image.is_floating_point():
         raise TypeError(f"expected a float image tensor in [0, 1], got {image.dtype}; for uint8 use image.float()/255")
     images = image[None] if image.dim() == 3 else image
     KORNIA_CHECK_SHAPE(images, ["B", "3", "H", "W"])
-    return pad_segments([detect_segments_gray(_to_gray_uint8(im), config) for im in images], like=images)
+    return pad_segments([detect_segments_gray(_to_gray_uint8(im), settings) for im in images], like=images)
 
 
 class LineDetector(torch.nn.Module):
     """Module form of :func:`detect_segments` (no parameters; LSD is not differentiable).
 
     Args:
-        config: the detection settings (see :func:`detect_segments`); None for the defaults.
+        settings: the detection settings (see :func:`detect_segments`); None for the defaults.
     """
 
-    def __init__(self, config: ParserConfig | None = None) -> None:
+    def __init__(self, settings: SegmentSettings | None = None) -> None:
         super().__init__()
-        self.config = config
+        self.settings = settings
 
     def forward(self, images: Tensor) -> tuple[Tensor, Tensor]:
-        return detect_segments(images, self.config)
+        return detect_segments(images, self.settings)

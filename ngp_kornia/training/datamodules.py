@@ -30,8 +30,8 @@ from ngp_kornia.data.manifest import CSVManifest
 from ngp_kornia.data.panorama import crop_ground_truth, perspective_crops, sample_crop_params
 from ngp_kornia.geometry import rotation_from_angles
 from ngp_kornia.io import load_image, read_image_file
-from ngp_kornia.pipeline.parser import ParserConfig
 from ngp_kornia.pipeline.segments import detect_segments, pad_segments
+from ngp_kornia.pipeline.settings import SegmentSettings
 from ngp_kornia.training.synth.render import RenderConfig, config_spec, render_scene
 
 __all__ = [
@@ -165,7 +165,7 @@ class CachedScenes(Dataset):
         """Detect segments on an HxWx3 uint8 RGB image and pack it with its ground truth."""
         # LSD over the whole image in one piece, as the shipped networks were trained (the parser's two strips find
         # 97-99% of the same lines), on one thread in each of the loader's processes
-        config = ParserConfig(working_size=self.working_size, max_segments=self.max_segments, line_strips=1)
+        config = SegmentSettings(working_size=self.working_size, max_segments=self.max_segments, line_strips=1)
         segments = detect_segments(rgb, config)[0][0].numpy()
         image = None
         if self.input_size is not None:

@@ -17,7 +17,8 @@ from ngp_kornia.geometry.frames import FrameCandidates, select_frames, top_frame
 from ngp_kornia.metrics import frame_horizon_error, horizon_auc
 from ngp_kornia.nets.fsnet import FSNet, FSNetInputs, frame_scores
 from ngp_kornia.nets.weights import load_network, shipped_weights
-from ngp_kornia.pipeline.parser import NeuralGeometricParser, ParserConfig
+from ngp_kornia.pipeline.parser import NeuralGeometricParser
+from ngp_kornia.pipeline.settings import ParserConfig
 from ngp_kornia.training.base import NetworkModule
 from ngp_kornia.training.datamodules import SceneBatch
 from ngp_kornia.training.losses import frame_classification_loss, frame_labels
@@ -52,7 +53,8 @@ class FSNetModule(NetworkModule):
             default makes a frame positive within about 2.6% of the image height; with 1.0 nearly every frame of the
             top 16 is positive and the network learns nothing (BENCHMARKS.md).
         parser_config: settings of the :class:`NeuralGeometricParser` sampling the candidates (a dict of
-            :class:`ParserConfig` fields; None for the defaults).
+            settings by ``stage.field`` or unique field name, see :meth:`ParserConfig.replace`; None for the
+            defaults).
         zsnet: an optional trained ZSNet weighting the zenith candidates (frozen, not saved with this module).
         zsnet_weights: instead of ``zsnet``, a ZSNet weights file to load, or ``"zsnet"`` for the shipped one (the
             form a YAML config can give).
@@ -85,7 +87,7 @@ class FSNetModule(NetworkModule):
             zsnet = load_network(path, "ZSNet")
         if zsnet is not None:
             zsnet = zsnet.eval().requires_grad_(False)
-        parser = NeuralGeometricParser(ParserConfig(**(parser_config or {})), zsnet)
+        parser = NeuralGeometricParser(ParserConfig().replace(**(parser_config or {})), zsnet)
         # not a submodule: it is neither trained, switched to train mode, nor saved with the checkpoint
         object.__setattr__(self, "parser", parser)
 

@@ -16,16 +16,15 @@ from ngp_kornia.geometry import (
 )
 from ngp_kornia.metrics import horizon_error
 from ngp_kornia.pipeline import NeuralGeometricParser, ParserConfig
-from ngp_kornia.pipeline.horizon import (
-    FOCAL_SCALES,
-    choose_horizon,
-    horizon_support,
-    refine_horizon,
-    refine_up,
-    search_horizon,
-    up_from_pitch_roll,
-)
-from ngp_kornia.pipeline.trust import _support_rival
+from ngp_kornia.pipeline.answer import calibration_from_camera
+from ngp_kornia.pipeline.constants import cached
+from ngp_kornia.pipeline.horizon import choose_horizon, refine_horizon, search_horizon
+from ngp_kornia.pipeline.horizon_support import horizon_support, refine_up, up_from_pitch_roll
+from ngp_kornia.pipeline.line_kernel import camera_segments, closeness_kernel, squared_sines
+from ngp_kornia.pipeline.settings import HorizonSettings
+from ngp_kornia.pipeline.trust_features import support_rival
+
+FOCAL_SCALES = HorizonSettings().focal_scales
 
 H, W = 480, 640
 
@@ -67,7 +66,7 @@ def atlanta_segments(K, R, yaws=(0.0, 35.0, -50.0), n=30, clutter=0, seed=0):
 
 def calibration(K, R):
     valid = torch.ones(1, dtype=torch.bool)
-    return NeuralGeometricParser._result(K.float(), R.float(), torch.ones(1), valid, H, W)
+    return calibration_from_camera(K.float(), R.float(), torch.ones(1), valid, H, W)
 
 
 def test_convention_up_from_pitch_roll_inverts_pitch_roll_from_up():
@@ -107,8 +106,12 @@ def test_support_is_highest_at_the_true_horizon():
     assert int(support.argmax()) == 0
     assert dirs.shape == (1, 4, 4, 3) and weight.shape == (1, 4, 4)
     # the horizontal VPs found along the true horizon are the three blocks' directions (up to sign)
-    cam = torch.stack([R[0].float() @ torch.tensor([math.cos(math.radians(a)), 0.0, math.sin(math.radians(a))])
-                       for a in (0.0, 35.0, -50.0)])
+    cam = torch.stack(
+        [
+            R[0].float() @ torch.tensor([math.cos(math.radians(a)), 0.0, math.sin(math.radians(a))])
+            for a in (0.0, 35.0, -50.0)
+        ]
+    )
     cos = (dirs[0, 0] @ cam.T).abs()
     assert bool((cos.amax(0) > math.cos(math.radians(1.0))).all())
 
@@ -117,7 +120,7 @@ def test_the_reported_camera_is_consistent():
     K, R = camera(10.0, 4.0)
     seg, mask = atlanta_segments(K, R, clutter=10, seed=3)
     _, R_off = camera(13.0, 4.0)
-    out = refine_horizon(calibration(K, R_off), seg, mask, focal_scales=(1.0,))
+    out = refine_horizon(calibration(K, R_off), seg, mask, HorizonSettings(focal_scales=(1.0,)))
     Rn = out.R[0].double()
     assert torch.allclose(Rn @ Rn.T, torch.eye(3, dtype=torch.float64), atol=1e-5)
     assert torch.allclose(out.up, -out.R[..., :, 1])
@@ -152,9 +155,13 @@ def test_batch_equals_single_images():
     mask = torch.zeros(2, n, dtype=torch.bool)
     for i, (s, m) in enumerate(data):
         seg[i, : s.shape[1]], mask[i, : s.shape[1]] = s[0], m[0]
-    batch = NeuralGeometricParser._result(
-        torch.cat([s.K for s in starts]), torch.cat([s.R for s in starts]), torch.ones(2),
-        torch.ones(2, dtype=torch.bool), H, W,
+    batch = calibration_from_camera(
+        torch.cat([s.K for s in starts]),
+        torch.cat([s.R for s in starts]),
+        torch.ones(2),
+        torch.ones(2, dtype=torch.bool),
+        H,
+        W,
     )
     out = refine_horizon(batch, seg, mask)
     for i, (s, m) in enumerate(data):
@@ -177,7 +184,7 @@ def test_refine_up_recovers_the_zenith_and_ignores_too_few_lines():
 def test_parser_switch_recovers_the_camera():
     K, R = camera(9.0, -4.0, 20.0)
     seg, mask = atlanta_segments(K, R, clutter=10, seed=5)
-    out = NeuralGeometricParser(ParserConfig(refine_horizon=True))(torch.zeros(1, 3, H, W), seg, mask)
+    out = NeuralGeometricParser(ParserConfig().replace(refine=True))(torch.zeros(1, 3, H, W), seg, mask)
     assert bool(out.valid[0])
     assert float(horizon_error(out.horizon.double(), calibration(K, R).horizon.double(), H, W)) < 0.01
     assert bool(torch.isfinite(out.R).all())
@@ -191,7 +198,7 @@ def test_focal_scales_fix_a_wrong_focal_length_and_stay_consistent():
     K_off[:, 0, 0] *= 0.8
     K_off[:, 1, 1] *= 0.8
     start = calibration(K_off, camera(14.0, -2.0)[1])
-    plain = refine_horizon(start, seg, mask, focal_scales=(1.0,))
+    plain = refine_horizon(start, seg, mask, HorizonSettings(focal_scales=(1.0,)))
     scaled = refine_horizon(start, seg, mask)  # the default scales: 0.8, 0.9, 1.1, 1.25
     err_plain = float(horizon_error(plain.horizon.double(), truth.horizon.double(), H, W))
     err_scaled = float(horizon_error(scaled.horizon.double(), truth.horizon.double(), H, W))
@@ -205,7 +212,7 @@ def test_focal_scales_fix_a_wrong_focal_length_and_stay_consistent():
 def test_float64_inputs_give_a_finite_float64_result():
     K, R = camera(7.0, 3.0)
     seg, mask = atlanta_segments(K, R, clutter=5, seed=7)
-    out = NeuralGeometricParser(ParserConfig(refine_horizon=True))(
+    out = NeuralGeometricParser(ParserConfig().replace(refine=True))(
         torch.zeros(1, 3, H, W, dtype=torch.float64), seg.double(), mask
     )
     assert out.horizon.dtype == torch.float64 and out.K.dtype == torch.float64
@@ -231,7 +238,7 @@ def test_search_horizon_reports_the_hypothesis_that_refine_horizon_takes():
     line = horizon_from_zenith(found.K, zenith / zenith.norm(dim=-1, keepdim=True))
     assert float(horizon_error(out.horizon.double(), line.double(), H, W)) < 1e-4
     # with a margin the hypothesis cannot beat, the frame's horizon is kept
-    kept = refine_horizon(start, seg, mask, margin=10.0)
+    kept = refine_horizon(start, seg, mask, HorizonSettings(margin=10.0))
     assert torch.equal(kept.horizon, start.horizon) and torch.equal(kept.K, start.K)
 
 
@@ -263,12 +270,11 @@ def test_support_with_autograd_matches_the_in_place_path_and_has_gradients():
 
 
 def test_kernel_is_the_largest_closeness_over_kept_vps_even_on_a_midpoint():
-    from ngp_kornia.pipeline.horizon import _camera_segments, _kernel, _sin2
 
     K, R = camera(3.0, 1.0)
     seg, mask = atlanta_segments(K, R, n=10, seed=11)
     K = K.float()
-    cam = _camera_segments(seg, K)
+    cam = camera_segments(seg, K)
     g = torch.Generator().manual_seed(0)
     vps = torch.randn(1, 3, 4, 3, generator=g)
     vps[0, 0, 1] = torch.cat([cam.mid[0, 0], torch.ones(1)])  # a VP on a midpoint (up to rounding)
@@ -276,12 +282,14 @@ def test_kernel_is_the_largest_closeness_over_kept_vps_even_on_a_midpoint():
     keep = torch.tensor([[[True, True, True, True], [True, True, False, False], [False, False, False, False]]])
     mask[:, :2] = False
     c = 4.0 * math.sin(math.radians(1.5)) ** 2
-    expected = ((1.0 - _sin2(cam, vps) / c).clamp_min(0.0) * keep[..., None] * mask[:, None, None]).amax(2)
+    expected = ((1.0 - squared_sines(cam, vps) / c).clamp_min(0.0) * keep[..., None] * mask[:, None, None]).amax(2)
     for grad in (False, True):
         with torch.set_grad_enabled(grad):
             v = vps.clone().requires_grad_(grad)
             # the fused kernel and the plain formula round differently (float32): a few ulps of values in [0, 1]
-            torch.testing.assert_close(_kernel(cam, v, 1.5, mask, keep).detach(), expected, rtol=0.0, atol=1e-6)
+            torch.testing.assert_close(
+                closeness_kernel(cam, v, 1.5, mask, keep).detach(), expected, rtol=0.0, atol=1e-6
+            )
 
 
 def test_choose_horizon_of_the_search_is_refine_horizon_and_the_hypotheses_are_reported():
@@ -306,32 +314,11 @@ def test_support_rival_is_high_only_where_the_lines_support_a_different_horizon(
     seg, mask = atlanta_segments(K, R, clutter=10, seed=3)
     other, other_mask = atlanta_segments(*camera(-2.0, -3.0), yaws=(20.0, -40.0), clutter=0, seed=4)
     truth = calibration(K, R)
-    alone = _support_rival(search_horizon(truth, seg, mask), truth.horizon, H, W)
+    alone = support_rival(search_horizon(truth, seg, mask), truth.horizon, H, W)
     both = torch.cat([seg, other], 1), torch.cat([mask, other_mask], 1)
-    mixed = _support_rival(search_horizon(truth, *both), truth.horizon, H, W)
+    mixed = support_rival(search_horizon(truth, *both), truth.horizon, H, W)
     # the verticals support every nearby horizon alike, so even a clean scene's rival keeps most of the support
     assert 0.0 <= float(alone) < 0.9 and 0.95 < float(mixed) <= 1.0
-
-
-@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
-def test_the_support_constants_give_the_values_of_the_arithmetic_they_replace(dtype):
-    from ngp_kornia.pipeline.horizon import _bin_angles, _meets_bound
-
-    bins = 360
-    table = _bin_angles(bins, torch.zeros((), dtype=dtype))
-    # every bin's angle as the support computed it, in tensors of every length up to 48 (each value at many
-    # places of the vector and the scalar loops)
-    angle = (torch.arange(bins).to(dtype) + 0.5) * (math.pi / bins)
-    for n in range(1, 49):
-        parts = angle.split(n)
-        assert torch.equal(torch.cat([torch.cos(p.clone()) for p in parts]), table[:, 0])
-        assert torch.equal(torch.cat([torch.sin(p.clone()) for p in parts]), table[:, 1])
-    bound = torch.tensor([_meets_bound(dtype)], dtype=dtype)
-    near = [bound]
-    for _ in range(64):
-        near = [torch.nextafter(near[0], torch.zeros_like(bound)), *near, torch.nextafter(near[-1], 2 * bound)]
-    x = torch.cat([*near, torch.rand(10000, dtype=dtype), torch.tensor([0.0, 0.5, 1.0, 2.0, math.nan], dtype=dtype)])
-    assert torch.equal(x < bound, x.neg().add(1.0) > 1e-12)
 
 
 def test_up_vectors_do_not_depend_on_the_batch_they_are_computed_in():
@@ -344,24 +331,22 @@ def test_up_vectors_do_not_depend_on_the_batch_they_are_computed_in():
         assert torch.equal(torch.cat(parts), ups)
 
 
-def test_the_search_without_autograd_answers_and_caches_ordinary_tensors():
-    from ngp_kornia.pipeline import horizon as refine
-
+def test_the_search_without_autograd_answers_ordinary_tensors():
     K, R = camera(6.0, -1.0)
     seg, mask = atlanta_segments(K, R, clutter=15, seed=10)
-    saved = dict(refine._CONSTANTS)
-    refine._CONSTANTS.clear()  # built first inside the search's inference mode
-    try:
-        with torch.no_grad():
-            found = search_horizon(calibration(K, R), seg, mask)
-        assert not any(t.is_inference() for t in found)
-        assert not any(t.is_inference() for ts in refine._CONSTANTS.values() for t in ts)
-        found.up.add_(0.0)  # an ordinary tensor: in-place updates allowed
-        ups = up_from_pitch_roll(torch.tensor([[6.0, 4.0]]), torch.tensor([[-1.0, 0.5]])).requires_grad_()
-        support, dirs, _ = horizon_support(ups, seg.float().requires_grad_(), mask, K.float())
-        (support.sum() + dirs.sum()).backward()
-        assert ups.grad is not None and bool(torch.isfinite(ups.grad).all())
-        assert torch.equal(search_horizon(calibration(K, R), seg, mask).support, found.support)  # with autograd
-    finally:
-        refine._CONSTANTS.clear()
-        refine._CONSTANTS.update(saved)
+    with torch.no_grad():
+        found = search_horizon(calibration(K, R), seg, mask)
+    assert not any(t.is_inference() for t in found)
+    found.up.add_(0.0)  # an ordinary tensor: in-place updates allowed
+    ups = up_from_pitch_roll(torch.tensor([[6.0, 4.0]]), torch.tensor([[-1.0, 0.5]])).requires_grad_()
+    support, dirs, _ = horizon_support(ups, seg.float().requires_grad_(), mask, K.float())
+    (support.sum() + dirs.sum()).backward()
+    assert ups.grad is not None and bool(torch.isfinite(ups.grad).all())
+    assert torch.equal(search_horizon(calibration(K, R), seg, mask).support, found.support)  # with autograd
+
+
+def test_constants_built_in_inference_mode_serve_callers_with_autograd():
+    with torch.inference_mode():
+        first = cached(("a constant of this test",), lambda: torch.ones(3))
+    assert not first.is_inference() and cached(("a constant of this test",), lambda: torch.zeros(3)) is first
+    (first * torch.ones(3, requires_grad=True)).sum().backward()  # usable with autograd

@@ -4,7 +4,7 @@ import pytest
 import torch
 
 from ngp_kornia.geometry import image_center, intrinsics_matrix, rotation_from_angles
-from ngp_kornia.pipeline import NeuralGeometricParser, ParserConfig
+from ngp_kornia.pipeline import NeuralGeometricParser
 
 
 def manhattan_segments(pitch, roll, yaw, fov_v=55.0, size=(480, 640), n=40, seed=0):
@@ -62,9 +62,9 @@ def test_batch_with_different_line_counts_matches_single_images():
 
 def test_deterministic_under_a_seed():
     seg, mask, _, (h, w) = manhattan_segments(5.0, 2.0, 10.0)
-    parser = NeuralGeometricParser(ParserConfig(seed=4))
+    parser = NeuralGeometricParser()
     x = torch.zeros(1, 3, h, w)
-    assert torch.equal(parser(x, seg, mask).K, parser(x, seg, mask).K)
+    assert torch.equal(parser(x, seg, mask, seed=4).K, parser(x, seg, mask, seed=4).K)
 
 
 def test_float64_in_float64_out():

@@ -4,7 +4,7 @@ import pytest
 import torch
 
 from ngp_kornia.nets.fsnet import FSNet
-from ngp_kornia.pipeline import NeuralGeometricParser, ParserConfig
+from ngp_kornia.pipeline import NeuralGeometricParser, ParserConfig, SegmentSettings
 from ngp_kornia.pipeline.segments import detect_segments
 from ngp_kornia.training.synth.render import render_scene
 
@@ -18,13 +18,13 @@ def tiny_fsnet(**kwargs) -> FSNet:
 def scene():
     r = render_scene(5, (192, 144))
     image = torch.from_numpy(r.image).permute(2, 0, 1)[None].float() / 255
-    segments, mask = detect_segments(image, ParserConfig(working_size=192, min_length=8.0, max_segments=256))
+    segments, mask = detect_segments(image, SegmentSettings(working_size=192, min_length=8.0, max_segments=256))
     return image, segments, mask
 
 
 def test_fsnet_scores_only_the_best_frames(scene):
     image, segments, mask = scene
-    parser = NeuralGeometricParser(ParserConfig(num_scored=6), fsnet=tiny_fsnet())
+    parser = NeuralGeometricParser(ParserConfig().replace(num_scored=6), fsnet=tiny_fsnet())
     g = torch.Generator().manual_seed(0)
     frames, manhattan = parser.score_frames(segments, mask, 144, 192, g)
     kept, scores = parser.rescore_frames(image, segments, mask, frames, manhattan)
@@ -39,8 +39,8 @@ def test_without_manhattan_the_score_is_fsnet_alone(scene):
     image, segments, mask = scene
     net = tiny_fsnet()
     g = torch.Generator().manual_seed(0)
-    product = NeuralGeometricParser(ParserConfig(num_scored=6), fsnet=net)
-    alone = NeuralGeometricParser(ParserConfig(num_scored=6, use_manhattan=False), fsnet=net)
+    product = NeuralGeometricParser(ParserConfig().replace(num_scored=6), fsnet=net)
+    alone = NeuralGeometricParser(ParserConfig().replace(num_scored=6, use_manhattan=False), fsnet=net)
     frames, manhattan = product.score_frames(segments, mask, 144, 192, g)
     _, s_product = product.rescore_frames(image, segments, mask, frames, manhattan)
     _, s_alone = alone.rescore_frames(image, segments, mask, frames, manhattan)
@@ -50,7 +50,7 @@ def test_without_manhattan_the_score_is_fsnet_alone(scene):
 def test_gradients_reach_the_pixels_and_both_networks(scene):
     image, segments, mask = scene
     fsnet = tiny_fsnet()
-    parser = NeuralGeometricParser(ParserConfig(num_scored=8), fsnet=fsnet)
+    parser = NeuralGeometricParser(ParserConfig().replace(num_scored=8), fsnet=fsnet)
     pixels = image.clone().requires_grad_(True)
     out = parser(pixels, segments, mask)
     assert bool(out.valid.all())
@@ -82,24 +82,3 @@ def test_no_grad_inference_keeps_no_graph(scene):
         out = parser(image.requires_grad_(False), segments, mask)
     assert not out.focal.requires_grad and not out.R.requires_grad
 
-
-def test_fsnet_images_already_resized_give_the_same_answer(scene):
-    """The pixels FSNet reads can come resized already (calibrate() makes them during line detection): the parser
-    then reads nothing else of the image, and the answer is the one it gives when it resizes the image itself."""
-    from ngp_kornia.nets.fsnet import area_resize
-
-    image, segments, mask = scene
-    parser = NeuralGeometricParser(fsnet=tiny_fsnet())
-    with torch.no_grad():
-        own = parser(image, segments, mask)[0].to_dict()
-        resized = area_resize(image, (64, 64))
-        given = parser(torch.zeros_like(image), segments, mask, fsnet_images=resized)[0].to_dict()
-    for name, value in own.items():
-        assert torch.equal(value, given[name]) if isinstance(value, torch.Tensor) else value == given[name], name
-
-
-def test_fsnet_images_of_the_wrong_size_are_refused(scene):
-    image, segments, mask = scene
-    parser = NeuralGeometricParser(fsnet=tiny_fsnet())
-    with torch.no_grad(), pytest.raises(ValueError, match=r"resized to FSNet's input, shape \(1, 3, 64, 64\)"):
-        parser(image, segments, mask, fsnet_images=image)

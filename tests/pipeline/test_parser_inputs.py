@@ -13,31 +13,75 @@ from ngp_kornia import ConfigError, InputError, NeuralGeometricParser, ParserCon
 
 
 @pytest.mark.parametrize(
-    "field, value, message",
+    "key, value, message",
     [
-        ("fallback_fov", float("nan"), "ParserConfig.fallback_fov must be a finite number"),
-        ("fallback_fov", 0.0, r"ParserConfig.fallback_fov must be an angle in degrees, in \(0, 180\), got 0.0"),
-        ("focal_range", (0.0, 4.0), "ParserConfig.focal_range must be two finite numbers 0 < low < high"),
-        ("focal_range", (2.0, 1.0), "ParserConfig.focal_range"),
-        ("working_size", 0, "ParserConfig.working_size must be an integer at least 32 pixels, got 0"),
-        ("num_frames", 0, "ParserConfig.num_frames must be an integer at least 1, got 0"),
-        ("top_k", -1, "ParserConfig.top_k"),
-        ("seed", 2**70, r"ParserConfig.seed must be an integer in \[0, 2\*\*64 - 1\]"),
-        ("seed", -1, "ParserConfig.seed"),
-        ("seed", 1.5, "ParserConfig.seed must be an integer"),
-        ("min_length", float("inf"), "ParserConfig.min_length must be a finite number"),
-        ("kernel_angle", 90.0, "ParserConfig.kernel_angle"),
-        ("use_manhattan", "yes", "ParserConfig.use_manhattan must be True or False"),
+        ("fallback_fov", float("nan"), "ScoringSettings.fallback_fov must be a finite number"),
+        ("fallback_fov", 0.0, r"ScoringSettings.fallback_fov must be a number in \(0, 180\), got 0.0"),
+        ("focal_range", (0.0, 4.0), "SamplingSettings.focal_range must be two numbers 0 < low < high"),
+        ("focal_range", (2.0, 1.0), "SamplingSettings.focal_range must be \\(low, high\\) with low < high"),
+        ("working_size", 0, r"SegmentSettings.working_size must be an integer in \[32, 16384\], got 0"),
+        ("num_frames", 0, r"SamplingSettings.num_frames must be an integer in \[1, 65536\], got 0"),
+        ("num_frames", 10**7, r"SamplingSettings.num_frames must be an integer in \[1, 65536\]"),
+        ("top_k", -1, "ScoringSettings.top_k"),
+        ("top_k", True, "ScoringSettings.top_k must be an integer"),
+        ("min_length", float("inf"), "SegmentSettings.min_length must be a finite number"),
+        ("kernel_angle", 90.0, "ScoringSettings.kernel_angle"),
+        ("use_manhattan", "yes", "ScoringSettings.use_manhattan must be True or False"),
+        ("horizon.margin", -0.1, "HorizonSettings.margin"),
+        ("focal_scales", (), "HorizonSettings.focal_scales must be positive numbers"),
+        ("trust.principal_point_std", 0.3, "TrustSettings.principal_point_std"),
     ],
 )
-def test_config_fields_are_checked_by_name(field, value, message):
+def test_settings_are_checked_by_name(key, value, message):
     with pytest.raises(ConfigError, match=message):
-        ParserConfig(**{field: value})
+        ParserConfig().replace(**{key: value})
 
 
-def test_bad_seed_through_calibrate_and_the_command_line(tmp_path):
-    with pytest.raises(ConfigError, match="ParserConfig.seed"):
-        calibrate(torch.rand(3, 64, 64), seed=2**70)
+def test_unknown_and_ambiguous_settings_name_the_stages():
+    with pytest.raises(ConfigError, match="unknown setting 'seed'; settings are stage.field"):
+        ParserConfig().replace(seed=3)  # a call argument, not a setting
+    with pytest.raises(ConfigError, match="unknown setting 'segments.refine'"):
+        ParserConfig().replace(**{"segments.refine": True})
+    with pytest.raises(ConfigError, match="ParserConfig.horizon must be a HorizonSettings"):
+        ParserConfig(horizon={"refine": False})
+
+
+def test_numpy_numbers_are_taken_as_python_ones():
+    cfg = ParserConfig().replace(working_size=np.int64(640), margin=np.float32(0.5))
+    assert type(cfg.segments.working_size) is int and cfg.segments.working_size == 640
+    assert type(cfg.horizon.margin) is float
+
+
+@pytest.mark.parametrize(
+    "seed, message",
+    [(2**70, r"seed must be in \[0, 2\*\*64 - 1\]"), (-1, "seed must be in"), (1.5, "seed must be an integer")]
+    + [(True, "seed must be an integer")],
+)
+def test_bad_seeds_are_refused_by_the_call(seed, message):
+    with pytest.raises(InputError, match=message):
+        calibrate(torch.rand(3, 64, 64), seed=seed)
+    with pytest.raises(InputError, match=message):
+        NeuralGeometricParser()(torch.rand(1, 3, 64, 64), seed=seed)
+
+
+def test_numpy_seeds_and_the_largest_seed_are_accepted():
+    image = torch.rand(3, 64, 64)
+    assert torch.equal(calibrate(image, seed=np.int64(5)).K, calibrate(image, seed=5).K)
+    calibrate(image, seed=2**64 - 1)
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [({"focal": True}, "focal must be a positive number of pixels"), ({"fov_v": 180.0}, "fov_v must be an angle")]
+    + [({"focal": float("nan")}, "focal must be"), ({"num_threads": -1}, "expected a thread count")]
+    + [({"weights": None}, "weights must be one of default"), ({"exif": "yes"}, "exif must be True or False")],
+)
+def test_bad_call_arguments_are_one_clear_error(kwargs, message):
+    with pytest.raises((InputError, ValueError, TypeError), match=message):
+        calibrate(torch.rand(3, 64, 64), **kwargs)
+
+
+def test_bad_seed_through_the_command_line(tmp_path):
     image = tmp_path / "x.png"
     cv2.imwrite(str(image), np.full((64, 64, 3), 100, np.uint8))
     run = subprocess.run(
@@ -46,12 +90,12 @@ def test_bad_seed_through_calibrate_and_the_command_line(tmp_path):
         text=True,
         timeout=120,
     )
-    assert run.returncode == 1 and run.stderr.count("\n") == 1 and "ParserConfig.seed must be" in run.stderr
+    assert run.returncode == 1 and run.stderr.count("\n") == 1 and "seed must be in" in run.stderr
 
 
 def test_the_defaults_and_edges_are_accepted():
     ParserConfig()
-    ParserConfig(num_horizontal_frames=0, min_length=0.0, seed=2**64 - 1, working_size=32, focal_range=[0.5, 5])
+    ParserConfig().replace(num_horizontal_frames=0, min_length=0.0, working_size=32, focal_range=[0.5, 5])
 
 
 @pytest.mark.parametrize("dtype", [torch.float16, torch.bfloat16])

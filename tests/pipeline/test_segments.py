@@ -8,7 +8,7 @@ import torch
 from kornia.core.exceptions import ShapeError
 
 from ngp_kornia.io import ImageError
-from ngp_kornia.pipeline import ParserConfig
+from ngp_kornia.pipeline import ParserConfig, SegmentSettings
 from ngp_kornia.pipeline.segments import LineDetector, detect_segments, detect_segments_gray, pad_segments
 
 
@@ -84,18 +84,18 @@ def test_detect_segments_flat_image_has_no_lines():
 def test_detect_segments_downscaled_maps_back():
     # LSD runs on a 640x480 copy of a 1280x960 image; segments come back in input pixels
     img = _rectangle(960, 1280, 200, 599, 300, 999)
-    seg, mask = detect_segments(img, ParserConfig(working_size=640))
+    seg, mask = detect_segments(img, SegmentSettings(working_size=640))
     # a missing half-pixel correction would put the edges about 0.75 px off
     _check_rectangle(seg[0], mask[0], 299.5, 999.5, 199.5, 599.5, tol=0.6)
     # min_length is in working-resolution pixels: the 200-px (working) edges pass 150, the 350-px ones only pass 300
-    _, mask = detect_segments(img, ParserConfig(working_size=640, min_length=300.0))
+    _, mask = detect_segments(img, SegmentSettings(working_size=640, min_length=300.0))
     assert int(mask.sum()) == 2
 
 
 def test_detect_segments_smaller_than_working_size_unchanged():
     img = _rectangle(64, 64, 20, 43, 20, 43)
-    a, ma = detect_segments(img, ParserConfig(working_size=640))
-    b, mb = detect_segments(img, ParserConfig(working_size=64))
+    a, ma = detect_segments(img, SegmentSettings(working_size=640))
+    b, mb = detect_segments(img, SegmentSettings(working_size=64))
     assert torch.equal(a, b) and torch.equal(ma, mb)
 
 
@@ -106,9 +106,9 @@ def test_detect_segments_gray_longest_first_and_limits():
     assert seg.dtype == np.float32 and seg.shape == (4, 2, 2)
     length = np.linalg.norm(seg[:, 1] - seg[:, 0], axis=-1)
     assert (np.diff(length) <= 0).all()  # longest first
-    assert detect_segments_gray(gray, ParserConfig(max_segments=2)).shape == (2, 2, 2)
-    np.testing.assert_array_equal(detect_segments_gray(gray, ParserConfig(max_segments=2)), seg[:2])
-    assert detect_segments_gray(gray, ParserConfig(min_length=80.0)).shape == (2, 2, 2)
+    assert detect_segments_gray(gray, SegmentSettings(max_segments=2)).shape == (2, 2, 2)
+    np.testing.assert_array_equal(detect_segments_gray(gray, SegmentSettings(max_segments=2)), seg[:2])
+    assert detect_segments_gray(gray, SegmentSettings(min_length=80.0)).shape == (2, 2, 2)
     assert detect_segments_gray(np.zeros((50, 50), np.uint8)).shape == (0, 2, 2)
 
 
@@ -118,7 +118,7 @@ def test_detect_segments_gray_thin_lines_survive_downscaling():
     gray = np.zeros((1440, 1920), np.uint8)
     gray[300:1200, 600] = 255
     gray[450, 300:1500] = 255
-    seg = detect_segments_gray(gray, ParserConfig(working_size=640))
+    seg = detect_segments_gray(gray, SegmentSettings(working_size=640))
     assert len(seg) >= 2, "thin lines lost when downscaling (cv2.resize interpolation flag passed as dst)"
     xs = seg[..., 0].mean(1)
     ys = seg[..., 1].mean(1)
@@ -168,13 +168,13 @@ def test_detect_segments_accepts_every_image_form(tmp_path):
 def test_detect_segments_settings_come_from_the_config():
     gray = np.zeros((100, 120), np.uint8)
     gray[20:80, 10:110] = 255
-    cfg = ParserConfig(max_segments=3)
+    cfg = SegmentSettings(max_segments=3)
     assert detect_segments(gray, cfg)[1].sum() == 3 == len(detect_segments_gray(gray, cfg))
     assert detect_segments(np.zeros((100, 120), np.uint8))[0].shape == (1, 0, 2, 2)
 
 
 def test_line_detector_module():
-    det = LineDetector(ParserConfig(working_size=640, min_length=10.0, max_segments=2))
+    det = LineDetector(SegmentSettings(working_size=640, min_length=10.0, max_segments=2))
     assert len(list(det.parameters())) == 0
     seg, mask = det(_rectangle(64, 64, 20, 43, 20, 43))
     assert seg.shape == (1, 2, 2, 2) and mask.all()
@@ -202,23 +202,22 @@ def test_pad_segments():
 def test_fast_line_detector_finds_the_rectangle():
     # FastLineDetector puts edges on Canny's edge pixels, up to half a pixel off LSD's sub-pixel ones
     img = _rectangle(80, 120, 10, 49, 30, 99)
-    seg, mask = detect_segments(img, ParserConfig(detector="fld"))
+    seg, mask = detect_segments(img, SegmentSettings(detector="fld"))
     _check_rectangle(seg[0], mask[0], 29.5, 99.5, 9.5, 49.5, tol=1.0)
-    assert int(LineDetector(ParserConfig(detector="fld"))(img)[1].sum()) == 4
+    assert int(LineDetector(SegmentSettings(detector="fld"))(img)[1].sum()) == 4
 
 
 def test_unknown_detector_names_the_choices():
-    with pytest.raises(ValueError, match="ParserConfig.detector must be one of lsd, fld, got 'hough'"):
-        ParserConfig(detector="hough")
+    with pytest.raises(ValueError, match="SegmentSettings.detector must be one of lsd, fld, got 'hough'"):
+        SegmentSettings(detector="hough")
 
 
 def test_parser_config_selects_the_detector():
     from ngp_kornia import calibrate
-    from ngp_kornia.pipeline import ParserConfig
     from ngp_kornia.training.synth.render import render_scene
 
     image = render_scene(3, size=(320, 240)).image
-    lsd, fld = calibrate(image), calibrate(image, config=ParserConfig(detector="fld"))
+    lsd, fld = calibrate(image), calibrate(image, config=ParserConfig(segments=SegmentSettings(detector="fld")))
     assert bool(lsd.valid) and bool(fld.valid) and float(lsd.focal) != float(fld.focal)
 
 
@@ -229,8 +228,8 @@ def _slanted_bar(h: int, w: int, top: tuple[float, float], bottom: tuple[float, 
     return cv2.fillPoly(np.zeros((h, w), np.uint8), [polygon], 255)
 
 
-def _one_piece(**kw) -> ParserConfig:
-    return ParserConfig(line_strips=1, **kw)
+def _one_piece(**kw) -> SegmentSettings:
+    return SegmentSettings(line_strips=1, **kw)
 
 
 def test_strips_give_the_rectangle_whose_edges_cross_the_cuts():
@@ -238,7 +237,7 @@ def test_strips_give_the_rectangle_whose_edges_cross_the_cuts():
     # the horizontal edges lie in the strips' overlap (rows 230-250) and come back once, not twice
     img = _rectangle(480, 640, 235, 247, 150, 499)
     img = img + _rectangle(480, 640, 40, 439, 560, 599)
-    seg, mask = detect_segments(img, ParserConfig(line_strips=2))
+    seg, mask = detect_segments(img, SegmentSettings(line_strips=2))
     whole, whole_mask = detect_segments(img, _one_piece())
     assert int(mask.sum()) == int(whole_mask.sum()) == 8
     assert _farthest_match(seg[0][mask[0]].numpy(), whole[0][whole_mask[0]].numpy()) < 0.5
@@ -254,7 +253,7 @@ def _farthest_match(a: np.ndarray, b: np.ndarray) -> float:
 @pytest.mark.parametrize("strips", [2, 3])
 def test_a_slanted_line_across_the_cuts_is_one_segment(strips):
     gray = _slanted_bar(600, 400, (100, 30), (260, 570))
-    seg = detect_segments_gray(gray, ParserConfig(line_strips=strips))
+    seg = detect_segments_gray(gray, SegmentSettings(line_strips=strips))
     whole = detect_segments_gray(gray, _one_piece())
     assert len(seg) == len(whole) == 4  # the bar's two long sides and its two short ends
     lengths = lambda s: np.sort(np.linalg.norm(s[:, 1] - s[:, 0], axis=-1))  # noqa: E731
@@ -266,7 +265,7 @@ def test_strips_do_not_depend_on_the_threads_that_run_them():
     from ngp_kornia.training.synth.render import render_scene
 
     gray = cv2.cvtColor(render_scene(5, size=(640, 480)).image, cv2.COLOR_RGB2GRAY)
-    config = ParserConfig(line_strips=3)
+    config = SegmentSettings(line_strips=3)
     with line_workers(1):
         alone = detect_segments_gray(gray, config)
     with line_workers(3):
@@ -277,7 +276,7 @@ def test_strips_do_not_depend_on_the_threads_that_run_them():
 def test_short_images_are_detected_in_one_piece():
     # 64 rows cannot hold two strips of at least 40 rows: the whole image is the one strip
     img = _rectangle(64, 64, 20, 43, 20, 43)
-    a, _ = detect_segments(img, ParserConfig(line_strips=4))
+    a, _ = detect_segments(img, SegmentSettings(line_strips=4))
     b, _ = detect_segments(img, _one_piece())
     assert torch.equal(a, b)
 
@@ -296,8 +295,8 @@ def test_strips_work_in_a_forked_process():
 
 @pytest.mark.parametrize("bad", [0, 17, 1.5, True])
 def test_line_strips_out_of_range_is_refused(bad):
-    with pytest.raises(ValueError, match="ParserConfig.line_strips must be an integer from 1 to 16"):
-        ParserConfig(line_strips=bad)
+    with pytest.raises(ValueError, match="SegmentSettings.line_strips must be an integer in \\[1, 16\\]"):
+        SegmentSettings(line_strips=bad)
 
 
 def test_strips_find_the_lines_of_the_whole_image():
@@ -306,8 +305,8 @@ def test_strips_find_the_lines_of_the_whole_image():
     from ngp_kornia.training.synth.render import render_scene
 
     gray = cv2.cvtColor(render_scene(7, size=(640, 486)).image, cv2.COLOR_RGB2GRAY)
-    whole = detect_segments_gray(gray, _one_piece(max_segments=10**6))
-    strips = detect_segments_gray(gray, ParserConfig(line_strips=2, max_segments=10**6))
+    whole = detect_segments_gray(gray, _one_piece(max_segments=16384))
+    strips = detect_segments_gray(gray, SegmentSettings(line_strips=2, max_segments=16384))
     ends = lambda s: np.abs(whole[:, None] - s[None]).max(-1).max(-1)  # noqa: E731
     found = np.minimum(ends(strips), ends(strips[:, ::-1])).min(1) < 1.0
     length = np.linalg.norm(whole[:, 1] - whole[:, 0], axis=-1)
@@ -316,12 +315,13 @@ def test_strips_find_the_lines_of_the_whole_image():
 
 def test_strips_run_on_the_process_share_of_the_cores():
     import ngp_kornia.pipeline.segments as detect
-    from ngp_kornia.threads import thread_budget, usable_cores
+    from ngp_kornia.pipeline.segments import strip_threads
+    from ngp_kornia.threads import usable_cores
 
     with detect.line_workers(1):  # ngp predict's processes each get their share
-        assert thread_budget(2) == 1
+        assert strip_threads(2) == 1
     with detect.line_workers(8):
-        assert thread_budget(2) == min(2, usable_cores())  # never more threads than strips, nor than cores
+        assert strip_threads(2) == min(2, usable_cores())  # never more threads than strips, nor than cores
 
 
 def test_calls_from_several_threads_share_the_strip_threads():
@@ -337,22 +337,15 @@ def test_calls_from_several_threads_share_the_strip_threads():
     assert all(np.array_equal(a, b) for a, b in zip(got, expected * 3, strict=True))
 
 
-def test_strips_are_detected_in_the_callers_thread_while_the_helpers_are_busy():
-    # another call's work may hold every helper thread: the caller detects the waiting strip itself, and gets the
-    # same segments, instead of waiting for a helper
-    import threading
+def test_calls_from_many_threads_at_once_get_the_segments_of_one_call():
+    # the strips of every call share one pool: calls that find it busy with other calls' strips still finish, and
+    # the segments never depend on which thread detected a strip
+    from concurrent.futures import ThreadPoolExecutor
 
-    from ngp_kornia.threads import _helper_pool
     from ngp_kornia.training.synth.render import render_scene
 
     gray = cv2.cvtColor(render_scene(5, size=(640, 480)).image, cv2.COLOR_RGB2GRAY)
     expected = detect_segments_gray(gray)
-    release = threading.Event()
-    pool = _helper_pool()
-    blockers = [pool.submit(release.wait, 60) for _ in range(pool._max_workers)]
-    try:
-        got = detect_segments_gray(gray)  # would wait for a helper without the fallback
-    finally:
-        release.set()
-    assert all(b.result(timeout=60) for b in blockers)
-    assert np.array_equal(got, expected)
+    with ThreadPoolExecutor(8) as callers:
+        found = list(callers.map(lambda _: detect_segments_gray(gray), range(16), timeout=120))
+    assert all(np.array_equal(got, expected) for got in found)

@@ -28,7 +28,7 @@ def _same(a: Calibration, b: Calibration) -> None:
 
 @pytest.mark.parametrize("weights", ["none", "zsnet", "fsnet", "full"])
 def test_trace_leaves_the_answer_unchanged(images, weights):
-    parser = load_parser(weights, ParserConfig(num_scored=8))
+    parser = load_parser(weights, ParserConfig().replace(num_scored=8))
     with torch.no_grad():
         plain = parser(images)
         traced, trace = parser(images, return_trace=True)
@@ -39,7 +39,7 @@ def test_trace_leaves_the_answer_unchanged(images, weights):
 
 @pytest.mark.parametrize("weights", ["none", "full"])
 def test_trace_shapes_and_the_answer_it_gives(images, weights):
-    cfg = ParserConfig(num_scored=8, top_k=4)
+    cfg = ParserConfig().replace(num_scored=8, top_k=4)
     parser = load_parser(weights, cfg)
     with torch.no_grad():
         cal, t = parser(images, return_trace=True)
@@ -56,7 +56,7 @@ def test_trace_shapes_and_the_answer_it_gives(images, weights):
     if parser.fsnet is None:
         assert t.final_frames is t.frames and torch.equal(t.final_scores, t.manhattan)
     else:
-        K = cfg.num_scored
+        K = cfg.scoring.num_scored
         assert t.scored_index.shape == t.fsnet_scores.shape == t.final_scores.shape == (B, K)
         assert torch.equal(t.scored_index, top_frames(t.frames, t.manhattan, K))
         kept = select_frames(t.frames, t.scored_index)
@@ -67,11 +67,11 @@ def test_trace_shapes_and_the_answer_it_gives(images, weights):
     assert torch.equal(cal.score, t.final_scores.amax(-1))
     assert torch.equal(t.best, t.final_scores.argmax(-1))
     w = t.top_k_weights
-    assert bool(((w > 0).sum(-1) <= cfg.top_k).all())
+    assert bool(((w > 0).sum(-1) <= cfg.scoring.top_k).all())
     valid = t.final_frames.valid.any(-1)
     assert bool(valid.all()), "the scenes have lines: every image has a valid frame"
     torch.testing.assert_close(w.sum(-1), torch.ones(B))
-    focal, _ = topk_weighted_average(t.final_scores, t.final_frames.focal, cfg.top_k, t.final_frames.valid)
+    focal, _ = topk_weighted_average(t.final_scores, t.final_frames.focal, cfg.scoring.top_k, t.final_frames.valid)
     torch.testing.assert_close(cal.focal, focal * pseudo_focal(240, 320))
     torch.testing.assert_close((w * t.final_frames.focal).sum(-1), focal)
     st = (w[..., None, None] * structure_tensor(t.final_frames.zenith)).sum(1)

@@ -2,7 +2,6 @@
 
 import json
 import math
-from dataclasses import replace
 
 import pytest
 import torch
@@ -12,8 +11,9 @@ from ngp_kornia.geometry.frames import frames_from_vps
 from ngp_kornia.nets.fsnet import FSNet
 from ngp_kornia.pipeline import NeuralGeometricParser, ParserConfig
 from ngp_kornia.pipeline import parser as parser_module
-from ngp_kornia.pipeline.parser import prior_focal
-from ngp_kornia.pipeline.trust import TRUST_FILE, TrustFeatures, TrustModel, _line_residual
+from ngp_kornia.pipeline.priors import Priors
+from ngp_kornia.pipeline.trust import TRUST_FILE, TrustModel
+from ngp_kornia.pipeline.trust_features import TrustFeatures, line_residual
 from ngp_kornia.training.synth.render import render_scene
 
 TRUST_FIELDS = ("confidence", "pitch_std", "roll_std", "fov_v_std")
@@ -83,9 +83,9 @@ def test_bad_prior_is_a_clear_error(kwargs):
 
 
 def test_convention_prior_focal_in_pseudo_camera_units():
-    assert prior_focal(ParserConfig(), 480, 640) is None
-    assert prior_focal(ParserConfig(focal=640.0), 480, 640) == pytest.approx(2.0)
-    assert prior_focal(ParserConfig(focal=640.0, fov_v=10.0), 480, 640) == pytest.approx(2.0)  # focal wins
+    assert Priors().focal_in_units(480, 640) is None
+    assert Priors(focal=640.0).focal_in_units(480, 640) == pytest.approx(2.0)
+    assert Priors(focal=640.0, fov_v=10.0).focal_in_units(480, 640) == pytest.approx(2.0)  # focal wins
 
 
 def test_known_focal_builds_frames_from_pairs_that_disagree_with_it():
@@ -109,11 +109,12 @@ def test_known_focal_builds_frames_from_pairs_that_disagree_with_it():
 
 def test_prior_changes_how_frames_are_built_not_only_which_survive(scene):
     image = torch.from_numpy(scene.image).permute(2, 0, 1).float().div(255)[None]
-    narrow = NeuralGeometricParser(ParserConfig(focal_range=(1.0, 1.0 + 1e-6)))  # filtering alone: almost nothing
-    cfg = ParserConfig()
-    known = NeuralGeometricParser(replace(cfg, focal=scene.focal))
+    narrow = NeuralGeometricParser(
+        ParserConfig().replace(focal_range=(1.0, 1.0 + 1e-6))
+    )  # filtering alone: almost nothing
+    known = NeuralGeometricParser(ParserConfig().replace(focal_range=(1.0, 1.0 + 1e-6)))
     assert not bool(narrow(image).valid[0])
-    assert bool(known(image).valid[0])
+    assert bool(known(image, priors=Priors(focal=float(scene.focal))).valid[0])
 
 
 def test_values_shared_by_the_parser_give_what_each_step_computes_alone(scene, monkeypatch):
@@ -134,7 +135,7 @@ def test_the_parsers_horizon_search_gives_what_the_trust_fields_compute_alone(sc
     """The parser hands its horizon search to the trust fields; without it they run the same search on the answer.
     With the refinement off the answer is the frame search's, so both give the same fields bit for bit."""
     image = torch.from_numpy(scene.image).permute(2, 0, 1).float().div(255)
-    config = ParserConfig(refine_horizon=False)
+    config = ParserConfig().replace(refine=False)
     given = calibrate(image, config=config).to_dict()
     attach = parser_module.attach_trust
     monkeypatch.setattr(parser_module, "attach_trust", lambda *a, refinement=None, **kw: attach(*a, **kw))
@@ -159,10 +160,10 @@ def test_line_residual_measures_how_far_the_segments_miss_their_vps():
     mask = torch.ones(1, 40, dtype=torch.bool)
     for turn in (0.0, 0.5, 1.0):
         seg = _segments_towards(vps[0, 0, :2], turn)
-        assert float(_line_residual(vps, seg, mask)[0]) == pytest.approx(turn, abs=0.05)  # a few lie nearer another VP
+        assert float(line_residual(vps, seg, mask)[0]) == pytest.approx(turn, abs=0.05)  # a few lie nearer another VP
     one = vps[:, :1].expand(-1, 3, -1)  # the three VPs at one place: every segment 5 deg off all of them
     far = _segments_towards(vps[0, 0, :2], 5.0)  # beyond RESIDUAL_INLIER: no inliers, residual 0
-    assert float(_line_residual(one, far, mask)[0]) == 0.0
+    assert float(line_residual(one, far, mask)[0]) == 0.0
 
 
 def test_noisier_lines_widen_the_standard_deviations_in_proportion():

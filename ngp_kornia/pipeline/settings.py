@@ -1,0 +1,368 @@
+"""The parser's settings, one small dataclass per stage, and :class:`ParserConfig`, which holds one of each.
+
+Settings say how the pipeline works and are the same for every image a parser sees; what differs per call (the
+sampling seed, what is known of the camera, the thread policy) are arguments of the call
+(:meth:`~ngp_kornia.pipeline.parser.NeuralGeometricParser.forward`, :func:`ngp_kornia.calibrate`).
+
+Every field states its type and range once, in its metadata; :func:`check_settings` checks them on construction (and
+on ``dataclasses.replace``), and the command line builds its options from the same fields
+(:func:`setting_fields`). This module imports nothing heavy, so ``ngp --help`` can read it before torch loads.
+
+Example:
+    >>> cfg = ParserConfig(segments=SegmentSettings(working_size=640))
+    >>> cfg.segments.working_size, cfg.horizon.refine
+    (640, True)
+    >>> SamplingSettings(num_frames=0)
+    Traceback (most recent call last):
+    ...
+    ngp_kornia.errors.ConfigError: SamplingSettings.num_frames must be an integer in [1, 65536], got 0
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import numbers
+import re
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+
+from ngp_kornia.errors import ConfigError
+
+__all__ = [
+    "DETECTORS",
+    "HorizonSettings",
+    "ParserConfig",
+    "PolishSettings",
+    "SamplingSettings",
+    "ScoringSettings",
+    "SegmentSettings",
+    "TrustSettings",
+    "check_settings",
+    "locate_setting",
+    "setting_fields",
+]
+
+#: the line detectors :class:`SegmentSettings` accepts
+DETECTORS = ("lsd", "fld")
+
+
+def _number(default, low, high, *, open_low=False, open_high=False):
+    """A numeric field and its range, closed unless ``open_low`` / ``open_high``."""
+    return field(default=default, metadata={"range": (low, high, open_low, open_high)})
+
+
+def _choice(default, choices):
+    return field(default=default, metadata={"choices": choices})
+
+
+def _flag(default: bool):
+    return field(default=default, metadata={"flag": True})
+
+
+def _numbers(default: tuple, count: int | None, low: float, meaning: str):
+    """A tuple of positive numbers (``count`` of them, or at least one)."""
+    return field(default=default, metadata={"tuple": (count, low), "meaning": meaning})
+
+
+@dataclass(frozen=True)
+class SegmentSettings:
+    """Line detection (:mod:`ngp_kornia.pipeline.segments`).
+
+    Attributes:
+        working_size: LSD runs on the image resized to this long side, in pixels; smaller images at their own size.
+            1280 keeps the detail of most photos' lines; 640 is faster on large images.
+        min_length: shorter segments (working-resolution pixels) are dropped.
+        max_segments: at most this many segments per image, the longest kept.
+        detector: ``"lsd"`` (the most accurate) or ``"fld"`` (OpenCV's FastLineDetector, faster, less accurate).
+        line_strips: LSD runs on this many horizontal strips at once (OpenCV releases the GIL) and joins the pieces
+            of lines cut between them; the segments depend on this number only, not on how many threads run them.
+    """
+
+    working_size: int = _number(1280, 32, 16384)
+    min_length: float = _number(10.0, 0.0, 1e6)
+    max_segments: int = _number(512, 1, 16384)
+    detector: str = _choice("lsd", DETECTORS)
+    line_strips: int = _number(2, 1, 16)
+
+    def __post_init__(self) -> None:
+        check_settings(self)
+
+
+@dataclass(frozen=True)
+class SamplingSettings:
+    """Zenith, horizontal-VP and Manhattan-frame candidates (:mod:`ngp_kornia.pipeline.candidates`).
+
+    Attributes:
+        num_zenith_lines: |L_z|, the near-vertical lines ZSNet reads (Eq. 3).
+        num_zenith: |Z|, zenith candidates (Eq. 4).
+        vertical_threshold: delta_z of Eq. 4, degrees.
+        zenith_threshold: delta_c of Eq. 12, the ZSNet score a candidate needs.
+        vertical_tol: a segment within this angle (degrees) of the ray to the zenith estimate counts as vertical in
+            the junction filter.
+        junction_radius: endpoint distance for a junction, in units of half the image's long side.
+        num_horizontal: horizontal VP candidates (half per group).
+        num_frames: Manhattan-frame candidates from a zenith and a horizontal VP (the paper's) per image.
+        num_horizontal_frames: further candidates from two horizontal VPs, which fix the focal length of a level
+            camera (zenith at infinity); 0 disables them.
+        focal_range: allowed focal lengths (low, high), in units of half the image's long side.
+    """
+
+    num_zenith_lines: int = _number(256, 1, 16384)
+    num_zenith: int = _number(256, 1, 16384)
+    vertical_threshold: float = _number(67.5, 0.0, 90.0, open_low=True, open_high=True)
+    zenith_threshold: float = _number(0.5, 0.0, 1.0, open_high=True)
+    vertical_tol: float = _number(5.0, 0.0, 90.0, open_high=True)
+    junction_radius: float = _number(0.03, 0.0, 10.0)
+    num_horizontal: int = _number(256, 2, 16384)
+    num_frames: int = _number(1024, 1, 65536)
+    num_horizontal_frames: int = _number(512, 0, 65536)
+    focal_range: tuple[float, float] = _numbers((0.8, 4.0), 2, 0.0, "two numbers 0 < low < high (half image sides)")
+
+    def __post_init__(self) -> None:
+        check_settings(self)
+        if not self.focal_range[0] < self.focal_range[1]:
+            low, high = self.focal_range
+            raise ConfigError(f"SamplingSettings.focal_range must be (low, high) with low < high, got {low, high}")
+
+
+@dataclass(frozen=True)
+class ScoringSettings:
+    """Frame scores and the top-k answer (Eq. 21-23).
+
+    Attributes:
+        kernel_angle: width of the sharp closeness kernel of the Manhattan score, degrees.
+        top_k: k of Eq. 23.
+        num_scored: frames FSNet scores per image, the best by Manhattan score (unused without FSNet).
+        use_manhattan: with FSNet, the final score is ``s_vh * m_i`` (Eq. 22); False uses ``s_vh`` alone.
+        fallback_fov: long-side field of view (degrees) reported when an image has no valid frame.
+    """
+
+    kernel_angle: float = _number(89.0, 0.0, 90.0, open_low=True, open_high=True)
+    top_k: int = _number(8, 1, 1024)
+    num_scored: int = _number(16, 1, 1024)
+    use_manhattan: bool = _flag(True)
+    fallback_fov: float = _number(60.0, 0.0, 180.0, open_low=True, open_high=True)
+
+    def __post_init__(self) -> None:
+        check_settings(self)
+
+
+@dataclass(frozen=True)
+class HorizonSettings:
+    """The horizon search after the frame search (:mod:`ngp_kornia.pipeline.horizon`).
+
+    Attributes:
+        refine: move the horizon (and focal length) to the one the segments support best; the search runs either
+            way, because the confidence reads its line support.
+        pitch_range: the coarse hypotheses span the frame's pitch +- this, degrees.
+        pitch_step: coarse step, degrees.
+        fine_step: step of the fine grid around the best coarse hypothesis, degrees.
+        num_peaks: horizontal VPs found along each horizon.
+        kernel_deg: width of the search's closeness kernel, degrees.
+        zenith_tol: inlier angle of the zenith refinement, degrees.
+        margin: a hypothesis must beat the frame's own line support by this fraction to replace it.
+        tie_zenith: score each hypothesis' vertical segments against its own zenith, so pitch moves zenith and
+            horizon together.
+        focal_scales: the hypotheses are repeated with the frame's focal length times each of these (1 is always
+            tried first); ignored when the focal length is known.
+        frame_roll: also search the pitch grid at the frame's roll (about 1.5x the time).
+    """
+
+    refine: bool = _flag(True)
+    pitch_range: float = _number(8.0, 0.0, 45.0)
+    pitch_step: float = _number(1.0, 0.01, 45.0)
+    fine_step: float = _number(0.25, 0.01, 45.0)
+    num_peaks: int = _number(4, 1, 64)
+    kernel_deg: float = _number(1.0, 0.0, 45.0, open_low=True)
+    zenith_tol: float = _number(2.0, 0.0, 45.0, open_low=True)
+    margin: float = _number(0.08, 0.0, 10.0)
+    tie_zenith: bool = _flag(True)
+    focal_scales: tuple[float, ...] = _numbers((0.8, 0.9, 1.1, 1.25), None, 0.0, "positive numbers")
+    frame_roll: bool = _flag(False)
+
+    def __post_init__(self) -> None:
+        check_settings(self)
+
+
+@dataclass(frozen=True)
+class PolishSettings:
+    """Refitting the frame on the segments that point at its three VPs (:mod:`ngp_kornia.pipeline.polish`).
+
+    Attributes:
+        enabled: polish the frame before the horizon search, where that raises its line support (opt-in: more
+            accurate on renders, a confidence that ranks real photos less well).
+        scales: focal scales tried (only the rotation is refitted when the focal length is known).
+    """
+
+    enabled: bool = _flag(False)
+    scales: tuple[float, ...] = _numbers(
+        (0.88, 0.91, 0.94, 0.97, 1.0, 1.03, 1.06, 1.09, 1.12), None, 0.0, "positive numbers"
+    )
+
+    def __post_init__(self) -> None:
+        check_settings(self)
+
+
+@dataclass(frozen=True)
+class TrustSettings:
+    """The trust fields, confidence and standard deviations (:mod:`ngp_kornia.pipeline.trust`).
+
+    Attributes:
+        principal_point_std: how far the principal point may be from the image centre, a standard deviation per
+            axis as a fraction of the image height. The parser assumes the centre; this widens ``pitch_std``,
+            ``roll_std`` and ``fov_v_std`` by the error such an offset causes (answers and ``confidence`` do not
+            change). 0.025, the offset of the one calibrated real camera of the development photos, suits unknown
+            cameras; 0 says it is known to be at the centre.
+    """
+
+    principal_point_std: float = _number(0.025, 0.0, 0.25)
+
+    def __post_init__(self) -> None:
+        check_settings(self)
+
+
+#: the stages of :class:`ParserConfig`, in pipeline order
+_STAGES = {
+    "segments": SegmentSettings,
+    "sampling": SamplingSettings,
+    "scoring": ScoringSettings,
+    "polish": PolishSettings,
+    "horizon": HorizonSettings,
+    "trust": TrustSettings,
+}
+
+
+@dataclass(frozen=True)
+class ParserConfig:
+    """The settings of every stage of the parser; the defaults are the paper's where it gives them.
+
+    Attributes:
+        segments: line detection (:class:`SegmentSettings`).
+        sampling: candidate sampling (:class:`SamplingSettings`).
+        scoring: frame scores and the top-k answer (:class:`ScoringSettings`).
+        polish: the optional frame refit (:class:`PolishSettings`).
+        horizon: the horizon search (:class:`HorizonSettings`).
+        trust: confidence and standard deviations (:class:`TrustSettings`).
+    """
+
+    segments: SegmentSettings = field(default_factory=SegmentSettings)
+    sampling: SamplingSettings = field(default_factory=SamplingSettings)
+    scoring: ScoringSettings = field(default_factory=ScoringSettings)
+    polish: PolishSettings = field(default_factory=PolishSettings)
+    horizon: HorizonSettings = field(default_factory=HorizonSettings)
+    trust: TrustSettings = field(default_factory=TrustSettings)
+
+    def __post_init__(self) -> None:
+        for name, kind in _STAGES.items():
+            value = getattr(self, name)
+            if not isinstance(value, kind):
+                raise ConfigError(f"ParserConfig.{name} must be a {kind.__name__}, got {type(value).__name__}")
+
+    def replace(self, **changes: object) -> ParserConfig:
+        """A copy with settings changed, by ``stage.field`` or by a field name unique among the stages.
+
+        Example:
+            >>> ParserConfig().replace(**{"horizon.refine": False, "working_size": 640}).segments.working_size
+            640
+        """
+        stages: dict[str, dict] = {}
+        for key, value in changes.items():
+            stage, name = locate_setting(key)
+            stages.setdefault(stage, {})[name] = value
+        return dataclasses.replace(
+            self, **{s: dataclasses.replace(getattr(self, s), **kw) for s, kw in stages.items()}
+        )
+
+
+def setting_fields() -> Iterator[tuple[str, dataclasses.Field, str]]:
+    """Every setting of :class:`ParserConfig`: (stage name, field, its help text from the stage's docstring)."""
+    for stage, kind in _STAGES.items():
+        docs = _attribute_docs(kind.__doc__ or "")
+        for f in dataclasses.fields(kind):
+            yield stage, f, docs.get(f.name, "")
+
+
+def locate_setting(key: str) -> tuple[str, str]:
+    """``(stage, field)`` of a setting named ``stage.field`` or by a field name that only one stage has.
+
+    Raises:
+        ConfigError: no such setting; the message lists the stages.
+    """
+    if "." in key:
+        stage, name = key.split(".", 1)
+        kind = _STAGES.get(stage)
+        if kind is not None and name in {f.name for f in dataclasses.fields(kind)}:
+            return stage, name
+    else:
+        found = [(s, f.name) for s, f, _ in setting_fields() if f.name == key]
+        if len(found) == 1:
+            return found[0]
+    raise ConfigError(
+        f"unknown setting {key!r}; settings are stage.field with stage one of {', '.join(_STAGES)} "
+        "(e.g. horizon.refine, segments.working_size)"
+    )
+
+
+def _attribute_docs(doc: str) -> dict[str, str]:
+    """The ``Attributes:`` entries of a Google docstring, one line each."""
+    part = doc.split("Attributes:", 1)[-1]
+    entries = re.findall(r"^\s{8}(\w+): (.*?)(?=^\s{8}\w+: |\Z)", part, flags=re.M | re.S)
+    return {name: " ".join(text.split()) for name, text in entries}
+
+
+def check_settings(settings: object) -> None:
+    """Check every field of a stage's settings against its metadata; numpy numbers are taken as Python ones.
+
+    Raises:
+        ConfigError: a field of the wrong type, NaN, or out of range; the message names the field and the range.
+    """
+    owner = type(settings).__name__
+    for f in dataclasses.fields(settings):
+        value = getattr(settings, f.name)
+        checked = _checked(f, value, f"{owner}.{f.name}")
+        if checked is not value:
+            object.__setattr__(settings, f.name, checked)  # frozen: set once, on construction
+
+
+def _checked(f: dataclasses.Field, value: object, name: str) -> object:
+    meta = f.metadata
+    if "flag" in meta:
+        if not isinstance(value, bool):
+            raise ConfigError(f"{name} must be True or False, got {value!r}")
+        return value
+    if "choices" in meta:
+        if value not in meta["choices"]:
+            raise ConfigError(f"{name} must be one of {', '.join(meta['choices'])}, got {value!r}")
+        return value
+    if "tuple" in meta:
+        return _checked_tuple(value, name, *meta["tuple"], meta["meaning"])
+    return _checked_number(value, name, f.type in ("int", int), meta["range"])
+
+
+def _checked_number(value: object, name: str, integer: bool, bounds: tuple) -> int | float:
+    low, high, open_low, open_high = bounds
+    meaning = f"in {'(' if open_low else '['}{low:g}, {high:g}{')' if open_high else ']'}"
+    if integer:
+        if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+            raise ConfigError(f"{name} must be an integer {meaning}, got {value!r}")
+        value = int(value)
+    else:
+        if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(value):
+            raise ConfigError(f"{name} must be a finite number {meaning}, got {value!r}")
+        value = float(value)
+    below = value <= low if open_low else value < low
+    above = value >= high if open_high else value > high
+    if below or above:
+        raise ConfigError(f"{name} must be {'an integer' if integer else 'a number'} {meaning}, got {value!r}")
+    return value
+
+
+def _checked_tuple(value: object, name: str, count: int | None, low: float, meaning: str) -> tuple[float, ...]:
+    ok = isinstance(value, (tuple, list)) and (len(value) == count if count else len(value) >= 1)
+    ok = ok and all(
+        isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v) and v > low for v in value
+    )
+    if not ok:
+        raise ConfigError(f"{name} must be {meaning}, got {value!r}")
+    return tuple(float(v) for v in value)

@@ -209,7 +209,8 @@ def camera_segments_at_scales(
 ) -> tuple[CameraSegments, CameraSegments]:
     """The segments in camera coordinates (:func:`camera_segments`) and at every focal scale
     (:func:`scaled_camera_segments`), the first scale 1. Its rows' line and midpoint terms are the unscaled segments'
-    (times 1 is exact), so those are built once; its normals are normalised again, so the unscaled ones are kept apart."""
+    (times 1 is exact), so those are built once; its normals are normalised again, so the unscaled ones are kept
+    apart."""
     mid, direction, normals = camera_points(segments, K)
     _, inv, stretch = scale_constants(scales, K)
     scaled = _scaled(mid, direction, normals, inv, stretch)

@@ -14,6 +14,7 @@ from collections.abc import Sequence
 
 import torch
 from kornia.core.check import KORNIA_CHECK_SHAPE
+from kornia.metrics import angle_error_mat
 from torch import Tensor
 
 from ngp_kornia.geometry.camera import horizon_border_points, horizon_from_zenith, image_center, intrinsics_matrix
@@ -71,7 +72,8 @@ def up_vector_error(up_pred: Tensor, up_gt: Tensor) -> Tensor:
     The vectors are compared with their sign (both are meant to point up), so the error lies in [0, 180].
     The angle is computed as ``2 atan2(|u - v|, |u + v|)`` on unit vectors, which is exact near 0 and 180
     degrees where ``acos`` of the cosine loses precision. A zero vector carries no direction and scores
-    90 degrees; the result is always finite.
+    90 degrees; the result is always finite. Not kornia's ``angle_error_vec``: it is NaN for a zero vector, and its
+    cross product leaves a rounding residue (about 1e-6 degrees in float32) between identical vectors.
 
     Args:
         up_pred: (B, 3) predicted up vectors (any positive length).
@@ -157,11 +159,11 @@ def fov_error(fov_pred: Tensor, fov_gt: Tensor) -> Tensor:
 
 
 def angle_error_between_rotations(R_pred: Tensor, R_gt: Tensor) -> Tensor:
-    """Geodesic angle in degrees of ``R_pred^T R_gt``.
+    """Geodesic angle in degrees of ``R_pred^T R_gt``: :func:`kornia.metrics.angle_error_mat`.
 
-    Uses ``||R_pred - R_gt||_F = 2 sqrt(2) sin(theta / 2)``, which is accurate for small angles and finite
-    even for matrices that are only approximately rotations. No Manhattan (axis permutation) symmetry is
-    applied.
+    The angle is ``atan2(sin, cos)`` with the sine read from the skew part of ``R_pred^T R_gt`` and the cosine from
+    its trace, which is accurate for small angles and finite even for matrices that are only approximately
+    rotations. No Manhattan (axis permutation) symmetry is applied.
 
     Args:
         R_pred: (B, 3, 3) predicted rotations.
@@ -179,8 +181,7 @@ def angle_error_between_rotations(R_pred: Tensor, R_gt: Tensor) -> Tensor:
     """
     _check_same_shape(R_pred, R_gt, ("R_pred", "R_gt"))
     KORNIA_CHECK_SHAPE(R_pred, ["B", "3", "3"])
-    half_chord = (R_pred - R_gt).flatten(-2).norm(dim=-1) / (2.0 * math.sqrt(2.0))
-    return torch.rad2deg(2.0 * torch.asin(half_chord.clamp(0.0, 1.0)))
+    return angle_error_mat(R_pred, R_gt)
 
 
 def horizon_error(
@@ -281,6 +282,7 @@ def summarize(errors: Tensor | Sequence[float]) -> dict[str, float]:
 
 def frame_horizons(frames: FrameCandidates, height: int, width: int) -> Tensor:
     """The horizon line of each frame candidate in pixels, from its zenith and focal length (pseudo camera).
+    Ours: the zenith is homogeneous (it may lie at infinity), where kornia's point conversions are Euclidean.
 
     The candidate's camera is ``K = [[f fp, 0, cx], [0, f fp, cy], [0, 0, 1]]`` with ``fp`` = :func:`pseudo_focal`
     and ``(cx, cy)`` the image centre; its zenith in pixels is ``K_p z`` with ``K_p`` the pseudo camera. Invalid
@@ -333,7 +335,7 @@ def frame_horizon_error(frames: FrameCandidates, horizon_gt: Tensor, height: int
 
 def zenith_error_deg(zenith: Tensor, zenith_gt: Tensor, focal: Tensor) -> Tensor:
     """Angle in degrees between the up directions of two zeniths given in the pseudo camera, using the true focal
-    length. Sign-free: a zenith and its negative are the same direction.
+    length. Sign-free: a zenith and its negative are the same direction (kornia's ``angle_error_vec`` is not).
 
     Args:
         zenith: (B, 3) estimated zenith VPs, homogeneous, in the pseudo camera.

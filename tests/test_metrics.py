@@ -130,6 +130,24 @@ def test_angle_error_between_rotations_known(b):
     torch.testing.assert_close(angle_error_between_rotations(Rz @ R, R), delta)
 
 
+def test_angle_error_between_rotations_small_angle_float32():
+    # a hundredth of a degree still reads as one in float32 (the sine comes from the skew part, not acos)
+    R = rotation_from_angles(torch.tensor([12.0]), torch.tensor([-3.0]), torch.tensor([40.0]))
+    Rz = rotation_from_angles(torch.zeros(1), torch.tensor([0.01]))
+    torch.testing.assert_close(angle_error_between_rotations(Rz @ R, R), torch.tensor([0.01]), atol=1e-4, rtol=0)
+
+
+def test_angle_error_between_rotations_finite_for_approximate_rotations():
+    # matrices that are rotations only to 1e-3 (an average, a fit) still get a finite angle near the true one: a
+    # 1e-3 change of the entries moves it by about 0.06 degrees
+    R = rotation_from_angles(torch.tensor([5.0, 0.0]), torch.tensor([2.0, 0.0]))
+    level = rotation_from_angles(torch.zeros(2), torch.zeros(2))
+    noisy = R + 1e-3 * torch.randn(2, 3, 3, generator=torch.Generator().manual_seed(0))
+    err = angle_error_between_rotations(noisy, level)
+    assert torch.isfinite(err).all()
+    torch.testing.assert_close(err, angle_error_between_rotations(R, level), atol=0.2, rtol=0)
+
+
 @pytest.mark.parametrize("b", BATCHES)
 def test_horizon_shifted_by_a_tenth_of_the_height(b):
     pitch, roll, yaw, focal = _random_camera(b, seed=1)

@@ -28,6 +28,7 @@ import math
 import torch
 import torch.nn.functional as F
 from kornia.geometry import create_meshgrid
+from kornia.geometry.camera import unproject_points
 from torch import Tensor
 
 from ngp_kornia.geometry.camera import (
@@ -92,6 +93,7 @@ def _check_fov(fov_v: Tensor) -> None:
 
 def panorama_directions(height: int, width: int, device=None, dtype: torch.dtype = torch.float32) -> Tensor:
     """Unit world direction of every pixel centre of an equirectangular panorama (see the module docstring).
+    Ours: kornia has no equirectangular camera.
 
     Args:
         height: panorama rows ``Hp``.
@@ -119,7 +121,8 @@ def panorama_directions(height: int, width: int, device=None, dtype: torch.dtype
 
 
 def crop_rays(fov_v_deg: Tensor, pitch: Tensor, roll: Tensor, yaw: Tensor, size: tuple[int, int]) -> Tensor:
-    """World direction ``R^T K^-1 p`` of every pixel ``p`` of perspective crops (not normalised).
+    """World direction ``R^T K^-1 p`` of every pixel ``p`` of perspective crops (not normalised): kornia's
+    :func:`~kornia.geometry.camera.unproject_points` at depth 1, turned into the world frame.
 
     Args:
         fov_v_deg: (B,) vertical field of view in degrees.
@@ -141,14 +144,15 @@ def crop_rays(fov_v_deg: Tensor, pitch: Tensor, roll: Tensor, yaw: Tensor, size:
     focal = focal_from_fov(fov_v_deg, H)
     K = intrinsics_matrix(focal, image_center(H, W, like=focal))
     R = rotation_from_angles(pitch.to(focal), roll.to(focal), yaw.to(focal))
-    xy = create_meshgrid(H, W, False, focal.device, focal.dtype)[0]
-    pix = torch.cat([xy, torch.ones_like(xy[..., :1])], -1).reshape(1, -1, 3)  # (1, H*W, 3)
-    world_from_pixel = R.transpose(-1, -2) @ torch.linalg.inv(K)  # (B, 3, 3)
-    return (pix @ world_from_pixel.transpose(-1, -2)).reshape(-1, H, W, 3)
+    xy = create_meshgrid(H, W, False, focal.device, focal.dtype).reshape(1, -1, 2)  # (1, H*W, 2)
+    # K^-1 p: the camera rays at depth z = 1, (B, H*W, 3); then R^T, row by row
+    rays = unproject_points(xy, torch.ones_like(xy[..., :1]), K[:, None])
+    return (rays @ R).reshape(-1, H, W, 3)
 
 
 def _sampling_grid(rays: Tensor, height: int, width: int) -> Tensor:
-    """grid_sample coordinates (align_corners=False) of world rays in a panorama padded by ``_PAD`` columns."""
+    """grid_sample coordinates (align_corners=False) of world rays in a panorama padded by ``_PAD`` columns (not
+    kornia's ``normalize_pixel_coordinates``, which is corner-aligned and takes pixels, not longitude and latitude)."""
     x, y, z = rays.unbind(-1)
     lon = torch.atan2(x, z)  # [-pi, pi]
     lat = torch.atan2(-y, torch.hypot(x, z))

@@ -134,7 +134,8 @@ def _cell_strings(cell: np.ndarray) -> list[str]:
 
 
 def rotation_from_yud_vps(vp: np.ndarray | Tensor) -> Tensor:
-    """World-to-camera rotation in this package's conventions from York Urban ground-truth directions.
+    """World-to-camera rotation in this package's conventions from York Urban ground-truth directions. Ours: the
+    database's axes (y up, column 1 vertical) mapped onto this package's frame, which kornia does not know.
 
     Args:
         vp: (3, 3) ``vp_orthogonal`` (or ``vp``): columns are unit Manhattan directions in a camera frame with
@@ -190,7 +191,8 @@ def published_horizon(sample: YUDSample) -> Tensor:
 
     It is the line through the two *raw* horizontal vanishing points of ``<name>GroundTruthVP_CamParams.mat``
     (columns 0 and 2 of ``vp``, each fitted to its own hand-labelled segments), projected with the true ``K``:
-    ``l = (K v_0) x (K v_2)``. :attr:`YUDSample.horizon` is instead ``K^-T up`` with the ground-truth vertical;
+    ``l = (K v_0) x (K v_2)`` (a cross product: kornia's lines are parametric and have no points at infinity).
+    :attr:`YUDSample.horizon` is instead ``K^-T up`` with the ground-truth vertical;
     the two lines differ by about 7 px (median) per image.
 
     Args:

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import torch
 from kornia.core.check import KORNIA_CHECK, KORNIA_CHECK_SHAPE
+from kornia.geometry.conversions import angle_to_rotation_matrix
 from torch import Tensor
 
 __all__ = [
@@ -53,12 +54,18 @@ def _eps(x: Tensor) -> float:
 
 
 def normalize(v: Tensor, dim: int = -1) -> Tensor:
-    """Unit vectors along ``dim``; a zero vector stays zero instead of becoming NaN."""
+    """Unit vectors along ``dim``; a zero vector stays zero instead of becoming NaN.
+
+    Ours: kornia keeps its normalisation private; ``torch.nn.functional.normalize`` with the dtype's eps gives the
+    same values with more overhead a call, and this runs in the parser's hot path.
+    """
     return v / torch.linalg.vector_norm(v, dim=dim, keepdim=True).clamp_min(_eps(v))
 
 
 def image_center(height: int, width: int, like: Tensor | None = None) -> Tensor:
     """The image centre ``((W - 1) / 2, (H - 1) / 2)`` in the pixel-centre convention, shape (2,).
+
+    Ours: kornia has no image-centre helper of its own.
 
     Example:
         >>> image_center(480, 640)
@@ -70,6 +77,9 @@ def image_center(height: int, width: int, like: Tensor | None = None) -> Tensor:
 
 def intrinsics_matrix(focal: Tensor, principal_point: Tensor) -> Tensor:
     """Pinhole intrinsics with square pixels and no skew.
+
+    Ours: kornia builds ``K`` only inside its camera classes (``PinholeModel`` needs an image size,
+    ``PinholeCamera`` holds 4x4 matrices).
 
     Args:
         focal: (B,) focal length in pixels.
@@ -98,6 +108,8 @@ def intrinsics_matrix(focal: Tensor, principal_point: Tensor) -> Tensor:
 def fov_from_focal(focal: Tensor, size: float | Tensor) -> Tensor:
     """Field of view in degrees spanned by ``size`` pixels at focal length ``focal`` (both in pixels).
 
+    Ours: kornia has no field-of-view conversion.
+
     Example:
         >>> fov_from_focal(torch.tensor([320.0]), 640)
         tensor([90.])
@@ -117,23 +129,39 @@ def focal_from_fov(fov_deg: Tensor, size: float | Tensor) -> Tensor:
     return torch.as_tensor(size).to(fov_deg) / (2.0 * torch.tan(torch.deg2rad(fov_deg) / 2.0))
 
 
-def _rot_x(a: Tensor) -> Tensor:
-    c, s, o, z = torch.cos(a), torch.sin(a), torch.ones_like(a), torch.zeros_like(a)
-    return torch.stack([o, z, z, z, c, -s, z, s, c], -1).reshape(*a.shape, 3, 3)
+#: per camera axis: the F.pad widths that put a 2x2 rotation on the plane of the two other axes, and the order of
+#: rows and columns that then brings it into place (the y axis's plane, (z, x), is not a block of the 3x3 matrix)
+_PLANES = {0: ((1, 0, 1, 0), None), 1: ((1, 0, 1, 0), [2, 0, 1]), 2: ((0, 1, 0, 1), None)}
 
 
-def _rot_y(a: Tensor) -> Tensor:
-    c, s, o, z = torch.cos(a), torch.sin(a), torch.ones_like(a), torch.zeros_like(a)
-    return torch.stack([c, z, s, z, o, z, -s, z, c], -1).reshape(*a.shape, 3, 3)
+def _axis_rotations(*factors: tuple[int, Tensor]) -> Tensor:
+    """The product, left to right, of right-handed rotations about the camera axes: ``(axis, degrees)`` pairs,
+    axis 0 = x, 1 = y, 2 = z, the angles all of one shape ``(...)`` -> (..., 3, 3).
 
-
-def _rot_z(a: Tensor) -> Tensor:
-    c, s, o, z = torch.cos(a), torch.sin(a), torch.ones_like(a), torch.zeros_like(a)
-    return torch.stack([c, -s, z, s, c, z, z, z, o], -1).reshape(*a.shape, 3, 3)
+    Each factor is kornia's 2D rotation (:func:`kornia.geometry.conversions.angle_to_rotation_matrix`, all factors
+    in one call) turning the plane of the two other axes, taken in cyclic order: (y, z), (z, x), (x, y). Its 3D
+    axis-angle rotations give the same matrices (to an ulp) at three times the cost, evaluating both branches of
+    their formula, and :func:`angles_from_rotation` runs once per parser call.
+    """
+    # kornia's matrix is [[cos, sin], [-sin, cos]] of its angle, a turn by minus the angle from the plane's first
+    # axis towards its second
+    planes = angle_to_rotation_matrix(-torch.stack([angle for _, angle in factors]))
+    product = None
+    for (axis, _), plane in zip(factors, planes, strict=True):
+        pad, order = _PLANES[axis]
+        rotation = torch.nn.functional.pad(plane, pad)
+        if order is not None:
+            rotation = rotation[..., order, :][..., order]
+        rotation[..., axis, axis] = 1.0
+        product = rotation if product is None else product @ rotation
+    return product
 
 
 def rotation_from_angles(pitch: Tensor, roll: Tensor, yaw: Tensor | None = None) -> Tensor:
     """World-to-camera rotation ``R_z(roll) @ R_x(-pitch) @ R_y(-yaw)`` from angles in degrees.
+
+    The three factors are kornia's rotations; the order is ours: kornia's Euler angles (``quaternion_from_euler``)
+    compose ``R_z R_y R_x`` with the roll about x, another order and other axes.
 
     Args:
         pitch: (B,) degrees, > 0 looking up.
@@ -151,8 +179,7 @@ def rotation_from_angles(pitch: Tensor, roll: Tensor, yaw: Tensor | None = None)
     """
     KORNIA_CHECK_SHAPE(pitch, ["B"])
     yaw = torch.zeros_like(pitch) if yaw is None else yaw
-    p, r, y = (torch.deg2rad(t) for t in (pitch, roll, yaw))
-    return _rot_z(r) @ _rot_x(-p) @ _rot_y(-y)
+    return _axis_rotations((2, roll), (0, -pitch), (1, -yaw))
 
 
 def up_from_rotation(R: Tensor) -> Tensor:
@@ -163,6 +190,8 @@ def up_from_rotation(R: Tensor) -> Tensor:
 
 def pitch_roll_from_up(up: Tensor) -> tuple[Tensor, Tensor]:
     """Pitch and roll in degrees from an up vector in camera coordinates.
+
+    Ours: the angles of this package's convention (see the module docstring), which kornia does not know.
 
     Args:
         up: (B, 3) up direction (any positive length).
@@ -184,6 +213,8 @@ def pitch_roll_from_up(up: Tensor) -> tuple[Tensor, Tensor]:
 def angles_from_rotation(R: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     """Pitch, roll and yaw in degrees from a world-to-camera rotation; inverse of :func:`rotation_from_angles`.
 
+    Ours, for the order of :func:`rotation_from_angles`, which kornia's ``euler_from_quaternion`` does not use.
+
     Args:
         R: (B, 3, 3) rotation matrices.
 
@@ -197,14 +228,17 @@ def angles_from_rotation(R: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     """
     KORNIA_CHECK_SHAPE(R, ["*", "3", "3"])
     pitch, roll = pitch_roll_from_up(up_from_rotation(R))
-    tilt = _rot_z(torch.deg2rad(roll)) @ _rot_x(-torch.deg2rad(pitch))
+    tilt = _axis_rotations((2, roll), (0, -pitch))
     yaw_only = tilt.transpose(-1, -2) @ R
     yaw = torch.rad2deg(torch.atan2(yaw_only[..., 2, 0], yaw_only[..., 0, 0]))
     return pitch, roll, yaw
 
 
 def zenith_from_up(K: Tensor, up: Tensor) -> Tensor:
-    """Zenith vanishing point ``K @ up`` in homogeneous pixels: (B, 3, 3), (B, 3) -> (B, 3)."""
+    """Zenith vanishing point ``K @ up`` in homogeneous pixels: (B, 3, 3), (B, 3) -> (B, 3).
+
+    Not kornia's ``project_points``, which divides by ``z``: the zenith of a level camera lies at infinity.
+    """
     KORNIA_CHECK_SHAPE(K, ["*", "3", "3"])
     KORNIA_CHECK_SHAPE(up, ["*", "3"])
     return (K @ up.unsqueeze(-1)).squeeze(-1)
@@ -213,6 +247,8 @@ def zenith_from_up(K: Tensor, up: Tensor) -> Tensor:
 def up_from_zenith(K: Tensor, zenith: Tensor) -> Tensor:
     """Unit up vector in camera coordinates from a homogeneous zenith VP (sign fixed so the up vector points up
     in the image, ``up_y <= 0``).
+
+    Not kornia's ``unproject_points``, which takes Euclidean pixels: the zenith may lie at infinity.
 
     Args:
         K: (B, 3, 3) intrinsics.
@@ -235,7 +271,7 @@ def up_from_zenith(K: Tensor, zenith: Tensor) -> Tensor:
 
 def horizon_from_zenith(K: Tensor, zenith: Tensor) -> Tensor:
     """Horizon line ``K^-T K^-1 z`` (the image of the plane orthogonal to the vertical), normalised so that
-    ``a^2 + b^2 = 1`` and ``b >= 0``.
+    ``a^2 + b^2 = 1`` and ``b >= 0``. Ours: kornia has no vanishing line of a plane.
 
     Args:
         K: (B, 3, 3) intrinsics.
@@ -263,7 +299,8 @@ def _normalize_line(line: Tensor) -> Tensor:
 
 
 def zenith_from_horizon(K: Tensor, horizon: Tensor) -> Tensor:
-    """Zenith VP ``K K^T l`` from a horizon line; inverse of :func:`horizon_from_zenith` up to scale.
+    """Zenith VP ``K K^T l`` from a horizon line; inverse of :func:`horizon_from_zenith` up to scale. Ours: kornia
+    has no pole of a vanishing line.
 
     Args:
         K: (B, 3, 3) intrinsics.
@@ -283,7 +320,8 @@ def horizon_border_points(horizon: Tensor, width: int | Tensor) -> Tensor:
     """Where the horizon crosses the left (``x = -0.5``) and right (``x = W - 0.5``) image borders.
 
     A vertical horizon (``b = 0``, roll of 90 degrees) has no crossing; ``b`` is clamped to a tiny positive value so
-    the result stays finite (and very large).
+    the result stays finite (and very large). Ours: kornia's lines are parametric (``ParametrizedLine``), and
+    intersecting one with a border ``Hyperplane`` has no such clamp.
 
     Args:
         horizon: (B, 3) lines ``(a, b, c)`` in pixels.
@@ -308,6 +346,8 @@ def horizon_border_points(horizon: Tensor, width: int | Tensor) -> Tensor:
 
 def focal_from_orthogonal_vps(v1: Tensor, v2: Tensor, principal_point: Tensor) -> tuple[Tensor, Tensor]:
     """Focal length from two vanishing points of orthogonal directions (square pixels, known principal point).
+
+    Ours: kornia has no calibration from vanishing points.
 
     With ``p_i = v_i[:2] - c * v_i[2]`` the VPs relative to the principal point, orthogonality of
     ``K^-1 v_1`` and ``K^-1 v_2`` gives ``f^2 = -(p_1 . p_2) / (w_1 w_2)``.
@@ -344,6 +384,8 @@ def focal_from_orthogonal_vps(v1: Tensor, v2: Tensor, principal_point: Tensor) -
 
 def rotation_from_vps(K: Tensor, zenith: Tensor, horizontal: Tensor) -> Tensor:
     """World-to-camera rotation from the zenith VP and one horizontal VP (Manhattan frame).
+
+    Ours, as are the other Manhattan-frame functions below: kornia has no vanishing-point frames.
 
     The up axis comes from the zenith exactly; the horizontal VP's direction is made orthogonal to it, so a
     slightly non-orthogonal pair still yields a rotation. Columns: world x = the horizontal direction, world y =

@@ -2,7 +2,7 @@
 orthogonal vanishing points (focal length from orthogonality, rotation, third VP).
 
 Everything is in the pseudo camera (:func:`ngp_kornia.geometry.to_pseudo_camera`): principal point at 0, one unit
-half the image's long side.
+half the image's long side. All of it is ours: kornia has no calibration from vanishing points.
 """
 
 from __future__ import annotations

@@ -11,6 +11,8 @@ import math
 
 import torch
 from kornia.core.check import KORNIA_CHECK_SHAPE
+from kornia.geometry.conversions import convert_points_to_homogeneous, normalize_points_with_intrinsics
+from kornia.geometry.linalg import euclidean_distance
 from torch import Tensor
 
 from ngp_kornia.geometry.camera import image_center, normalize
@@ -38,13 +40,14 @@ def segment_lengths(segments: Tensor) -> Tensor:
         tensor([[5.]])
     """
     KORNIA_CHECK_SHAPE(segments, ["*", "2", "2"])
-    return torch.linalg.vector_norm(segments[..., 1, :] - segments[..., 0, :], dim=-1)
+    return euclidean_distance(segments[..., 1, :], segments[..., 0, :])
 
 
 def segments_to_lines(segments: Tensor) -> Tensor:
     r"""Homogeneous line through each segment, ``l = p_0 \times p_1`` (Eq. 2), scaled so ``a^2 + b^2 = 1``.
 
-    A zero-length segment has no line and gives ``(0, 0, 0)``.
+    A zero-length segment has no line and gives ``(0, 0, 0)``. Ours: kornia's lines are parametric
+    (``ParametrizedLine.through``), not homogeneous, and it has no guard for the cross product's rounding residue.
 
     Args:
         segments: (B, N, 2, 2) segment endpoints.
@@ -57,7 +60,7 @@ def segments_to_lines(segments: Tensor) -> Tensor:
         tensor([[[ 0.,  1., -2.]]])
     """
     KORNIA_CHECK_SHAPE(segments, ["*", "2", "2"])
-    p = torch.nn.functional.pad(segments, (0, 1), value=1.0)  # homogeneous endpoints (x, y, 1)
+    p = convert_points_to_homogeneous(segments)  # homogeneous endpoints (x, y, 1)
     cross = torch.linalg.cross(p[..., 0, :], p[..., 1, :])
     # zero a cross product that is only rounding residue of (anti)parallel inputs, so it is not normalised into a
     # random direction (fused multiply-adds leave about eps * |p0| |p1| where exact arithmetic gives 0); both
@@ -77,7 +80,8 @@ def _residue_tolerance(u: Tensor, v: Tensor) -> Tensor:
 def intersect_lines(l0: Tensor, l1: Tensor) -> Tensor:
     r"""Intersection ``v = l_0 \times l_1`` of two homogeneous lines (Eq. 3), returned with unit norm.
 
-    Parallel lines meet at a point at infinity (third coordinate 0); identical lines give ``(0, 0, 0)``.
+    Parallel lines meet at a point at infinity (third coordinate 0); identical lines give ``(0, 0, 0)``. Ours:
+    kornia intersects parametric lines with hyperplanes (``ParametrizedLine.intersect``), with no point at infinity.
 
     Args:
         l0: (..., 3) lines.
@@ -102,7 +106,8 @@ def intersect_lines(l0: Tensor, l1: Tensor) -> Tensor:
 
 
 def is_near_vertical(lines: Tensor, threshold_deg: float = 67.5) -> Tensor:
-    r"""Near-vertical line test of Eq. 4: the line's angle to the image x axis exceeds ``threshold_deg``.
+    r"""Near-vertical line test of Eq. 4: the line's angle to the image x axis exceeds ``threshold_deg``. Ours:
+    the paper's test on homogeneous lines, which kornia does not have.
 
     Args:
         lines: (..., 3) homogeneous lines.
@@ -124,7 +129,8 @@ def is_near_vertical(lines: Tensor, threshold_deg: float = 67.5) -> Tensor:
 def cossim(x: Tensor, y: Tensor) -> Tensor:
     r"""Absolute cosine similarity of homogeneous vectors, :math:`|x \cdot y| / (\|x\| \|y\|)` (Eq. 8).
 
-    Sign-free, so a homogeneous point and its negative are the same point. Zero vectors give 0.
+    Sign-free, so a homogeneous point and its negative are the same point. Zero vectors give 0. Ours: kornia has no
+    cosine of homogeneous vectors, and torch's ``cosine_similarity`` keeps the sign.
 
     Args:
         x: (..., 3).
@@ -143,7 +149,7 @@ def cossim(x: Tensor, y: Tensor) -> Tensor:
 
 
 def pseudo_focal(height: int, width: int) -> float:
-    """Focal length of the pseudo camera ``K_p``: half the long side, in pixels.
+    """Focal length of the pseudo camera ``K_p``: half the long side, in pixels. Ours: the paper's pseudo camera.
 
     The paper states ``min(W, H) / 2``; half the long side (as in the authors' code) makes one unit span the same
     angle on landscape and portrait images of the same camera.
@@ -159,6 +165,8 @@ def to_pseudo_camera(points: Tensor, height: int, width: int) -> Tensor:
     """Map pixel coordinates into the pseudo camera, ``K_p^-1 p``: centred on the image centre and divided by
     :func:`pseudo_focal`. Works on points (..., 2) and on segments (..., 2, 2) alike.
 
+    This is :func:`kornia.geometry.conversions.normalize_points_with_intrinsics` with ``K_p``.
+
     Args:
         points: (..., 2) pixel coordinates.
         height: image height in pixels.
@@ -172,12 +180,18 @@ def to_pseudo_camera(points: Tensor, height: int, width: int) -> Tensor:
         tensor([[1., 0.]])
     """
     KORNIA_CHECK_SHAPE(points, ["*", "2"])
-    return (points - image_center(height, width, like=points)) / pseudo_focal(height, width)
+    return normalize_points_with_intrinsics(points, _pseudo_intrinsics(height, width, points))
+
+
+def _pseudo_intrinsics(height: int, width: int, like: Tensor) -> Tensor:
+    """The pseudo camera's (3, 3) ``K_p``, with the dtype and device of ``like``."""
+    f, (cx, cy) = pseudo_focal(height, width), ((width - 1) / 2.0, (height - 1) / 2.0)  # as image_center
+    return torch.tensor([[f, 0.0, cx], [0.0, f, cy], [0.0, 0.0, 1.0]], dtype=like.dtype, device=like.device)
 
 
 def homogeneous_to_pseudo_camera(v: Tensor, height: int, width: int) -> Tensor:
     """Map homogeneous points (VPs, possibly at infinity) from pixels into the pseudo camera, ``K_p^-1 v``,
-    returned with unit norm.
+    returned with unit norm. Ours: kornia's ``normalize_points_with_intrinsics`` takes Euclidean points only.
 
     Args:
         v: (..., 3) homogeneous points in pixels.

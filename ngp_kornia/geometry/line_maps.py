@@ -2,7 +2,9 @@ r"""Rasterised line maps (Eq. 13), closeness maps (Eq. 15) and the map form of t
 
 Segments are drawn by sampling points about one pixel apart along each segment and writing each segment's
 value into the nearest pixel; where segments overlap a pixel keeps the largest value. The maps are
-differentiable with respect to the per-segment values (so closeness maps pass gradients to the VPs).
+differentiable with respect to the per-segment values (so closeness maps pass gradients to the VPs). Ours:
+kornia's ``draw_line`` paints lines into one (C, H, W) image in one colour, refusing endpoints outside it, with no
+per-segment values or gradients.
 """
 
 from __future__ import annotations

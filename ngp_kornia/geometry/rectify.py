@@ -8,7 +8,8 @@ pixel; camera frame x right, y down, z forward; ``R`` world-to-camera with world
 
 :func:`rectify` applies such a homography to a batch of images with
 :func:`kornia.geometry.transform.warp_perspective`, choosing the output size and translation so that either all
-input pixels are kept (``crop="keep"``) or only valid pixels are (``crop="valid"``).
+input pixels are kept (``crop="keep"``) or only valid pixels are (``crop="valid"``). The homographies themselves
+are ours: kornia has no rectification from a calibration.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import math
 
 import torch
 from kornia.core.check import KORNIA_CHECK, KORNIA_CHECK_SHAPE
+from kornia.geometry.conversions import convert_points_to_homogeneous
 from kornia.geometry.transform import warp_perspective
 from torch import Tensor
 
@@ -48,7 +50,8 @@ def _unroll(up: Tensor) -> tuple[Tensor, Tensor, Tensor]:
 
 
 def _level_rotation(R: Tensor) -> Tensor:
-    """``R_z(-roll)`` from the up vector ``-R[:, 1]``."""
+    """``R_z(-roll)`` from the up vector ``-R[:, 1]``: from its cosine and sine, where kornia's rotations take an
+    angle (an atan2 of the up vector, not smooth where its image-plane part vanishes)."""
     up = -R[:, :, 1]
     c, s, _ = _unroll(up)
     z, o = torch.zeros_like(c), torch.ones_like(c)
@@ -146,8 +149,12 @@ def frontal_homography(K: Tensor, R: Tensor, axis: int = 2) -> Tensor:
 
 
 def _project(Hm: Tensor, pts: Tensor) -> tuple[Tensor, Tensor]:
-    """Points (B, N, 2) through (B, 3, 3): Euclidean points (B, N, 2) and the homogeneous scale (B, N)."""
-    ph = torch.cat([pts, torch.ones_like(pts[..., :1])], -1) @ Hm.transpose(-1, -2)
+    """Points (B, N, 2) through (B, 3, 3): Euclidean points (B, N, 2) and the homogeneous scale (B, N).
+
+    Not kornia's ``transform_points``: that leaves a point with ``|w| <= 1e-8`` undivided (OpenCV's rule) and drops
+    ``w``, which tells the boxes below that a corner went past the horizon.
+    """
+    ph = convert_points_to_homogeneous(pts) @ Hm.transpose(-1, -2)
     w = ph[..., 2]
     return ph[..., :2] / torch.where(w.abs() < _tiny(w), torch.full_like(w, _tiny(w)), w)[..., None], w
 

@@ -2,7 +2,7 @@ r"""Vanishing points: structure tensors (Eq. 9-10), closeness of lines to VPs (E
 (Eq. 21) and top-k averaging (Eq. 23).
 
 Every function is batched, differentiable and defined on degenerate input (zero weights, points at infinity,
-padded lines), where it returns finite values.
+padded lines), where it returns finite values. All of it is ours: kornia has no vanishing-point estimation.
 """
 
 from __future__ import annotations
@@ -127,6 +127,8 @@ _LEVEL_ZENITH = torch.tensor([0.0, 1.0, 0.0])
 def line_vp_cosine(lines: Tensor, vps: Tensor) -> Tensor:
     r"""Absolute cosine between homogeneous line and point vectors, :math:`|l \cdot v| / (\|l\| \|v\|)`: zero when
     the line passes through the VP. All pairs: lines (B, N, 3), vps (B, ..., 3) -> (B, ..., N).
+
+    Not kornia's ``point_line_distance``: a distance in pixels, infinite for a VP at infinity.
 
     Example:
         >>> line_vp_cosine(torch.tensor([[[1.0, 0.0, -2.0]]]), torch.tensor([[[2.0, 5.0, 1.0]]]))

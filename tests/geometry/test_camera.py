@@ -5,6 +5,7 @@ import math
 import pytest
 import torch
 from kornia.core.exceptions import BaseError, ShapeError
+from kornia.geometry.conversions import axis_angle_to_rotation_matrix
 from torch.autograd import gradcheck
 
 from ngp_kornia.geometry.camera import (
@@ -182,6 +183,28 @@ def test_convention_rotation_order():
         @ rotation_from_angles(_one(0), _one(0), _one(y))
     )
     torch.testing.assert_close(R, composed)
+
+
+@pytest.mark.parametrize("axis", [0, 1, 2])
+def test_rotation_factors_are_kornias_axis_angle_rotations(axis, dtype):
+    # each factor is the right-handed turn about its axis that kornia's Rodrigues formula gives; the two formulas
+    # round differently (its unit diagonal entry is cos + (1 - cos)), hence a few ulps of tolerance
+    angle = torch.linspace(-179.0, 179.0, 37, dtype=dtype)
+    zero = torch.zeros_like(angle)
+    # pitch turns about -x, yaw about -y, roll about +z
+    args = {0: (-angle, zero, zero), 1: (zero, zero, -angle), 2: (zero, angle, zero)}[axis]
+    axis_angle = torch.zeros(37, 3, dtype=dtype)
+    axis_angle[:, axis] = torch.deg2rad(angle)
+    eps = torch.finfo(dtype).eps
+    torch.testing.assert_close(
+        rotation_from_angles(*args), axis_angle_to_rotation_matrix(axis_angle), atol=8 * eps, rtol=0
+    )
+
+
+def test_rotation_from_angles_gradient_at_zero():
+    # the level camera, where many training crops start: a finite, exact derivative
+    angles = tuple(torch.zeros(2, dtype=torch.float64, requires_grad=True) for _ in range(3))
+    assert gradcheck(rotation_from_angles, angles)
 
 
 def test_rotation_from_angles_identity_and_default_yaw():

@@ -53,6 +53,15 @@ def test_segment_lengths_known_and_zero():
     assert segment_lengths(seg).tolist() == [[5.0, 0.0]]
 
 
+def test_segment_lengths_zero_length_has_finite_gradient():
+    # a zero-length segment (padding, a degenerate detection) must not turn the lengths' gradient into NaN
+    seg = torch.tensor([[[[2.0, 2.0], [2.0, 2.0]], [[0.0, 0.0], [3.0, 4.0]]]], dtype=torch.float64, requires_grad=True)
+    segment_lengths(seg).sum().backward()
+    assert torch.isfinite(seg.grad).all()
+    assert torch.equal(seg.grad[0, 0], torch.zeros(2, 2, dtype=torch.float64))
+    torch.testing.assert_close(seg.grad[0, 1], torch.tensor([[-0.6, -0.8], [0.6, 0.8]], dtype=torch.float64))
+
+
 def test_segment_lengths_exception():
     with pytest.raises(ShapeError):
         segment_lengths(torch.zeros(1, 4, 2, 3))
@@ -292,6 +301,17 @@ def test_to_pseudo_camera(dtype):
     torch.testing.assert_close(
         to_pseudo_camera(torch.tensor([[239.5, 639.5]], dtype=dtype), 640, 480), torch.tensor([[0.0, 1.0]], dtype=dtype)
     )
+
+
+@pytest.mark.parametrize("size", [(480, 640), (640, 480), (7, 3), (1, 1), (2, 9)])
+def test_convention_pseudo_camera_centre_and_unit(size, dtype):
+    # the image centre (odd and even sizes alike) goes to the origin, and half the long side to one unit
+    height, width = size
+    centre = image_center(height, width, like=torch.zeros(1, dtype=dtype))
+    assert torch.equal(to_pseudo_camera(centre, height, width), torch.zeros(2, dtype=dtype))
+    f = pseudo_focal(height, width)
+    corner = to_pseudo_camera(centre + torch.tensor([f, -f], dtype=dtype), height, width)
+    torch.testing.assert_close(corner, torch.tensor([1.0, -1.0], dtype=dtype))
 
 
 @pytest.mark.parametrize("b", BATCHES)

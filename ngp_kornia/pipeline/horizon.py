@@ -24,7 +24,7 @@ Method (all batched over B with the segment mask; no loop over images; about 3 m
    replaces the frame's only where its support is higher by more than ``margin`` (relative); the margin was chosen
    on renders. :func:`search_horizon` is the search without this choice and :func:`choose_horizon` the choice (the
    parser runs them apart: the confidence also reads the search's hypotheses); a logistic chooser fitted on renders
-   (``benchmarks/fit_chooser.py``) was measured no better than the margin on the real sets (BENCHMARKS.md).
+   was measured no better than the margin on the real sets (``docs/lab-notes/horizon-chooser.md``).
 
 Consistency of the reported camera: the focal length and ``K`` stay the frame's (or, with ``focal_scales``, the
 chosen hypothesis' scaled focal length); the chosen hypothesis is an up vector ``u``, so the zenith is ``K u``, the

@@ -36,6 +36,7 @@ __all__ = [
     "Generators",
     "sample_horizontal_pair_frames",
     "horizontal_line_mask",
+    "nearest_vertical_endpoint",
     "sample_frames",
     "sample_horizontal_vps",
     "sample_candidate_frames",
@@ -170,13 +171,13 @@ def horizontal_line_mask(
     angle = segment_vp_angle(segments, zenith[:, None])[:, 0]
     vertical = mask & (angle < vertical_tol_deg)
     other = mask & ~vertical
-    at_junction = _nearest_vertical_endpoint(segments, vertical) < junction_radius
+    at_junction = nearest_vertical_endpoint(segments, vertical) < junction_radius
     selected = other & at_junction.reshape(*mask.shape, 2).any(-1)
     enough = selected.sum(-1, keepdim=True) >= min_lines
     return torch.where(enough, selected, other)
 
 
-def _nearest_vertical_endpoint(segments: Tensor, vertical: Tensor) -> Tensor:
+def nearest_vertical_endpoint(segments: Tensor, vertical: Tensor) -> Tensor:
     """Distance from every endpoint (B, N, 2, 2) to the nearest endpoint of a ``vertical`` (B, N) line: (B, 2N),
     infinite without one. The values of ``torch.cdist``'s minimum, computed from the endpoints of the vertical
     lines only, which are few, and square-rooting only the minima."""

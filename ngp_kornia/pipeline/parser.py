@@ -26,7 +26,7 @@ from ngp_kornia.geometry import (
     to_pseudo_camera,
     top_frames,
 )
-from ngp_kornia.nets.fsnet import FSNetImageInputs, frame_scores
+from ngp_kornia.nets.fsnet_inputs import FSNetImageInputs, frame_scores
 from ngp_kornia.nets.zsnet import zenith_estimate, zenith_weights_from_scores
 from ngp_kornia.pipeline.answer import calibration_from_camera, topk_calibration
 from ngp_kornia.pipeline.candidates import (

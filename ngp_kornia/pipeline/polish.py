@@ -19,6 +19,7 @@ from __future__ import annotations
 import math
 
 import torch
+from kornia.geometry.conversions import axis_angle_to_rotation_matrix
 from torch import Tensor
 
 from ngp_kornia.geometry import canonical_manhattan_rotation
@@ -33,18 +34,6 @@ from ngp_kornia.pipeline.line_kernel import (
 from ngp_kornia.pipeline.settings import PolishSettings
 
 __all__ = ["polish_frame"]
-
-
-def _rotate(R: Tensor, w: Tensor) -> Tensor:
-    """``exp([w]x) R`` (Rodrigues) for (M, 3) small rotation vectors ``w``."""
-    theta = torch.linalg.vector_norm(w, dim=-1, keepdim=True).clamp_min(1e-12)
-    k = w / theta
-    kx = torch.zeros(len(w), 3, 3, dtype=w.dtype, device=w.device)
-    kx[:, 0, 1], kx[:, 0, 2], kx[:, 1, 2] = -k[:, 2], k[:, 1], -k[:, 0]
-    kx = kx - kx.transpose(1, 2)
-    s, c = torch.sin(theta)[..., None], torch.cos(theta)[..., None]
-    eye = torch.eye(3, dtype=w.dtype, device=w.device)
-    return (eye + s * kx + (1 - c) * kx @ kx) @ R
 
 
 def _gauss_newton(cam, lengths: Tensor, mask: Tensor, R: Tensor, inlier_deg: float, iterations: int) -> Tensor:
@@ -63,7 +52,7 @@ def _gauss_newton(cam, lengths: Tensor, mask: Tensor, R: Tensor, inlier_deg: flo
         g = torch.einsum("mn,mn,mni->mi", w, a, b)
         step = -torch.linalg.solve(A, g)
         ok = (w > 0).sum(-1) >= 6
-        R = torch.where(ok[:, None, None], _rotate(R, torch.where(ok[:, None], step, 0.0)), R)
+        R = torch.where(ok[:, None, None], axis_angle_to_rotation_matrix(torch.where(ok[:, None], step, 0.0)) @ R, R)
     return R
 
 

@@ -15,7 +15,8 @@ from torch import Tensor, nn
 from ngp_kornia.errors import ConfigError
 from ngp_kornia.geometry.frames import FrameCandidates, select_frames, top_frames
 from ngp_kornia.metrics import frame_horizon_error, horizon_auc
-from ngp_kornia.nets.fsnet import FSNet, FSNetInputs, frame_scores
+from ngp_kornia.nets.fsnet import FSNet
+from ngp_kornia.nets.fsnet_inputs import FSNetInputs, frame_scores
 from ngp_kornia.nets.weights import load_network, shipped_weights
 from ngp_kornia.pipeline.parser import NeuralGeometricParser
 from ngp_kornia.pipeline.settings import ParserConfig

@@ -8,14 +8,8 @@ import torch
 
 from ngp_kornia.geometry import rasterize_segments, rotation_from_angles
 from ngp_kornia.geometry.frames import FrameCandidates
-from ngp_kornia.nets.fsnet import (
-    NUM_PARAMS,
-    NUM_SUPPORT,
-    SUPPORT_ANGLES,
-    FSNet,
-    canonical_frame_vps,
-    fsnet_inputs,
-)
+from ngp_kornia.nets.fsnet import FSNet
+from ngp_kornia.nets.fsnet_inputs import NUM_PARAMS, NUM_SUPPORT, SUPPORT_ANGLES, canonical_frame_vps, fsnet_inputs
 from ngp_kornia.nets.resnet import LAYOUTS, ResNet
 
 TINY = {"widths": (8, 16), "depths": (1, 1), "head_width": 8}
@@ -312,7 +306,7 @@ def test_area_resize_is_opencvs_area_filter_with_gradients_for_the_pixels():
     import cv2
     import numpy as np
 
-    from ngp_kornia.nets.fsnet import area_resize
+    from ngp_kornia.nets.fsnet_inputs import area_resize
 
     rgb = np.random.default_rng(0).integers(0, 256, (48, 80, 3), dtype=np.uint8)
     images = torch.from_numpy(rgb).permute(2, 0, 1)[None].float() / 255.0
@@ -330,7 +324,7 @@ def test_area_resize_is_opencvs_area_filter_with_gradients_for_the_pixels():
 def test_the_trunk_computed_ahead_gives_the_same_scores():
     """The parser builds FSNet's frame-free inputs and runs the shared trunk before the frames are known; the
     scores are those of the inputs built all at once."""
-    from ngp_kornia.nets.fsnet import fsnet_frame_inputs, fsnet_line_inputs, with_images
+    from ngp_kornia.nets.fsnet_inputs import fsnet_frame_inputs, fsnet_line_inputs, with_images
 
     net = tiny("shared", input_size=32).eval()
     segments, mask, fr, images = random_scene(64)

@@ -560,25 +560,10 @@ def test_sample_candidate_frames_equals_both_samplers(pair_count, focal):
 # the fast paths of frame building and the junction filter give the values of the plain operations
 
 
-@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
-def test_column_norm_equals_torch_norm(dtype):
-    from ngp_kornia.geometry.frames import _column_norm
-
-    g = _gen(3)
-    m = torch.randn(2, 5000, 3, 3, generator=g, dtype=dtype) * torch.rand(2, 5000, 1, 3, generator=g, dtype=dtype) ** 6
-    m[0, :3] = 0.0  # zero columns stay zero
-    # two computations of a 3-term root sum of squares: they may round differently by an ulp or two, whatever
-    # the CPU's vector width; zero columns stay exactly zero
-    tight = {"rtol": 4 * torch.finfo(dtype).eps, "atol": 0.0}
-    torch.testing.assert_close(_column_norm(m * 1e3), (m * 1e3).norm(dim=-2, keepdim=True), **tight)
-    torch.testing.assert_close(_column_norm(m), m.transpose(-1, -2).norm(dim=-1)[..., None, :], **tight)
-    assert bool((_column_norm(m)[0, :3] == 0).all())
-
-
 @pytest.mark.parametrize("n", [3, 12, 40, 300])
 @pytest.mark.parametrize("b", [1, 3])
 def test_nearest_vertical_endpoint_equals_cdist_minimum(b, n):
-    from ngp_kornia.pipeline.candidates import _nearest_vertical_endpoint
+    from ngp_kornia.pipeline.candidates import nearest_vertical_endpoint
 
     g = _gen(n + b)
     for dtype in (torch.float32, torch.float64):
@@ -591,9 +576,9 @@ def test_nearest_vertical_endpoint_equals_cdist_minimum(b, n):
         # differently on different CPUs; its error in a squared distance is a few ulps of |x|^2 + |y|^2 <= 4, so in
         # a distance near zero up to about 4 sqrt(eps) (7e-9 seen in float64)
         torch.testing.assert_close(
-            _nearest_vertical_endpoint(seg, vertical), dist.amin(-1), rtol=0.0, atol=4 * torch.finfo(dtype).eps ** 0.5
+            nearest_vertical_endpoint(seg, vertical), dist.amin(-1), rtol=0.0, atol=4 * torch.finfo(dtype).eps ** 0.5
         )
-    assert torch.isinf(_nearest_vertical_endpoint(seg, torch.zeros_like(vertical))).all()
+    assert torch.isinf(nearest_vertical_endpoint(seg, torch.zeros_like(vertical))).all()
 
 
 def test_frames_from_vps_rows_and_layout_of_vps():

@@ -5,11 +5,12 @@ import math
 
 import pytest
 import torch
+from kornia.geometry.conversions import axis_angle_to_rotation_matrix
 
 from ngp_kornia import ConfigError, calibrate
 from ngp_kornia.metrics import horizon_error
 from ngp_kornia.pipeline import ParserConfig
-from ngp_kornia.pipeline.polish import _rotate, polish_frame
+from ngp_kornia.pipeline.polish import polish_frame
 from ngp_kornia.pipeline.segments import detect_segments
 from ngp_kornia.training.synth.render import render_scene
 
@@ -25,7 +26,7 @@ def test_a_tilted_frame_with_a_wrong_focal_length_comes_back_towards_the_truth(s
     K = torch.as_tensor(scene.K, dtype=torch.float32)[None]
     R = torch.as_tensor(scene.R, dtype=torch.float32)[None]
     axis = torch.tensor([[1.0, 0.5, 0.2]])
-    tilted = _rotate(R, axis / torch.linalg.vector_norm(axis) * math.radians(1.5))
+    tilted = axis_angle_to_rotation_matrix(axis / torch.linalg.vector_norm(axis) * math.radians(1.5)) @ R
     off = K.clone()
     off[:, 0, 0] *= 1.06
     off[:, 1, 1] *= 1.06
@@ -52,8 +53,9 @@ def test_calibrate_with_polish_keeps_a_known_focal_length_and_a_consistent_camer
     horizon = torch.linalg.inv(cal.K).T @ up
     # both unit vectors: the cross product of parallel directions vanishes up to float32 rounding
     assert torch.allclose(torch.cross(zenith / zenith.norm(), cal.zenith, dim=0), torch.zeros(3), atol=1e-5)
-    assert torch.allclose(torch.cross(horizon / horizon.norm(), cal.horizon / cal.horizon.norm(), dim=0),
-                          torch.zeros(3), atol=1e-4)
+    assert torch.allclose(
+        torch.cross(horizon / horizon.norm(), cal.horizon / cal.horizon.norm(), dim=0), torch.zeros(3), atol=1e-4
+    )
 
 
 def test_polish_brings_renders_closer_to_the_true_horizon():

@@ -8,7 +8,7 @@ import torch
 from ngp_kornia.api import load_parser
 from ngp_kornia.geometry import pseudo_focal, structure_tensor, topk_weighted_average
 from ngp_kornia.geometry.frames import select_frames, top_frames
-from ngp_kornia.nets.fsnet import frame_scores
+from ngp_kornia.nets.fsnet_inputs import frame_scores
 from ngp_kornia.nets.zsnet import zenith_estimate, zenith_weights_from_scores
 from ngp_kornia.pipeline import Calibration, NeuralGeometricParser, ParserConfig, ParserTrace
 from ngp_kornia.training.synth.render import render_scene

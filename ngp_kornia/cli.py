@@ -10,20 +10,23 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-import cv2
-import numpy as np
-from kornia.core.exceptions import BaseError as KorniaCheckError
-
 from ngp_kornia.cli_options import add_setting_options, config_from_args
-from ngp_kornia.errors import NGPError, OutputError
+from ngp_kornia.cli_render import add_render_command, render_command
+from ngp_kornia.errors import ConfigError, NGPError, OutputError
+from ngp_kornia.preflight import check_extra, check_folder
 
 if TYPE_CHECKING:
+    import numpy as np
+
     from ngp_kornia.pipeline import ParserConfig
 
-__all__ = ["main"]
+# Nothing heavy is imported here: parse() answers --help, --version and wrong arguments before torch, OpenCV or
+# Lightning is loaded (seconds); each command imports what it needs when it runs.
+__all__ = ["main", "parse", "run"]
 
-#: what the commands report as one line ``ngp: error: <message>`` instead of a traceback
-USER_ERRORS = (NGPError, KorniaCheckError, ValueError, TypeError, OSError)
+#: what the commands report as one line ``ngp: error: <message>`` instead of a traceback (with kornia's check
+#: errors, see _user_errors)
+USER_ERRORS = (NGPError, ValueError, TypeError, OSError)
 FORCE_HELP = "overwrite an existing output file (never one of the input images)"
 
 WEIGHTS_HELP = (
@@ -42,7 +45,7 @@ class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
 
 
 class _VersionAction(argparse.Action):
-    """``--version``: prints the package version (imported only when asked, since it loads torch)."""
+    """``--version``: prints the package version."""
 
     def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, help=None):
         super().__init__(option_strings, dest, nargs=0, default=default, help=help)
@@ -52,6 +55,12 @@ class _VersionAction(argparse.Action):
 
         print(f"{parser.prog} {__version__}")
         parser.exit()
+
+
+def _user_errors() -> tuple[type[BaseException], ...]:
+    """USER_ERRORS, and kornia's check errors once kornia is loaded (none can be raised before)."""
+    kornia = sys.modules.get("kornia.core.exceptions")
+    return USER_ERRORS if kornia is None else (*USER_ERRORS, kornia.BaseError)
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -82,7 +91,7 @@ def _parser() -> argparse.ArgumentParser:
     demo = sub.add_parser("demo", help="calibrate a built-in rendered example and print the estimate and the truth")
     demo.add_argument("--overlay", help="write the overlay PNG here")
     demo.add_argument("--seed", type=int, default=2, help="which built-in scene to render")
-    _add_render(sub)
+    add_render_command(sub)
     for command in sub.choices.values():  # defaults in every --help
         command.formatter_class = _HelpFormatter
     return p
@@ -111,26 +120,6 @@ def _add_rectify(sub) -> None:
     add_setting_options(rect)
 
 
-def _add_render(sub) -> None:
-    render = sub.add_parser(
-        "render",
-        help="render synthetic scenes with exact ground truth",
-        description="Render procedural street, room and plaza scenes seen by random cameras, as PNG images plus "
-        "ground_truth.json (one record per image: K, R, focal, fov_v, fov_h, pitch, roll, zenith, horizon, vps).",
-    )
-    render.add_argument("outdir", help="folder to write the images and ground_truth.json into (created)")
-    render.add_argument("--count", type=int, default=16, help="number of scenes")
-    render.add_argument("--seed", type=int, default=0, help="dataset seed: each image gets its own seed from it")
-    render.add_argument("--size", default="640x480", help="image size WxH in pixels")
-    render.add_argument("--force", action="store_true", help="write into a folder that is not empty")
-    render.add_argument(
-        "--config",
-        help='a JSON file of RenderConfig settings, e.g. {"stairs": 1.5, "fronto_prob": 0.3, "pitch": [-45, 55]} '
-        "(the hard cases, the camera imperfections principal_point_std and radial_distortion, and every range of "
-        "ngp_kornia.training.synth.render.RenderConfig)",
-    )
-
-
 def _add_prior_arguments(command: argparse.ArgumentParser) -> None:
     command.add_argument("--focal", type=float, default=None, help="known focal length, pixels of the input image")
     command.add_argument("--fov", type=float, default=None, help="known vertical field of view, degrees")
@@ -156,8 +145,6 @@ def _prior(args: argparse.Namespace, image: str, rgb: np.ndarray) -> dict:
 
 #: images read and calibrated together by ``ngp calibrate`` (one ``calibrate()`` call on a list)
 _CHUNK = 8
-#: seconds before a progress bar appears: short runs show none
-_PROGRESS_DELAY = 2.0
 
 
 def _overlay_path(target: str, image: str, many: bool) -> Path:
@@ -173,6 +160,8 @@ def check_output(path: Path, force: bool, inputs: list[str] = ()) -> None:
     Raises:
         OutputError: with the fix in the message.
     """
+    import cv2
+
     if path.is_dir():
         raise OutputError(f"{path} is a folder; give the image file to write, e.g. {path / 'out.png'}")
     if not cv2.haveImageWriter(str(path)):
@@ -185,6 +174,9 @@ def check_output(path: Path, force: bool, inputs: list[str] = ()) -> None:
 
 
 def _write_image(path: Path, rgb: np.ndarray) -> None:
+    import cv2
+    import numpy as np
+
     path.parent.mkdir(parents=True, exist_ok=True)
     if not cv2.imwrite(str(path), cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2BGR)):
         raise OutputError(f"could not write {path}")
@@ -228,12 +220,12 @@ def _calibrate(args: argparse.Namespace) -> int:
                 if args.overlay and many:
                     check_output(_overlay_path(args.overlay, image, True), args.force, args.images)
                 loaded.append((image, *read_rgb_oriented(image)))
-            except USER_ERRORS as err:
+            except _user_errors() as err:
                 failed += 1
                 print(f"ngp: error: {_one_line(err)}", file=sys.stderr, flush=True)
         try:
             results = _calibrate_loaded(loaded, args)
-        except USER_ERRORS:  # one image of the chunk failed: find it, keep the others
+        except _user_errors():  # one image of the chunk failed: find it, keep the others
             results = [_calibrate_or_none(image, rgb, args) for image, rgb, _ in loaded]
         for (image, rgb, orientation), result in zip(loaded, results, strict=True):
             if result is None:
@@ -244,7 +236,7 @@ def _calibrate(args: argparse.Namespace) -> int:
             try:
                 if args.overlay:
                     _write_overlay(_overlay_path(args.overlay, image, many), rgb, result, _config(args))
-            except USER_ERRORS as err:
+            except _user_errors() as err:
                 failed += 1
                 print(f"ngp: error: {_one_line(err)}", file=sys.stderr, flush=True)
     return 1 if failed else 0
@@ -257,7 +249,7 @@ def _calibrate_or_none(image: str, rgb: np.ndarray, args: argparse.Namespace):
     try:
         options = {"weights": args.weights, "seed": args.seed, "config": _config(args)}
         return calibrate(rgb, **options, **_prior(args, image, rgb))
-    except USER_ERRORS as err:
+    except _user_errors() as err:
         print(f"ngp: error: {image}: {_one_line(err)}", file=sys.stderr, flush=True)
         return None
 
@@ -272,15 +264,9 @@ def _predict(args: argparse.Namespace) -> int:
     from ngp_kornia.pipeline.priors import Priors
     from ngp_kornia.predict import predict_folder, usable_cores
 
-    if args.devices < 1:
-        print(f"ngp: error: --devices must be at least 1, got {args.devices}", file=sys.stderr)
-        return 2
     if args.devices > (cores := usable_cores()):
         print(f"ngp: warning: --devices {args.devices} capped at {cores}, the CPU cores available", file=sys.stderr)
         args.devices = cores
-    if args.batch_size < 1:
-        print(f"ngp: error: --batch-size must be at least 1, got {args.batch_size}", file=sys.stderr)
-        return 2
     for name in ("lightning.pytorch", "lightning.fabric"):  # the rows go to --out; keep the terminal quiet
         logging.getLogger(name).setLevel(logging.WARNING)
 
@@ -298,7 +284,7 @@ def _predict(args: argparse.Namespace) -> int:
             exif=args.exif,
             progress_bar=sys.stdout.isatty(),
         )
-    except USER_ERRORS as err:
+    except _user_errors() as err:
         print(f"ngp: error: {_one_line(err)}", file=sys.stderr, flush=True)
         return 1
     if counts["interrupted"]:
@@ -344,7 +330,7 @@ def _rectify(args: argparse.Namespace) -> int:
         warped, _ = rectify(image, homography, crop=crop)  # a too oblique view with keep: the error names --crop
         out = warped[0].permute(1, 2, 0).mul(255.0).round().clamp(0, 255).to(torch.uint8).numpy()
         _write_image(path, out)
-    except USER_ERRORS as err:
+    except _user_errors() as err:
         print(f"ngp: error: {_one_line(err)}", file=sys.stderr, flush=True)
         return 1
     print(f"{args.mode} image ({out.shape[1]}x{out.shape[0]}) written to {path}")
@@ -369,87 +355,60 @@ def _demo(args: argparse.Namespace) -> int:
     return 0
 
 
-def _render(args: argparse.Namespace) -> int:
-    from ngp_kornia.training.synth.render import render_dataset
-
-    try:
-        width, height = (int(v) for v in args.size.lower().split("x"))
-    except ValueError:
-        print(f"ngp: error: --size must look like 640x480, got {args.size!r}", file=sys.stderr)
-        return 2
-    if args.count < 1:
-        print("ngp: error: --count must be at least 1", file=sys.stderr)
-        return 2
-    try:
-        config = _render_config(args.config)
-    except ValueError as err:
-        print(f"ngp: error: --config {args.config}: {err}", file=sys.stderr)
-        return 2
-    outdir = Path(args.outdir)
-    if outdir.exists() and not outdir.is_dir():
-        raise OutputError(f"{outdir} is a file; give a folder to render into")
-    if outdir.is_dir() and any(outdir.iterdir()) and not args.force:
-        raise OutputError(f"{outdir} is not empty; add --force to write into it (same names are replaced)")
-    from tqdm import tqdm
-
-    # a progress bar on a terminal only, and only for runs long enough to need one
-    with tqdm(
-        total=args.count, unit="scene", delay=_PROGRESS_DELAY, disable=not sys.stderr.isatty(), desc="rendering"
-    ) as bar:
-        render_dataset(args.outdir, args.count, args.seed, (width, height), config, progress=bar.update)
-    print(f"wrote {args.count} images and ground_truth.json to {args.outdir}")
-    return 0
-
-
-def _render_config(path: str | None):
-    """The RenderConfig of a JSON settings file (None: the defaults); ValueError naming what is wrong."""
-    from dataclasses import fields
-
-    from ngp_kornia.training.synth.render import RenderConfig
-
-    if path is None:
-        return None
-    try:
-        settings = json.loads(Path(path).read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
-        raise ValueError(f"not a readable JSON file ({err})") from None
-    if not isinstance(settings, dict):
-        raise ValueError('give a JSON object of settings, e.g. {"stairs": 1.5}')
-    known = [f.name for f in fields(RenderConfig)]
-    unknown = sorted(set(settings) - set(known))
-    if unknown:
-        raise ValueError(f"unknown settings {unknown}; RenderConfig has {', '.join(known)}")
-    try:
-        return RenderConfig(**settings)
-    except (TypeError, ValueError) as err:
-        raise ValueError(str(err)) from None
-
-
 def _check_weights(parser: argparse.ArgumentParser, command: str, weights: str) -> None:
     """A bad ``--weights`` is a usage error: reported once, before any image is read, with exit status 2."""
     from ngp_kornia.api import check_weights
 
     try:
         check_weights(weights)
-    except USER_ERRORS as err:
+    except _user_errors() as err:
         subcommands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
         subcommands.choices[command].error(f"--weights: {err}")
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``ngp`` command."""
+def parse(argv: list[str] | None = None) -> argparse.Namespace | int:
+    """The command line, checked without importing torch, OpenCV or Lightning.
+
+    ``--help``, ``--version`` and usage errors end here as argparse ends them (SystemExit). An option out of range,
+    a command whose extra is not installed, a folder without images or input images that are all missing is one
+    ``ngp: error:`` line, and its exit status is returned.
+
+    Returns:
+        the arguments for :func:`run`, or the exit status.
+    """
     parser = _parser()
     args = parser.parse_args(argv)
-    if getattr(args, "weights", None) is not None:
-        _check_weights(parser, args.command, args.weights)
     if hasattr(args, "setting:segments.working_size"):
-        from ngp_kornia.errors import ConfigError
-
         try:
             _config(args)
         except ConfigError as err:  # it names the setting, e.g. SegmentSettings.working_size
             parser.error(str(err))
-    commands = {"calibrate": _calibrate, "predict": _predict, "rectify": _rectify, "demo": _demo, "render": _render}
+    if args.command == "predict":
+        for option, value in (("--devices", args.devices), ("--batch-size", args.batch_size)):
+            if value < 1:
+                print(f"ngp: error: {option} must be at least 1, got {value}", file=sys.stderr)
+                return 2
+        try:
+            check_extra(["lightning"], "ngp predict", "train")
+            check_folder(args.folder, args.recursive)
+        except (ImportError, OSError, ValueError) as err:
+            print(f"ngp: error: {_one_line(err)}", file=sys.stderr)
+            return 1
+    images = {"calibrate": getattr(args, "images", []), "rectify": [getattr(args, "image", "")]}.get(args.command, [])
+    if images and not any(Path(image).exists() for image in images):  # nothing to calibrate
+        for image in images:
+            print(f"ngp: error: {image}: file not found", file=sys.stderr)
+        return 1
+    return args
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the command of :func:`parse`'s arguments (importing the modules it needs); its exit status."""
+    parser = _parser()
+    if getattr(args, "weights", None) is not None:
+        _check_weights(parser, args.command, args.weights)
+    commands = {"calibrate": _calibrate, "predict": _predict, "rectify": _rectify, "demo": _demo}
+    commands["render"] = render_command
     try:
         return commands[args.command](args)
     except KeyboardInterrupt:
@@ -458,12 +417,18 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:  # stop quietly, like other command-line tools, when the output is cut short
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 141
-    except USER_ERRORS as err:
+    except _user_errors() as err:
         print(f"ngp: error: {_one_line(err)}", file=sys.stderr)
         return 1
     except Exception as err:  # a one-line message instead of a traceback, whatever went wrong
         print(f"ngp: error: {type(err).__name__}: {_one_line(err)}", file=sys.stderr)
         return 1
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``ngp`` command: :func:`parse`, then :func:`run`."""
+    args = parse(argv)
+    return args if isinstance(args, int) else run(args)
 
 
 if __name__ == "__main__":

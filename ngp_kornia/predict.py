@@ -9,8 +9,12 @@ barrier rank 0 merges the parts in dataset order, keeping each index once, and d
 per run, so no other file is ever touched). An ``out`` that is one of the input images is refused.
 
 Every image is isolated: any exception while reading or calibrating it becomes its error row, never the end of the
-run. An interrupted run (Ctrl+C, SIGINT) still leaves ``out`` holding the rows of the images finished so far, in
-folder order, and the run reports it; it does not resume: running the command again starts over.
+run. An interrupted run (Ctrl+C, SIGINT, or SIGTERM as ``kill`` and service managers send) still leaves ``out``
+holding the rows of the images finished so far, in folder order, and the run reports it; it does not resume:
+running the command again starts over. A run stopped by an error (a full disk, a file-size limit) keeps them the
+same way when it can, and removes its hidden files whatever happens. A process killed outright (SIGKILL) cannot
+clean up: the next run for the same ``out`` deletes the hidden files of runs that are gone (each run holds a lock on
+the files it writes, so a run still going is told apart; without ``fcntl``, on Windows, they are left).
 
 Every image is calibrated on its own, exactly as :func:`ngp_kornia.calibrate` does for a file (LSD on the decoded
 8-bit image, the candidate sampling seeded per image), so a row equals what ``ngp calibrate`` prints for that file.
@@ -18,17 +22,20 @@ Every image is calibrated on its own, exactly as :func:`ngp_kornia.calibrate` do
 
 from __future__ import annotations
 
-import heapq
 import json
+import os
 import secrets
 import signal
+import threading
 import warnings
 from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import IO, NamedTuple
 
 import torch
 from torch import Tensor
+from torch.multiprocessing.spawn import ProcessException
 from torch.utils.data import DataLoader, Dataset
 
 try:  # an optional dependency: calibrate() and the rest of the core run without it
@@ -40,13 +47,15 @@ except ImportError as err:
     ) from err
 
 from ngp_kornia.api import file_priors, load_parser, with_orientation
-from ngp_kornia.data.folder import IMAGE_EXTENSIONS, ImageFolder
+from ngp_kornia.data.folder import ImageFolder
 from ngp_kornia.errors import OutputError
 from ngp_kornia.io import read_rgb_oriented
 from ngp_kornia.pipeline import Calibration, NeuralGeometricParser, ParserConfig
 from ngp_kornia.pipeline.priors import Priors, checked_seed
 from ngp_kornia.pipeline.segments import detect_segments, line_workers
 from ngp_kornia.pipeline.settings import SegmentSettings
+from ngp_kornia.preflight import check_folder
+from ngp_kornia.rowfiles import count_rows, merge_parts, open_locked, remove_stale_files
 from ngp_kornia.threads import Lookahead, pipeline_threads, usable_cores
 
 __all__ = [
@@ -57,6 +66,7 @@ __all__ = [
     "cap_devices",
     "merge_parts",
     "predict_folder",
+    "remove_stale_files",
     "usable_cores",
 ]
 
@@ -194,26 +204,28 @@ class FolderPredictor(L.LightningModule):
 class JsonlWriter(BasePredictionWriter):
     """Writes each batch's rows as soon as it is predicted: to a temporary file beside ``out`` in a single process,
     to a part file per rank (lines ``<index>\\t<json>``) in a multi-process run, which rank 0 merges; the result
-    is renamed to ``out`` at the end, or when the run is interrupted (then holding the images finished so far).
+    is renamed to ``out`` at the end, or when the run is interrupted or fails (then holding the images finished so
+    far, cut back to whole rows). Each file is locked while it is written (see :func:`remove_stale_files`).
 
     In a multi-process run the processes are forked from the calling one, which only waits for them: its writer
-    never sees a row, and on an interruption it merges the part files the processes left.
+    never sees a row, and when the run stops early it stops the processes and merges the part files they left.
 
     Attributes:
         images: rows written; in the calling process of a multi-process run, after it, the rows of the merged file.
         errors: error rows, counted the same way.
-        interrupted: the run was stopped (KeyboardInterrupt or an exception) before every image was done.
+        interrupted: the run was stopped (KeyboardInterrupt, SIGTERM or an exception) before every image was done.
+        kept: the rows finished before the run stopped are in ``out``.
     """
 
     def __init__(self, out: str | Path, world: int = 1) -> None:
         super().__init__(write_interval="batch")
         self.out = Path(out)
-        self.file: IO[str] | None = None
+        self.file: IO[bytes] | None = None
         self.multi = world > 1
         self.rank, self.world = 0, world
         self.run_id = secrets.token_hex(4)  # made before the fork, so every process names the same files
-        self.images = self.errors = 0
-        self.interrupted = False
+        self.images = self.errors = self.whole = 0  # whole: bytes of the file up to its last complete row
+        self.interrupted = self.kept = False
 
     def part(self, rank: int) -> Path:
         """The part file of a rank (hidden, named by this run's id so no other file is ever touched)."""
@@ -225,23 +237,26 @@ class JsonlWriter(BasePredictionWriter):
         return self.out.with_name(f".{self.out.name}.{self.run_id}.tmp")
 
     def on_predict_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        _stop_like_ctrl_c()  # in place of Lightning's SIGTERM handler, which lets a prediction run to its end
         self.multi = trainer.world_size > 1
         self.rank, self.world = trainer.global_rank, trainer.world_size
-        self.images = self.errors = 0
-        self.interrupted = False
+        self.images = self.errors = self.whole = 0
+        self.interrupted = self.kept = False
         self.out.parent.mkdir(parents=True, exist_ok=True)
-        path = self.part(self.rank) if self.multi else self.temporary
-        self.file = path.open("w", encoding="utf-8")
+        self.file = open_locked(self.part(self.rank) if self.multi else self.temporary)
 
     def write_on_batch_end(
         self, trainer, pl_module, prediction, batch_indices, batch, batch_idx: int, dataloader_idx: int = 0
     ) -> None:
-        for index, row in prediction:
-            line = json.dumps(row)
-            self.file.write(f"{index}\t{line}\n" if self.multi else line + "\n")
-            self.images += 1
-            self.errors += "error" in row
+        lines = (json.dumps(row) for _, row in prediction)
+        if self.multi:
+            lines = (f"{index}\t{line}" for (index, _), line in zip(prediction, lines, strict=True))
+        data = "".join(line + "\n" for line in lines).encode("utf-8")
+        self.file.write(data)
         self.file.flush()  # rows survive an interruption or a crash later in the run
+        self.whole += len(data)
+        self.images += len(prediction)
+        self.errors += sum("error" in row for _, row in prediction)
 
     def on_predict_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         self.close()
@@ -253,30 +268,54 @@ class JsonlWriter(BasePredictionWriter):
             self.finish()  # the calling process counts the merged rows
 
     def on_exception(self, trainer: L.Trainer, pl_module: L.LightningModule, exception: BaseException) -> None:
-        """Interrupted: the main process keeps the rows finished so far, in folder order, as ``out``."""
+        """Stopped early: the main process keeps the rows finished so far, in folder order, as ``out``."""
         self.close()
         self.interrupted = True
         if self.rank != 0:
             return
         if self.multi:
-            _wait_for(getattr(trainer.strategy.launcher, "procs", []))
+            processes = getattr(trainer.strategy.launcher, "procs", [])
+            _stop(processes)
+            _wait_for(processes)
             self.images = self.finish()
         elif self.temporary.exists():
             self.temporary.replace(self.out)
+            self.kept = True
 
     def finish(self) -> int:
-        """Merge the part files that exist into ``out`` (through the temporary file), delete them; rows written."""
+        """Merge the part files that exist into ``out`` (through the temporary file), delete them; rows written.
+        The part files and the temporary file are deleted even when the merge fails (a full disk)."""
         parts = [p for p in (self.part(rank) for rank in range(self.world)) if p.exists()]
-        written = merge_parts(parts, self.temporary)
-        self.temporary.replace(self.out)
-        for part in parts:
-            part.unlink(missing_ok=True)
+        try:
+            written = merge_parts(parts, self.temporary)
+            self.temporary.replace(self.out)
+            self.kept = True
+        finally:
+            for path in (*parts, self.temporary):
+                path.unlink(missing_ok=True)
         return written
 
     def close(self) -> None:
-        if self.file is not None:
-            self.file.close()
-            self.file = None
+        """Close the file and cut it back to its last complete row: a write that failed (a full disk) or was
+        interrupted may have left part of one."""
+        if self.file is None:
+            return
+        file, self.file = self.file, None
+        try:
+            file.close()
+        except OSError:  # the flush of rows that did not fit; the file is closed all the same
+            pass
+        os.truncate(file.name, self.whole)
+
+
+def _stop(processes: list) -> None:
+    """Stop the forked processes of a run that ends early (each at its next image, as SIGTERM does there)."""
+    for process in processes:
+        if process.is_alive() and process.pid is not None:
+            try:
+                os.kill(process.pid, signal.SIGTERM)
+            except ProcessLookupError:  # ended in the meantime
+                pass
 
 
 def _wait_for(processes: list, timeout: float = 30.0) -> None:
@@ -285,53 +324,43 @@ def _wait_for(processes: list, timeout: float = 30.0) -> None:
         process.join(timeout)
 
 
-def count_rows(path: str | Path) -> tuple[int, int]:
-    """Rows and error rows of a results file."""
-    rows = errors = 0
-    with Path(path).open(encoding="utf-8") as lines:
-        for line in lines:
-            rows += 1
-            errors += "error" in json.loads(line)
-    return rows, errors
+class _StopOnce:
+    """A SIGINT / SIGTERM handler that raises KeyboardInterrupt the first time only: a second signal must not cut
+    the keeping of the rows short. (Setting the signals to SIG_IGN instead would turn a signal already on its way
+    into an OSError, "ignored due to race condition".)"""
+
+    def __init__(self) -> None:
+        self.seen = False
+
+    def __call__(self, signum, frame) -> None:
+        if not self.seen:
+            self.seen = True
+            raise KeyboardInterrupt
 
 
-def _read_part(path: Path) -> Iterator[tuple[int, str]]:
-    with path.open(encoding="utf-8") as lines:
-        for line in lines:
-            if not line.endswith("\n"):  # a process stopped in the middle of a line: that image is not done
-                return
-            index, row = line.split("\t", 1)
-            yield int(index), row
+def _stop_like_ctrl_c() -> None:
+    """Make SIGINT and SIGTERM raise KeyboardInterrupt once, in this process (from its main thread only)."""
+    if threading.current_thread() is threading.main_thread():
+        stop = _StopOnce()
+        for number in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(number, stop)
 
 
-def merge_parts(parts: list[Path], out: str | Path) -> int:
-    """Merge part files (lines ``<index>\\t<json>``, increasing index in each file) into ``out`` in index order,
-    writing each index once; streams, so memory does not grow with the number of rows.
-
-    Returns:
-        the number of rows written.
-    """
-    written, last = 0, -1
-    with Path(out).open("w", encoding="utf-8") as dst:
-        for index, row in heapq.merge(*(_read_part(p) for p in parts), key=lambda pair: pair[0]):
-            # a sampler that pads the last batch repeats indices: keep the first copy only
-            if index == last:
-                continue
-            dst.write(row)
-            written, last = written + 1, index
-    return written
+@contextmanager
+def _signals_restored() -> Iterator[None]:
+    """The caller's SIGINT and SIGTERM handlers back after the block, whatever the run set."""
+    saved = {number: signal.getsignal(number) for number in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        if threading.current_thread() is threading.main_thread():
+            for number, handler in saved.items():
+                signal.signal(number, handler)
 
 
 def _check_folder(folder: Path, recursive: bool) -> ImageFolder:
-    if not folder.exists():
-        raise FileNotFoundError(f"{folder}: no such folder; give the folder that holds the images")
-    if not folder.is_dir():
-        raise NotADirectoryError(f"{folder}: is a file, not a folder; for single images use ngp calibrate")
-    images = ImageFolder(folder, recursive=recursive)
-    if len(images) == 0:
-        hint = "" if recursive else "; use --recursive for images in sub-folders"
-        raise ValueError(f"{folder}: no images found (looked for {', '.join(IMAGE_EXTENSIONS)}){hint}")
-    return images
+    check_folder(folder, recursive)  # missing, a file, or no image in it: one line naming the fix
+    return ImageFolder(folder, recursive=recursive)
 
 
 def _trainer(devices: int, writer: JsonlWriter, progress_bar: bool) -> L.Trainer:
@@ -385,9 +414,10 @@ def predict_folder(
 
     A row is ``{"image": <path relative to folder>, **Calibration.to_dict()}`` (with ``exif_orientation``), or
     ``{"image": ..., "error": <reason>}`` for a file that cannot be read or calibrated, whatever the reason. An
-    interrupted run (Ctrl+C) leaves ``out`` holding the rows of the images finished so far and returns with
-    ``"interrupted": True``; it does not resume. With ``devices > 1`` the work is split over that many CPU processes
-    forked from this one (``"ddp_fork"``, gloo; not on Windows), at most one per image and per usable core.
+    interrupted run (Ctrl+C or SIGTERM; the caller's handlers are back after) leaves ``out`` holding the rows of the
+    images finished so far and returns with ``"interrupted": True``; it does not resume. What killed runs left
+    beside ``out`` goes first (:func:`remove_stale_files`). With ``devices > 1`` the work is split over that many CPU
+    processes forked from this one (``"ddp_fork"``, gloo; not on Windows), at most one per image and per core.
 
     Args:
         folder: the folder of images.
@@ -409,7 +439,8 @@ def predict_folder(
         FileNotFoundError: ``folder`` does not exist.
         NotADirectoryError: ``folder`` is a file.
         ValueError: no images in ``folder``, ``devices`` or ``batch_size`` below 1, unknown weights.
-        OutputError: ``out`` is one of the images, or a folder.
+        OutputError: ``out`` is one of the images, or a folder; or the run stopped on an error (a full disk, a
+            file-size limit, a process that died): the message says whether ``out`` holds the rows finished.
     """
     _check_counts(devices, batch_size)
     images = _check_folder(Path(folder), recursive)
@@ -424,8 +455,6 @@ def predict_folder(
         _run(_trainer(devices, writer, progress_bar), module, loader, writer)
     finally:
         files.close()
-    if writer.multi and not writer.interrupted:  # the forked processes wrote and merged; this one only waited
-        writer.images, writer.errors = count_rows(writer.out)
     return {"images": writer.images, "errors": writer.errors, "interrupted": writer.interrupted}
 
 
@@ -438,6 +467,7 @@ def _check_counts(devices: int, batch_size: int) -> None:
 
 def _run(trainer: L.Trainer, module: FolderPredictor, loader: DataLoader, writer: JsonlWriter) -> None:
     """``trainer.predict`` with Lightning's noise filtered, and Ctrl+C ending the run with the finished rows kept."""
+    remove_stale_files(writer.out)
     # fork from one thread (OpenCV's worker pool does not survive a fork: a child would wait for threads that are
     # not there); each process runs LSD's strips on its share of the cores less the one its parser runs on
     strip_threads = max(1, usable_cores() // trainer.num_devices - 1)
@@ -445,11 +475,25 @@ def _run(trainer: L.Trainer, module: FolderPredictor, loader: DataLoader, writer
         # the parser, not the loader, is the bottleneck; and the pytree notice is between Lightning and torch
         warnings.filterwarnings("ignore", message=".*does not have many workers.*")
         warnings.filterwarnings("ignore", message=".*LeafSpec.*is deprecated.*", category=FutureWarning)
-        handler = signal.getsignal(signal.SIGINT)
-        try:
-            trainer.predict(module, loader, return_predictions=False)
-        except SystemExit:  # Lightning's answer to Ctrl+C: the writer has kept the finished rows
-            if not writer.interrupted:
-                raise
-        finally:
-            signal.signal(signal.SIGINT, handler)  # Lightning ignores further Ctrl+C once it has seen one
+        # Lightning lets a prediction run on through SIGTERM, and ignores Ctrl+C once it has seen one: both are
+        # stops here (forked processes inherit it), and the caller's handlers come back after
+        with _signals_restored():
+            _stop_like_ctrl_c()
+            try:
+                trainer.predict(module, loader, return_predictions=False)
+            except SystemExit:  # Lightning's answer to Ctrl+C: the writer has kept the finished rows
+                if not writer.interrupted:
+                    raise
+            except (OSError, ProcessException) as err:  # a full disk, a file-size limit, a forked process that died
+                raise OutputError(_stopped(err, writer)) from None
+    if writer.multi and not writer.interrupted:  # the forked processes wrote and merged; this one only waited
+        writer.images, writer.errors = count_rows(writer.out)
+
+
+def _stopped(err: BaseException, writer: JsonlWriter) -> str:
+    """The one line for a run that an error stopped: the reason (a forked process's last traceback line), and
+    where the rows finished are."""
+    lines = str(err).strip().splitlines() or [type(err).__name__]
+    reason = lines[-1] if isinstance(err, ProcessException) else " ".join(lines)
+    kept = f"the {writer.images} rows finished are in {writer.out}" if writer.kept else f"{writer.out} is unchanged"
+    return f"the run stopped: {reason}; {kept}"

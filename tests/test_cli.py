@@ -119,9 +119,27 @@ def test_render_bad_config_is_a_usage_error(tmp_path, capsys, text, message):
     assert not (tmp_path / "r").exists()
 
 
-def test_render_rejects_a_bad_size(tmp_path, capsys):
-    assert main(["render", str(tmp_path), "--size", "big"]) == 2
-    assert "640x480" in capsys.readouterr().err
+@pytest.mark.parametrize("option", [["--size", "big"], ["--size", "0x480"], ["--count", "0"]])
+def test_render_rejects_a_bad_size_or_count(tmp_path, capsys, option):
+    with pytest.raises(SystemExit) as exit_info:
+        main(["render", str(tmp_path / "r"), *option])
+    err = capsys.readouterr().err
+    assert exit_info.value.code == 2 and f"ngp render: error: argument {option[0]}: " in err
+    assert not (tmp_path / "r").exists()
+
+
+@pytest.mark.parametrize(
+    "setting", ['{"stairs": NaN}', '{"billboards": NaN}', '{"clutter": Infinity}', '{"stairs": true}',
+                '{"pitch": [-10, NaN]}', '{"kinds": {"street": NaN}}'],
+)
+def test_render_config_refuses_numbers_that_are_not_finite(tmp_path, capsys, setting):
+    # NaN passes every range check (each comparison is false), true would count as 1: all refused by name
+    (tmp_path / "c.json").write_text(setting)
+    assert main(["render", str(tmp_path / "r"), "--config", str(tmp_path / "c.json"), "--count", "1"]) == 2
+    err = capsys.readouterr().err
+    name = next(iter(json.loads(setting)))
+    assert err.startswith(f"ngp: error: --config {tmp_path / 'c.json'}: {name} must hold finite numbers")
+    assert err.count("\n") == 1 and not (tmp_path / "r").exists()
 
 
 @pytest.mark.parametrize("mode", ["level", "upright", "frontal"])
@@ -268,23 +286,26 @@ def test_kornia_check_errors_are_one_line(photo, monkeypatch, capsys):
     assert _one_error_line(err) and "a check inside kornia failed" in err
 
 
-@pytest.mark.parametrize(("entry", "args"), [("ngp", ["calibrate", "photo.jpg"]), ("ngp_train", ["--help"])])
-def test_ctrl_c_during_start_up_ends_with_a_message(entry, args):
+@pytest.mark.parametrize(("entry", "args"), [("ngp", ["calibrate"]), ("ngp_train", ["fit", "--config", "zsnet"])])
+def test_ctrl_c_during_start_up_ends_with_a_message(entry, args, photo, tmp_path):
     # the commands import torch, OpenCV and Lightning first (seconds): Ctrl+C then is answered as during their work.
-    # The child says when it starts those imports, so the interrupt lands in them however fast the machine is.
+    # The child says when it starts those imports, so the interrupt lands in them however fast the machine is (the
+    # arguments were parsed and checked before, without them).
     import signal
 
     code = (
         "import importlib, sys\n"
         "real = importlib.import_module\n"
         "def announced(name, *rest):\n"
-        "    print('importing', flush=True)\n"
+        "    if name in ('ngp_kornia.api', 'lightning.pytorch.cli'):\n"
+        "        print('importing', flush=True)\n"
         "    return real(name, *rest)\n"
         "importlib.import_module = announced\n"
         f"from ngp_kornia._launch import {entry}\n"
         f"sys.exit({entry}())\n"
     )
-    pipes = {"stdout": subprocess.PIPE, "stderr": subprocess.PIPE, "text": True}
+    pipes = {"stdout": subprocess.PIPE, "stderr": subprocess.PIPE, "text": True, "cwd": tmp_path}
+    args = [*args, str(photo)] if entry == "ngp" else args  # an image that exists: the command goes on to import
     process = subprocess.Popen([sys.executable, "-c", code, *args], **pipes)
     assert process.stdout.readline() == "importing\n"
     process.send_signal(signal.SIGINT)

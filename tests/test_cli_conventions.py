@@ -97,7 +97,9 @@ def test_frontal_rectification_works_with_the_default_crop(tmp_path, capsys):
 
 
 def test_render_shows_progress_on_a_terminal_only(tmp_path, capsys, monkeypatch):
-    monkeypatch.setattr(cli, "_PROGRESS_DELAY", 0.0)
+    from ngp_kornia import cli_render
+
+    monkeypatch.setattr(cli_render, "PROGRESS_DELAY", 0.0)
     assert cli.main(["render", str(tmp_path / "a"), "--count", "2", "--size", "96x64"]) == 0
     assert capsys.readouterr().err == ""  # not a terminal: no bar
     import sys

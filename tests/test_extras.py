@@ -63,19 +63,21 @@ def test_predict_and_training_name_the_extra_to_install(tmp_path):
     out = _run(
         """
         from ngp_kornia.cli import main
-        for module in ("ngp_kornia.predict", "ngp_kornia.training.command"):
-            try:
-                __import__(module)
-            except ImportError as err:
-                print(err)
-        main(["predict", ".", "--out", "rows.jsonl"])
+        from ngp_kornia.training import command
+        try:
+            import ngp_kornia.predict
+        except ImportError as err:
+            print(err)
+        print(main(["predict", ".", "--out", "rows.jsonl"]), command.main(["fit", "--config", "zsnet"]))
         """,
         tmp_path,
     )
     lines = out.stdout.splitlines()
-    assert len(lines) == 2 and all("pip install 'ngp-kornia[train]'" in line for line in lines), out.stdout
+    assert len(lines) == 2 and "pip install 'ngp-kornia[train]'" in lines[0] and lines[1] == "1 1", out.stdout
     err = out.stderr.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith("ngp: error: ") and "ngp-kornia[train]" in err[0]
+    assert len(err) == 2 and err[0].startswith("ngp: error: ngp predict needs lightning")
+    assert err[1].startswith("ngp-train: error: training needs lightning and jsonargparse")
+    assert all(line.endswith("pip install 'ngp-kornia[train]'") for line in err)
 
 
 def test_loading_the_shipped_networks_stays_light(tmp_path):

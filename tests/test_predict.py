@@ -217,49 +217,6 @@ def test_rows_report_the_exif_orientation(tmp_path):
     assert row == {"image": "phone.jpg", **calibrate(folder / "phone.jpg").to_dict()}
 
 
-def _interrupt(tmp_path, devices, count):
-    """Start ``ngp predict`` on ``count`` images in its own session, press Ctrl+C (SIGINT to the whole process
-    group, as a terminal does) once some rows exist, and return the finished run and its results file."""
-    import os
-    import signal
-    import time
-
-    folder, out = tmp_path / "photos", tmp_path / "results.jsonl"
-    for seed in range(count):  # the same small scene under many names: cheap to write, slow enough to interrupt
-        if seed == 0:
-            _write_scenes(folder, [0])
-        else:
-            (folder / f"scene{seed:02d}.png").write_bytes((folder / "scene00.png").read_bytes())
-    command = [sys.executable, "-m", "ngp_kornia.cli", "predict", str(folder), "--out", str(out)]
-    command += ["--devices", str(devices)]
-    proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
-    deadline = time.time() + 240
-    while time.time() < deadline and proc.poll() is None:
-        written = [p for p in tmp_path.iterdir() if p.name.startswith(".results.jsonl.")]
-        if sum(p.read_text().count("\n") for p in written if p.is_file()) >= 2 * devices:
-            break
-        time.sleep(0.2)
-    assert proc.poll() is None, "the run ended before it could be interrupted"
-    os.killpg(proc.pid, signal.SIGINT)
-    stdout, stderr = proc.communicate(timeout=120)
-    _interrupt.stdout = stdout  # for the failure messages: what a run that ended without its message printed instead
-    return proc.returncode, stderr, out, folder
-
-
-@pytest.mark.parametrize("devices", [1, 2])
-def test_interrupted_run_keeps_the_finished_rows(tmp_path, devices):
-    code, stderr, out, folder = _interrupt(tmp_path, devices, count=200)
-    assert code == 130, stderr
-    lines = stderr.splitlines()
-    printed = (stderr[-2000:], _interrupt.stdout[-2000:])
-    assert len(lines) == 1 and lines[0].startswith("ngp: interrupted: the "), printed
-    rows = _rows(out)
-    assert 2 <= len(rows) < 200 and f"the {len(rows)} images finished are in {out}" in lines[0]
-    names = [r["image"] for r in rows]
-    assert names == sorted(set(names)) and all("focal" in r for r in rows)  # folder order, each once, complete
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["photos", "results.jsonl"]  # no part or temporary files
-
-
 def test_devices_are_capped_at_the_usable_cores(monkeypatch, folder, tmp_path, capsys):
     import ngp_kornia.predict as predict
 

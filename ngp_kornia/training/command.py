@@ -8,24 +8,38 @@ Examples::
     ngp-train fit --config my.yaml --ckpt_path last.ckpt           # a config file of your own; resume
     ngp-train export runs/zsnet/lightning_logs/version_0/checkpoints/best.ckpt zsnet.pt
     ngp-train plot runs/zsnet -o curves.png                        # needs the [plot] extra
+
+The module imports nothing heavy: :func:`parse` answers ``--help``, ``--version`` and wrong arguments (a missing
+extra, checkpoint or config, an output that exists) before torch or Lightning is loaded; :func:`run` imports them.
 """
 
 from __future__ import annotations
 
+import argparse
 import sys
 from importlib import resources
 from pathlib import Path
 
-try:  # optional dependencies of the package: training needs them, calibrate() does not
-    import jsonargparse  # noqa: F401  (LightningCLI's parser; imported here for a clear message)
-    from lightning.pytorch.cli import LightningCLI
-except ImportError as err:
-    raise ImportError(f"training needs Lightning and jsonargparse ({err}); pip install 'ngp-kornia[train]'") from err
+from ngp_kornia.errors import CheckpointError, NGPError, OutputError
+from ngp_kornia.preflight import check_extra
 
-from ngp_kornia.errors import CheckpointError, NGPError
-from ngp_kornia.nets.weights import NETWORKS, build_network, load_tensors_safely, save_network
+__all__ = [
+    "LIGHTNING_COMMANDS",
+    "check_export",
+    "config_path",
+    "export_checkpoint",
+    "main",
+    "modules",
+    "packaged_configs",
+    "parse",
+    "read_checkpoint",
+    "run",
+]
 
-__all__ = ["config_path", "export_checkpoint", "main", "packaged_configs", "read_checkpoint"]
+#: the commands LightningCLI runs (every other argument list is parsed here)
+LIGHTNING_COMMANDS = ("fit", "validate", "test", "predict")
+#: the options ngp-train answers itself (any other first option is LightningCLI's, e.g. --config, --print_config)
+_OWN = ("-h", "--help", "--version")
 
 _DESCRIPTION = (
     "Train ZSNet and FSNet with Lightning (fit, validate, test, predict), then export the network (export) and "
@@ -73,17 +87,45 @@ def _resolve_configs(args: list[str]) -> list[str]:
     return out
 
 
-def export_checkpoint(checkpoint: str | Path, out: str | Path) -> Path:
+def check_export(checkpoint: str | Path, out: str | Path, force: bool = False) -> None:
+    """Refuse an export that cannot run or would overwrite what it should not: a missing checkpoint, an output that
+    is the checkpoint itself (even with ``force``), a folder, or a file that exists (unless ``force``).
+
+    Raises:
+        CheckpointError: no such checkpoint file.
+        OutputError: the output is the checkpoint, a folder, or exists; the message names the fix.
+    """
+    checkpoint, out = Path(checkpoint), Path(out)
+    if not checkpoint.is_file():
+        raise CheckpointError(f"checkpoint not found: {checkpoint}")
+    if out.exists() and out.resolve() == checkpoint.resolve():
+        raise OutputError(f"{out} is the checkpoint being exported; write the weights to another file, e.g. net.pt")
+    if out.is_dir():
+        raise OutputError(f"{out} is a folder; give the weights file to write, e.g. {out / 'net.pt'}")
+    if out.exists() and not force:
+        raise OutputError(f"{out} exists; add --force to overwrite it, or choose another name")
+
+
+def export_checkpoint(checkpoint: str | Path, out: str | Path, force: bool = False) -> Path:
     """Turn a training checkpoint into a small weights file holding only the network and its settings.
 
     The checkpoint is read without running code from it: tensors and plain values only (``weights_only``), so a
     checkpoint from an untrusted source cannot execute anything.
 
+    Args:
+        checkpoint: the Lightning checkpoint (``.ckpt``) written by ``ngp-train fit``.
+        out: the weights file to write; never the checkpoint, and an existing file only with ``force``.
+        force: overwrite ``out`` if it exists.
+
     Raises:
         CheckpointError: a missing or unreadable checkpoint, one that holds Python objects, or one not written by
             ``ngp-train``.
+        OutputError: ``out`` is the checkpoint, a folder, or a file that exists (without ``force``).
         WeightsError: the network's tensors do not fit its settings or are not finite.
     """
+    from ngp_kornia.nets.weights import build_network, save_network
+
+    check_export(checkpoint, out, force)
     ckpt = read_checkpoint(checkpoint)
     net_spec = _network_spec(ckpt, checkpoint)
     state = ckpt.get("state_dict")
@@ -102,6 +144,8 @@ def read_checkpoint(checkpoint: str | Path) -> dict:
     Raises:
         CheckpointError: missing, unreadable, not a dict, or holding Python objects.
     """
+    from ngp_kornia.nets.weights import load_tensors_safely
+
     path = Path(checkpoint)
     if not path.is_file():
         raise CheckpointError(f"checkpoint not found: {path}")
@@ -119,6 +163,8 @@ def _checkpoint_globals() -> list:
 
 
 def _network_spec(ckpt: dict, checkpoint) -> dict:
+    from ngp_kornia.nets.weights import NETWORKS
+
     init = ckpt.get("ngp_network")
     if not isinstance(init, dict) or init.get("name") not in NETWORKS or not isinstance(init.get("settings"), dict):
         raise CheckpointError(f"{checkpoint}: the checkpoint has no network description; was it written by ngp-train?")
@@ -133,59 +179,114 @@ def _plain(value):
     return value if isinstance(value, (int, float, str, bool, type(None))) else str(value)
 
 
-def _plot(args: list[str]) -> int:
-    import argparse
-
-    from ngp_kornia.training.plots import plot_curves, read_metrics
-
-    parser = argparse.ArgumentParser(
-        prog="ngp-train plot",
-        description="Plot the loss and validation curves a CSVLogger or TensorBoardLogger wrote, against the step.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+def _parser() -> argparse.ArgumentParser:
+    """``ngp-train``'s own commands and help; the Lightning commands' options are LightningCLI's."""
+    epilog = _EPILOG.format(names=", ".join(packaged_configs()))
+    parser = argparse.ArgumentParser(prog="ngp-train", description=_DESCRIPTION, epilog=epilog)
+    parser.add_argument("--version", action="version", version=f"ngp-train {_version()}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for name in LIGHTNING_COMMANDS:  # listed here, parsed by LightningCLI
+        sub.add_parser(name, help=f"Lightning's {name}; ngp-train {name} --help lists its options")
+    export = sub.add_parser(
+        "export", help="write a trained network's weights file", description="Write the network of a training "
+        "checkpoint as a weights file for calibrate(image, weights=OUT.pt) (ngp-train export CHECKPOINT OUT.pt).",
     )
-    parser.add_argument("logdir", help="the logger's folder (its newest metrics.csv or event file), or that file")
-    parser.add_argument("-o", "--output", default="curves.png", help="the image to write (PNG)")
-    opts = parser.parse_args(args)
+    export.add_argument("checkpoint", help="the .ckpt file ngp-train fit wrote")
+    export.add_argument("out", help="the weights file to write (.pt)")
+    export.add_argument("--force", action="store_true", help="overwrite OUT if it exists (never the checkpoint)")
+    plot = sub.add_parser(
+        "plot", help="plot the logged curves (needs the [plot] extra)",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        description="Plot the loss and validation curves a CSVLogger or TensorBoardLogger wrote, against the step.",
+    )
+    plot.add_argument("logdir", help="the logger's folder (its newest metrics.csv or event file), or that file")
+    plot.add_argument("-o", "--output", default="curves.png", help="the image to write (PNG)")
+    return parser
+
+
+def _version() -> str:
+    from ngp_kornia import __version__
+
+    return __version__
+
+
+def parse(argv: list[str] | None = None) -> argparse.Namespace | int:
+    """The command line, checked without importing torch or Lightning.
+
+    ``--help``, ``--version`` and usage errors end here as argparse ends them (SystemExit); a missing extra,
+    checkpoint or config, or an export that would overwrite a file, is one ``ngp-train: error:`` line and its exit
+    status is returned. A Lightning command's arguments (``fit``, ... or options before one) are LightningCLI's,
+    with packaged configs given by name resolved to their files.
+
+    Returns:
+        the arguments for :func:`run` (``lightning_args`` for a Lightning command), or the exit status.
+    """
+    from_command_line, argv = argv is None, list(sys.argv[1:] if argv is None else argv)
+    lightning = bool(argv) and (argv[0] in LIGHTNING_COMMANDS or argv[0].startswith("-") and argv[0] not in _OWN)
     try:
-        plot_curves(read_metrics(opts.logdir), opts.output, title=str(opts.logdir))
-    except (OSError, ValueError, ImportError) as err:
-        print(f"ngp-train plot: error: {err}", file=sys.stderr)
+        if lightning:
+            check_extra(["lightning", "jsonargparse"], "training", "train")
+            resolved = _resolve_configs(argv)
+            return argparse.Namespace(command="lightning", lightning_args=resolved, from_command_line=from_command_line)
+        args = _parser().parse_args(argv)
+        if args.command == "export":
+            check_extra(["lightning"], "ngp-train export", "train")  # Lightning's checkpoint classes
+            check_export(args.checkpoint, args.out, args.force)
+        elif args.command == "plot":
+            check_extra(["matplotlib"], "ngp-train plot", "plot")
+    except FileNotFoundError as err:  # a --config that is neither a file nor a packaged config
+        print(f"ngp-train: error: {err}", file=sys.stderr)
+        return 2
+    except (ImportError, NGPError) as err:
+        print(f"ngp-train: error: {err}", file=sys.stderr)
         return 1
-    print(opts.output)
+    return args
+
+
+def modules(args: argparse.Namespace) -> list[str]:
+    """The heavy modules :func:`run` imports for these arguments (imported first by the ``ngp-train`` entry point)."""
+    return {"export": ["ngp_kornia.nets.weights"], "plot": ["ngp_kornia.training.plots"]}.get(
+        args.command, ["lightning.pytorch.cli"]
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the command of :func:`parse`'s arguments; its exit status."""
+    try:
+        if args.command == "export":
+            print(export_checkpoint(args.checkpoint, args.out, args.force))
+        elif args.command == "plot":
+            from ngp_kornia.training.plots import plot_curves, read_metrics
+
+            plot_curves(read_metrics(args.logdir), args.output, title=str(args.logdir))
+            print(args.output)
+        else:
+            _lightning(args.lightning_args, args.from_command_line)
+    except (NGPError, OSError, ValueError, ImportError) as err:  # a missing data folder, a bad log folder, ...
+        print(f"ngp-train{' plot' if args.command == 'plot' else ''}: error: {_one_line(err)}", file=sys.stderr)
+        return 1
     return 0
+
+
+def _one_line(err: BaseException) -> str:
+    return " ".join(str(err).split()) or type(err).__name__
+
+
+def _lightning(args: list[str] | None, from_command_line: bool) -> None:
+    from lightning.pytorch.cli import LightningCLI
+
+    if from_command_line:  # Lightning reads sys.argv itself (and warns when given both)
+        sys.argv[1:], args = args, None
+    epilog = _EPILOG.format(names=", ".join(packaged_configs()))
+    parser_kwargs = {"description": _DESCRIPTION, "epilog": epilog}
+    LightningCLI(args=args, save_config_kwargs={"overwrite": True}, parser_kwargs=parser_kwargs)
+    _close_process_group()  # not after an error: a peer may never reach the barrier
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = list(sys.argv[1:] if argv is None else argv)
-    if args[:1] == ["--version"]:
-        from ngp_kornia import __version__
-
-        print(f"ngp-train {__version__}")
-        return 0
-    if args[:1] == ["export"]:
-        if len(args) != 3:
-            print("usage: ngp-train export CHECKPOINT OUT.pt", file=sys.stderr)
-            return 2
-        try:
-            print(export_checkpoint(args[1], args[2]))
-        except (NGPError, OSError) as err:
-            print(f"ngp-train: error: {err}", file=sys.stderr)
-            return 1
-        return 0
-    if args[:1] == ["plot"]:
-        return _plot(args[1:])
-    try:
-        args = _resolve_configs(args)
-    except FileNotFoundError as err:
-        print(f"ngp-train: error: {err}", file=sys.stderr)
-        return 2
-    epilog = _EPILOG.format(names=", ".join(packaged_configs()))
-    if argv is None:  # Lightning reads sys.argv itself (and warns when given both)
-        sys.argv[1:], args = args, None
-    parser_kwargs = {"description": _DESCRIPTION, "epilog": epilog}
-    LightningCLI(args=args, save_config_kwargs={"overwrite": True}, parser_kwargs=parser_kwargs)
-    _close_process_group()
-    return 0
+    """Entry point of the ``ngp-train`` command: :func:`parse`, then :func:`run`."""
+    args = parse(argv)
+    return args if isinstance(args, int) else run(args)
 
 
 def _close_process_group() -> None:

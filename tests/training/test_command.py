@@ -43,7 +43,9 @@ def test_help_names_export_and_plot_and_version(capsys):
         main(["--help"])
     out = " ".join(capsys.readouterr().out.split())
     assert "ngp-train export CHECKPOINT OUT.pt" in out and "ngp-train plot LOGDIR" in out and "--config zsnet" in out
-    assert main(["--version"]) == 0
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--version"])
+    assert exit_info.value.code == 0
     assert capsys.readouterr().out.strip() == f"ngp-train {ngp_kornia.__version__}"
 
 
@@ -127,3 +129,57 @@ def test_readme_tensorboard_command_configures_both_loggers(tmp_path, monkeypatc
     assert exit_info.value.code in (0, None)
     printed = capsys.readouterr().out
     assert "lightning.pytorch.loggers.CSVLogger" in printed and "lightning.pytorch.loggers.TensorBoardLogger" in printed
+
+
+def _checkpoint(path):
+    """A small checkpoint as ngp-train fit writes it (a ZSNet, its settings, an epoch and hyper-parameters)."""
+    import torch
+
+    net = ZSNet(width=8)
+    state = {f"net.{k}": v for k, v in net.state_dict().items()}
+    hyper = {"lr": 0.001, "num_lines": 32}
+    torch.save({"state_dict": state, "ngp_network": {"name": "ZSNet", "settings": net.settings()}, "epoch": 3,
+                "hyper_parameters": hyper, "optimizer_states": [{"state": {}}]}, path)
+    return path
+
+
+def test_export_never_overwrites_its_checkpoint(tmp_path, capsys):
+    ckpt = _checkpoint(tmp_path / "run.ckpt")
+    before = ckpt.read_bytes()
+    for target in (ckpt, tmp_path / "." / "run.ckpt"):  # the same file, however it is named
+        for force in ([], ["--force"]):
+            assert main(["export", str(ckpt), str(target), *force]) == 1
+            err = capsys.readouterr().err
+            assert err == f"ngp-train: error: {target} is the checkpoint being exported; write the weights to " \
+                          "another file, e.g. net.pt\n"
+    assert ckpt.read_bytes() == before
+
+
+def test_export_refuses_an_existing_output_unless_forced(tmp_path, capsys):
+    from ngp_kornia.nets.weights import load_network
+
+    ckpt, out = _checkpoint(tmp_path / "run.ckpt"), tmp_path / "zsnet.pt"
+    out.write_bytes(b"weights a user keeps")
+    assert main(["export", str(ckpt), str(out)]) == 1
+    assert capsys.readouterr().err == f"ngp-train: error: {out} exists; add --force to overwrite it, or choose " \
+                                      "another name\n"
+    assert out.read_bytes() == b"weights a user keeps"
+    assert main(["export", str(ckpt), str(out), "--force"]) == 0
+    assert capsys.readouterr().out.strip() == str(out) and load_network(out, "ZSNet").settings()["width"] == 8
+
+
+def test_export_to_a_folder_is_one_line(tmp_path, capsys):
+    ckpt = _checkpoint(tmp_path / "run.ckpt")
+    (tmp_path / "weights").mkdir()
+    assert main(["export", str(ckpt), str(tmp_path / "weights"), "--force"]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"ngp-train: error: {tmp_path / 'weights'} is a folder; give")
+
+
+def test_fit_with_a_missing_data_folder_is_one_line(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    data = ["--data", "ngp_kornia.training.datamodules.PanoramaDataModule", "--data.panorama_dir", "no_such_folder"]
+    args = ["fit", "--config", "zsnet", *data, "--trainer.fast_dev_run=true", "--trainer.enable_progress_bar=false"]
+    assert main(args) == 1
+    err = capsys.readouterr().err
+    assert err == "ngp-train: error: image folder not found: no_such_folder\n"

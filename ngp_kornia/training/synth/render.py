@@ -22,8 +22,9 @@ from __future__ import annotations
 
 import json
 import math
+import numbers
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
 import cv2
@@ -67,6 +68,16 @@ KINDS = ("street", "indoor", "atlanta")
 def _check_range(name: str, r, lo: float = -math.inf, hi: float = math.inf) -> None:
     if len(r) != 2 or not (lo <= r[0] <= r[1] <= hi):
         raise ValueError(f"{name} must be a (min, max) range within [{lo}, {hi}], got {r}")
+
+
+def _check_numbers(config: RenderConfig) -> None:
+    """Numbers where numbers are meant: NaN passes every range check, true counts as 1, infinity never ends."""
+    for f in fields(config):
+        value = getattr(config, f.name)
+        items = value.values() if isinstance(value, dict) else value if isinstance(value, tuple | list) else [value]
+        finite = all(isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v) for v in items)
+        if f.name not in ("antialias", "photometric") and not finite:
+            raise ValueError(f"{f.name} must hold finite numbers (not NaN, infinity or true/false), got {value!r}")
 
 
 @dataclass
@@ -149,6 +160,7 @@ class RenderConfig:
     radial_distortion: float = 0.0
 
     def __post_init__(self) -> None:
+        _check_numbers(self)
         _check_range("fov_v", self.fov_v, 1.0, 179.0)
         _check_range("pitch", self.pitch, -89.0, 89.0)
         _check_range("roll", self.roll, -180.0, 180.0)

@@ -197,6 +197,18 @@ def test_bad_config_raises(bad):
         RenderConfig(**bad)
 
 
+@pytest.mark.parametrize(
+    "bad",
+    [dict(stairs=math.nan), dict(billboards=math.nan), dict(clutter=math.inf), dict(fronto_jitter=-math.inf),
+     dict(stairs=True), dict(color_balance=math.nan), dict(pitch=(0.0, True)), dict(kinds={"street": math.inf})],
+)
+def test_numbers_that_are_not_finite_are_refused(bad):
+    # NaN passes every range check (its comparisons are all false), and true is 1: each is refused by name
+    (name,) = bad
+    with pytest.raises(ValueError, match=f"^{name} must hold finite numbers"):
+        RenderConfig(**bad)
+
+
 @pytest.mark.parametrize("seed,size", [(-1, SMALL), (1.5, SMALL), (0, (0, 10)), (0, (10,)), (0, (10.5, 20))])
 def test_bad_arguments_raise(seed, size):
     with pytest.raises(ValueError):

@@ -1,0 +1,74 @@
+"""Checks the ``ngp`` and ``ngp-train`` commands make before they import torch, OpenCV or Lightning (seconds): an
+optional dependency that is not installed, a folder that holds no image. They import nothing but the standard
+library, so a wrong argument is answered at once.
+
+Example:
+    >>> from ngp_kornia.preflight import check_extra
+    >>> check_extra(["json"], "this example", "train")  # installed: nothing to say
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+
+__all__ = ["IMAGE_EXTENSIONS", "check_extra", "check_folder", "image_files"]
+
+#: the file endings of a folder's images: those of :class:`ngp_kornia.data.folder.ImageFolder`, which imports torch
+#: (a test keeps the two the same)
+IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")
+
+
+def check_extra(modules: Iterable[str], needed_by: str, extra: str) -> None:
+    """Say which extra to install when a top-level module is missing, without importing any of them.
+
+    Args:
+        modules: top-level module names, e.g. ``["lightning", "jsonargparse"]``.
+        needed_by: what needs them, for the message (``"ngp predict"``).
+        extra: the package's extra that brings them (``"train"``).
+
+    Raises:
+        ImportError: one is not installed; the message names the install command.
+    """
+    missing = [name for name in modules if not _installed(name)]
+    if missing:
+        names = " and ".join(missing)
+        raise ImportError(f"{needed_by} needs {names}, not installed here: pip install 'ngp-kornia[{extra}]'")
+
+
+def _installed(name: str) -> bool:
+    try:
+        return importlib.util.find_spec(name) is not None
+    except (ImportError, ValueError):  # a module that cannot be found, or a broken entry in sys.modules
+        return False
+
+
+def image_files(folder: Path, recursive: bool) -> Iterator[Path]:
+    """The image files of a folder as :class:`~ngp_kornia.data.folder.ImageFolder` lists them (by extension,
+    case-insensitive; hidden files and folders skipped; links to folders not followed), in the order found."""
+    for root, dirs, files in os.walk(folder):
+        dirs[:] = [d for d in dirs if not d.startswith(".")] if recursive else []
+        for name in files:
+            path = Path(root) / name
+            if not name.startswith(".") and path.suffix.lower() in IMAGE_EXTENSIONS and path.is_file():
+                yield path
+
+
+def check_folder(folder: str | Path, recursive: bool = False) -> None:
+    """Refuse a folder to calibrate that does not exist, is a file, or holds no image file.
+
+    Raises:
+        FileNotFoundError: no such folder.
+        NotADirectoryError: a file.
+        ValueError: no image file in it (nor, with ``recursive``, below it).
+    """
+    folder = Path(folder)
+    if not folder.exists():
+        raise FileNotFoundError(f"{folder}: no such folder; give the folder that holds the images")
+    if not folder.is_dir():
+        raise NotADirectoryError(f"{folder}: is a file, not a folder; for single images use ngp calibrate")
+    if next(image_files(folder, recursive), None) is None:
+        hint = "" if recursive else "; use --recursive for images in sub-folders"
+        raise ValueError(f"{folder}: no images found (looked for {', '.join(IMAGE_EXTENSIONS)}){hint}")

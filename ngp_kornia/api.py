@@ -14,8 +14,7 @@ from torch import Tensor
 
 from ngp_kornia.detect import detect_segments
 from ngp_kornia.errors import WeightsError
-from ngp_kornia.exif import exif_focal
-from ngp_kornia.io import as_batch, read_rgb_oriented
+from ngp_kornia.io import as_batch, exif_focal, read_rgb_oriented
 from ngp_kornia.models import Calibration, NeuralGeometricParser, ParserConfig
 from ngp_kornia.models.fsnet import area_resize
 from ngp_kornia.models.weights import load_network, network_name, shipped_weights

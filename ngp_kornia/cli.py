@@ -169,7 +169,7 @@ def _trust_config(args: argparse.Namespace):
 
 def _prior(args: argparse.Namespace, image: str, rgb: np.ndarray) -> dict:
     """calibrate()'s prior arguments for one file: --focal, --fov, else the EXIF focal length with --exif."""
-    from ngp_kornia.exif import exif_focal
+    from ngp_kornia.io import exif_focal
 
     focal = args.focal
     if focal is None and args.fov is None and args.exif:

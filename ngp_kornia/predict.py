@@ -44,8 +44,7 @@ from ngp_kornia.api import load_parser, with_orientation
 from ngp_kornia.data.folder import IMAGE_EXTENSIONS, ImageFolder
 from ngp_kornia.detect import detect_segments, line_workers
 from ngp_kornia.errors import OutputError
-from ngp_kornia.exif import exif_focal
-from ngp_kornia.io import read_rgb_oriented
+from ngp_kornia.io import exif_focal, read_rgb_oriented
 from ngp_kornia.models import Calibration, NeuralGeometricParser, ParserConfig
 from ngp_kornia.threads import Lookahead, pipeline_threads, usable_cores
 

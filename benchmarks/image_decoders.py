@@ -94,7 +94,7 @@ def main() -> None:
     torch.set_num_threads(1)
     jpegs = sorted(f for folder in args.folders for f in folder.rglob("*") if f.suffix.lower() in (".jpg", ".jpeg"))
     tags = [exif_orientation(f.read_bytes()) for f in jpegs]
-    print(f"EXIF orientation tags of the JPEGs: {dict(zip(*np.unique(tags, return_counts=True), strict=True))}")
+    print(f"EXIF orientation tags of the JPEGs: { {int(t): tags.count(t) for t in sorted(set(tags))} }")
     jpeg_decoders = {"cv2": _cv2, "Pillow": _pillow, "kornia-rs": _turbo, "read_rgb": read_rgb}
     _report("JPEG", jpegs, jpeg_decoders, args.passes)
     with tempfile.TemporaryDirectory() as folder:

@@ -17,7 +17,8 @@ Files are read safely, through Pillow (and libjpeg-turbo for JPEG pixels):
   reports the tag.
 - **Damaged files.** Truncated files and JPEGs whose compressed data is corrupt (which most decoders only warn about,
   filling in grey) are refused; bytes after a JPEG's end-of-image marker, common in camera files, are ignored.
-  Nothing is printed: the decoders report to Python, and the process's stderr is never touched.
+  The decoders report to Python, never to the terminal, and the process's stderr is never touched (Pillow's
+  warnings about a damaged EXIF block go through Python's ``warnings``, as every library's do).
 
 JPEG pixels are decoded by libjpeg-turbo through kornia-rs, which fails on the warnings that mean damaged data; the
 other formats (and CMYK JPEGs) by Pillow.

@@ -5,13 +5,7 @@
 True
 """
 
-import os as _os
-
-# OpenCV's own pixel limit, the backstop for image formats whose header ngp_kornia.io does not parse: the same value
-# as ngp_kornia.io.MAX_PIXELS. OpenCV reads it once, so it applies when ngp_kornia is imported before cv2.
-_os.environ.setdefault("OPENCV_IO_MAX_IMAGE_PIXELS", str(2**27))
-
-from typing import TYPE_CHECKING  # noqa: E402
+from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from ngp_kornia.api import calibrate

@@ -15,8 +15,7 @@ import torch
 from torch import Tensor
 
 from ngp_kornia.errors import WeightsError
-from ngp_kornia.exif import exif_focal
-from ngp_kornia.io import as_batch, read_rgb_oriented
+from ngp_kornia.io import as_batch, exif_focal, read_rgb_oriented
 from ngp_kornia.nets.weights import load_network, network_name, shipped_weights
 from ngp_kornia.pipeline import Calibration, NeuralGeometricParser, ParserConfig
 from ngp_kornia.pipeline.priors import Priors, checked_seed

@@ -209,7 +209,7 @@ def _(tmp: Path) -> str:
     return f"{bomb.stat().st_size / 1e6:.1f} MB file: {line}"
 
 
-@case("memory", "bomb with NGP_MAX_PIXELS raised: OpenCV's own limit still holds")
+@case("memory", "bomb with NGP_MAX_PIXELS raised: Pillow's own limit still holds")
 def _(tmp: Path) -> str:
     bomb = tmp / "bomb.png"
     bomb.write_bytes(bomb_png())

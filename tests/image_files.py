@@ -1,5 +1,5 @@
-"""Image files built byte by byte for the tests: EXIF orientation tags in JPEG and PNG, PNG headers declaring any
-size (decompression bombs)."""
+"""Image files built byte by byte for the tests: EXIF orientation tags in JPEG, PNG, WebP and TIFF, EXIF blocks with
+focal-length tags, PNG headers declaring any size (decompression bombs)."""
 
 import struct
 import zlib
@@ -36,3 +36,51 @@ def png_with_orientation(rgb: np.ndarray, orientation: int) -> bytes:
 def png_declaring(width: int, height: int, body: bytes = b"") -> bytes:
     ihdr = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)
     return b"\x89PNG\r\n\x1a\n" + png_chunk(b"IHDR", ihdr) + body + png_chunk(b"IEND", b"")
+
+
+def png_with_orientation_after_pixels(rgb: np.ndarray, orientation: int) -> bytes:
+    """A PNG whose eXIf chunk follows the image data (allowed; some writers put it there), just before IEND."""
+    data = png_with_orientation(rgb, 1)
+    exif = exif_app1(orientation)[10:]
+    plain = data[:33] + data[33 + len(png_chunk(b"eXIf", exif)) :]  # without the eXIf chunk after IHDR
+    return plain[:-12] + png_chunk(b"eXIf", exif) + plain[-12:]  # IEND is the last 12 bytes
+
+
+def pillow_with_orientation(rgb: np.ndarray, orientation: int, kind: str) -> bytes:
+    """A lossless WebP or an uncompressed TIFF written by Pillow, with the orientation tag: EXIF for WebP, the TIFF's
+    own tag for TIFF."""
+    import io
+
+    from PIL import Image
+
+    buffer = io.BytesIO()
+    image = Image.fromarray(rgb)
+    if kind == "TIFF":
+        image.save(buffer, "TIFF", tiffinfo={0x0112: orientation})
+    else:
+        exif = Image.Exif()
+        exif[0x0112] = orientation
+        image.save(buffer, kind, lossless=True, exif=exif.tobytes())
+    return buffer.getvalue()
+
+
+SHORT, LONG, RATIONAL = 3, 4, 5
+
+
+def tiff_block(order: str, entries: list[tuple[int, int, object]]) -> bytes:
+    """A TIFF block whose IFD0 points to an EXIF IFD holding ``entries`` (tag, type, value)."""
+    o = "<" if order == "II" else ">"
+    exif_offset = 8 + 2 + 12 + 4
+    data_offset = exif_offset + 2 + 12 * len(entries) + 4
+    head = order.encode() + struct.pack(o + "HI", 42, 8)
+    ifd0 = struct.pack(o + "H", 1) + struct.pack(o + "HHII", 0x8769, LONG, 1, exif_offset) + struct.pack(o + "I", 0)
+    body, extra = struct.pack(o + "H", len(entries)), b""
+    for tag, kind, value in entries:
+        if kind == SHORT:
+            body += struct.pack(o + "HHIHH", tag, kind, 1, value, 0)
+        elif kind == LONG:
+            body += struct.pack(o + "HHII", tag, kind, 1, value)
+        else:  # rational stored after the IFD
+            body += struct.pack(o + "HHII", tag, kind, 1, data_offset + len(extra))
+            extra += struct.pack(o + "II", *value)
+    return head + ifd0 + body + struct.pack(o + "I", 0) + extra

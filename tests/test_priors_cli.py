@@ -10,12 +10,12 @@ import pytest
 
 from ngp_kornia import calibrate
 from ngp_kornia.cli import main
-from ngp_kornia.exif import FILM_DIAGONAL_MM
+from ngp_kornia.io import FILM_DIAGONAL_MM
 from ngp_kornia.pipeline import ParserConfig
 from ngp_kornia.predict import predict_folder
 from ngp_kornia.training.synth.render import render_scene
 from ngp_kornia.viz import draw_calibration
-from tests.test_exif import SHORT, tiff_block
+from tests.image_files import SHORT, tiff_block
 
 TRUST = ("confidence", "pitch_std", "roll_std", "fov_v_std")
 

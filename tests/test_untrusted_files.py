@@ -151,3 +151,36 @@ def test_planted_pickle_in_a_training_cache_is_recomputed_without_running(tmp_pa
     assert not marker.exists() and np.array_equal(again.segments, good.segments)
     path.write_bytes(path.read_bytes()[:100])  # a truncated cache file, as a killed writer could leave
     assert np.array_equal(scenes[0].segments, good.segments)
+
+
+def _inflating(source, target, inflated_bytes):
+    """A copy of the torch file ``source`` whose first tensor storage is deflated data of ``inflated_bytes`` zeros
+    (a zip bomb: a small file that torch would inflate into one buffer of the declared size)."""
+    import zipfile
+
+    with zipfile.ZipFile(source) as original, zipfile.ZipFile(target, "w") as bomb:
+        storage = next(n for n in original.namelist() if n.split("/")[-2:-1] == ["data"])
+        for name in original.namelist():
+            if name != storage:
+                bomb.writestr(original.getinfo(name), original.read(name))
+                continue
+            zeros = bytes(1 << 20)
+            info = zipfile.ZipInfo(name)
+            info.compress_type = zipfile.ZIP_DEFLATED
+            with bomb.open(info, "w", force_zip64=True) as entry:
+                for _ in range(inflated_bytes >> 20):
+                    entry.write(zeros)
+    return target
+
+
+def test_a_weights_zip_that_would_inflate_to_gigabytes_is_refused_before_loading(tmp_path, monkeypatch):
+    source = _weights(tmp_path, ZSNet(width=8))
+    path = _inflating(source, tmp_path / "bomb.pt", 256 << 20)
+    assert path.stat().st_size < 2 << 20  # a file of about a megabyte, 256 MB once inflated
+
+    def never(*args, **kwargs):
+        raise AssertionError("torch.load was called")
+
+    monkeypatch.setattr(torch, "load", never)
+    with pytest.raises(WeightsError, match=r"bomb.pt: refused: the weights file is .* would inflate to 0.2\d GB"):
+        load_network(path, "ZSNet")

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import pickle
 import re
+import zipfile
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -14,10 +15,12 @@ import torch
 from torch import nn
 
 from ngp_kornia.errors import WeightsError
+from ngp_kornia.io.files import open_file
 from ngp_kornia.nets.fsnet import FSNet
 from ngp_kornia.nets.zsnet import ZSNet
 
 __all__ = [
+    "MAX_INFLATION",
     "NETWORKS",
     "WEIGHTS_DIR",
     "WeightsError",
@@ -31,6 +34,9 @@ __all__ = [
 
 FORMAT = "ngp-kornia-weights"
 VERSION = 1
+#: how many times its own size a torch file's entries may inflate to: torch.save stores them uncompressed (about
+#: 1x), and floats deflate by little; far more is a zip bomb, refused before torch.load inflates it
+MAX_INFLATION = 16
 WEIGHTS_DIR = Path(__file__).resolve().parent.parent / "weights"
 #: the networks a weights file may hold, by name
 NETWORKS: dict[str, type[nn.Module]] = {"FSNet": FSNet, "ZSNet": ZSNet}
@@ -127,8 +133,6 @@ def network_name(path: str | Path) -> str:
 
 
 def _read(path: Path) -> dict:
-    if not path.is_file():
-        raise WeightsError(f"weights file not found: {path}")
     payload = load_tensors_safely(path, WeightsError, "weights file")
     if not isinstance(payload, dict) or payload.get("format") != FORMAT:
         raise WeightsError(f"{path} is not an ngp-kornia weights file (expected format {FORMAT!r})")
@@ -139,12 +143,46 @@ def load_tensors_safely(path: Path, error: type[Exception], what: str, allowed: 
     """``torch.load`` that never runs code from the file: tensors and plain Python values only (``weights_only``),
     plus the ``allowed`` classes; every failure becomes one line of ``error``.
 
+    The path must be a regular file (a directory, a FIFO or a looping link is named as such), and the sizes its zip
+    entries declare must stay within :data:`MAX_INFLATION` times the file's size (plus 1 MiB): a small file that
+    would inflate to gigabytes is refused before anything is inflated.
+
     Raises:
-        error: the file is not a torch file, is damaged, or holds objects that loading would have to run.
+        error: the path is no readable file, the file is not a torch file, is damaged, would inflate too far, or
+            holds objects that loading would have to run.
     """
+    file, size = open_file(path, error, what)
+    with file:
+        _check_inflation(file, size, path, error, what)
+        file.seek(0)
+        return _load(file, path, error, what, allowed)
+
+
+def _check_inflation(file, size: int, path: Path, error: type[Exception], what: str) -> None:
+    """Refuse a zip whose entries declare more bytes than :data:`MAX_INFLATION` times the file's size.
+
+    torch reads an entry into a buffer of its declared size and fails if it inflates further, so the declared sizes
+    bound the memory that loading takes.
+    """
+    if not zipfile.is_zipfile(file):
+        return  # torch's legacy format, a plain pickle: nothing in it is inflated
+    try:
+        file.seek(0)
+        with zipfile.ZipFile(file) as archive:
+            declared = sum(entry.file_size for entry in archive.infolist())
+    except (zipfile.BadZipFile, OSError, ValueError) as err:
+        raise error(f"{path} is not a readable {what} (a damaged zip archive: {err})") from None
+    if declared > MAX_INFLATION * size + (1 << 20):
+        raise error(
+            f"{path}: refused: the {what} is {size / 1e6:.1f} MB but its entries would inflate to "
+            f"{declared / 1e9:.2f} GB, more than {MAX_INFLATION} times its size; torch.save never writes such a file"
+        )
+
+
+def _load(file, path: Path, error: type[Exception], what: str, allowed: Sequence) -> object:
     try:
         with torch.serialization.safe_globals(list(allowed)):
-            return torch.load(path, map_location="cpu", weights_only=True)
+            return torch.load(file, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as err:
         found = re.search(r"unsupported global:? (?:GLOBAL )?([\w.]+)", str(err), re.IGNORECASE)
         if found:

@@ -1,10 +1,9 @@
-"""Scene layouts for the renderer: a street crossing in a city grid, and an Atlanta-world plaza. (Rooms are in
-:mod:`ngp_kornia.training.synth.interior`.) The camera is at the world origin, ``cam_height`` above the ground.
+"""The street layout of the renderer: a street crossing in a city grid, and the ground helpers the other outdoor
+layout shares (:mod:`~ngp_kornia.training.synth.plaza`; rooms are in :mod:`~ngp_kornia.training.synth.interior`).
+The camera is at the world origin, ``cam_height`` above the ground.
 
 Street scenes are Manhattan: the main street runs along world z, the cross street along world x, every building
-is aligned with the world axes. Atlanta scenes hold blocks of several yaws sharing the vertical; the ground-truth
-Manhattan frame is that of the *dominant* group (yaw 0, the world axes): it owns the largest block, placed
-straight ahead of the camera, about half of the other blocks and the paving grid.
+is aligned with the world axes.
 """
 
 from __future__ import annotations
@@ -28,19 +27,19 @@ from ngp_kornia.training.synth.hard import Additions, make_billboard, make_stair
 from ngp_kornia.training.synth.painter import PinholeView
 from ngp_kornia.training.synth.scene import UP, Decal, Face, Scene
 
-__all__ = ["make_atlanta", "make_street"]
+__all__ = ["PAVEMENT", "Spots", "building_height", "ground_rects", "make_street", "pick_color"]
 
 _ASPHALT = [(85, 85, 88), (100, 98, 95), (70, 72, 75), (115, 112, 108)]
-_PAVEMENT = [(165, 160, 150), (180, 175, 165), (150, 150, 148), (190, 180, 160)]
+PAVEMENT = [(165, 160, 150), (180, 175, 165), (150, 150, 148), (190, 180, 160)]
 _PAINT = [(235, 235, 230), (230, 190, 60)]
 
 
-def _pick(rng: np.random.Generator, colors, jitter: float = 6.0) -> np.ndarray:
+def pick_color(rng: np.random.Generator, colors, jitter: float = 6.0) -> np.ndarray:
     c = np.asarray(colors[rng.integers(len(colors))], dtype=np.float64)
     return np.clip(c + rng.normal(0.0, jitter, 3), 0, 255)
 
 
-def _ground_rects(x0, x1, z0, z1, y) -> np.ndarray:
+def ground_rects(x0, x1, z0, z1, y) -> np.ndarray:
     """(m, 4, 3) ground rectangles from arrays of bounds (counter-clockwise seen from above)."""
     x0, x1, z0, z1 = np.broadcast_arrays(*(np.atleast_1d(np.asarray(a, dtype=np.float64)) for a in (x0, x1, z0, z1)))
     y = np.full(x0.shape, float(y))
@@ -48,7 +47,7 @@ def _ground_rects(x0, x1, z0, z1, y) -> np.ndarray:
                      np.stack([x0, y, z1], -1)], 1)
 
 
-def _height(rng: np.random.Generator, district: str) -> float:
+def building_height(rng: np.random.Generator, district: str) -> float:
     floors = {"residential": lambda: rng.integers(2, 6), "downtown": lambda: int(4 + rng.exponential(8)),
               "mixed": lambda: rng.integers(2, 11)}[district]()
     return float(min(floors, 40)) * rng.uniform(3.0, 3.6) + rng.uniform(0.3, 1.5)
@@ -61,7 +60,7 @@ def _dashes(lo: float, hi: float, dash: float, gap: float, skip: tuple[float, fl
     return d[(d[:, 1] < skip[0]) | (d[:, 0] > skip[1])]
 
 
-class _Spots:
+class Spots:
     """Discs ``(x, z, r)`` kept free of each other, in a hash grid so a check looks at a few neighbours only."""
 
     def __init__(self, cell: float = 8.0) -> None:
@@ -95,8 +94,8 @@ class _Street:
         self.zfar = rng.uniform(150.0, 250.0)
         self.xfar = rng.uniform(100.0, 160.0)
         self.district = ["residential", "downtown", "mixed"][rng.integers(3)]
-        self.asphalt = _pick(rng, _ASPHALT)
-        self.pavement = _pick(rng, _PAVEMENT)
+        self.asphalt = pick_color(rng, _ASPHALT)
+        self.pavement = pick_color(rng, PAVEMENT)
         self.view: PinholeView | None = None
         self.pending: list[tuple] = []  # blocks waiting for the visibility test
 
@@ -127,7 +126,7 @@ def make_street(rng: np.random.Generator, cam_height: float, clutter: float = 1.
     _street_ground(rng, st, scene)
     _street_buildings(rng, st, scene)
     _flush_buildings(st, scene)
-    spots = _Spots()
+    spots = Spots()
     spots.take(0.0, 0.0, 1.5)  # keep the camera free
     if clutter > 0:
         _street_clutter(rng, st, scene, clutter, spots)
@@ -143,7 +142,7 @@ def _street_ground(rng: np.random.Generator, st: _Street, scene: Scene) -> None:
             # a raised block (pavement) from the curbs outwards; buildings stand on it and hide most of it
             xa, xb = sorted((st.xs + sx * st.rw, sx * (st.xfar + 50)))
             za, zb = sorted((st.zs + sz * st.cw, sz * (st.zfar + 50)))
-            block = _ground_rects(xa, xb, za, zb, top)[0]
+            block = ground_rects(xa, xb, za, zb, top)[0]
             scene.ground.append(Face(block, st.pavement, UP.copy(), _sidewalk_joints(rng, st, sx, sz, top)))
             # curbs, facing the roads
             xc, zc = st.xs + sx * st.rw, st.zs + sz * st.cw
@@ -151,7 +150,7 @@ def _street_ground(rng: np.random.Generator, st: _Street, scene: Scene) -> None:
             cross = np.array([[xa, gy, zc], [xb, gy, zc], [xb, top, zc], [xa, top, zc]])
             scene.ground.append(Face(main, st.pavement * 0.85, np.array([-sx, 0.0, 0.0])))
             scene.ground.append(Face(cross, st.pavement * 0.85, np.array([0.0, 0.0, -sz])))
-    scene.ground.append(Face(_ground_rects(0, 1, 0, 1, gy)[0], None, UP.copy(), _road_markings(rng, st)))
+    scene.ground.append(Face(ground_rects(0, 1, 0, 1, gy)[0], None, UP.copy(), _road_markings(rng, st)))
 
 
 def _sidewalk_joints(rng: np.random.Generator, st: _Street, sx: int, sz: int, y: float) -> list[Decal]:
@@ -174,7 +173,7 @@ def _sidewalk_joints(rng: np.random.Generator, st: _Street, sx: int, sz: int, y:
 
 def _road_markings(rng: np.random.Generator, st: _Street) -> list[Decal]:
     y = st.gy
-    paint = _pick(rng, _PAINT[:1] if rng.random() < 0.6 else _PAINT)
+    paint = pick_color(rng, _PAINT[:1] if rng.random() < 0.6 else _PAINT)
     white = np.array([235.0, 235.0, 230.0])
     skip_z = (st.zs - st.cw - 6.0, st.zs + st.cw + 6.0)
     skip_x = (st.xs - st.rw - 6.0, st.xs + st.rw + 6.0)
@@ -185,7 +184,7 @@ def _road_markings(rng: np.random.Generator, st: _Street) -> list[Decal]:
     d = _dashes(-st.xfar, st.xfar, 3.0, rng.uniform(4.0, 9.0), skip_x)
     rects.append(np.stack([d[:, 0], d[:, 1], np.full(len(d), st.zs - w), np.full(len(d), st.zs + w)], -1))
     center = np.concatenate(rects)
-    out = [Decal(_ground_rects(center[:, 0], center[:, 1], center[:, 2], center[:, 3], y), paint)]
+    out = [Decal(ground_rects(center[:, 0], center[:, 1], center[:, 2], center[:, 3], y), paint)]
     edges = []
     for s in (1, -1):
         x = st.xs + s * (st.rw - 0.35)
@@ -205,7 +204,7 @@ def _road_markings(rng: np.random.Generator, st: _Street) -> list[Decal]:
         zz = np.arange(st.zs - st.cw + 0.4, st.zs + st.cw - 0.6, 1.0)
         edges += [[min(x0, x1), max(x0, x1), z, z + 0.5] for z in zz]
     e = np.array(edges)
-    out.append(Decal(_ground_rects(e[:, 0], e[:, 1], e[:, 2], e[:, 3], y), white))
+    out.append(Decal(ground_rects(e[:, 0], e[:, 1], e[:, 2], e[:, 3], y), white))
     # manholes and patches: round and odd shapes on the asphalt
     a = np.linspace(0, 2 * np.pi, 16, endpoint=False)
     holes = []
@@ -253,7 +252,7 @@ def _street_buildings(rng: np.random.Generator, st: _Street, scene: Scene) -> No
 
 def _add_building(rng: np.random.Generator, scene: Scene, st: _Street, center, half, fronts, plain) -> None:
     """Queue a street block; :func:`_flush_buildings` makes the ones the camera can see."""
-    st.pending.append((center, half, _height(rng, st.district), int(rng.integers(2**31)), fronts, plain))
+    st.pending.append((center, half, building_height(rng, st.district), int(rng.integers(2**31)), fronts, plain))
 
 
 def _flush_buildings(st: _Street, scene: Scene) -> None:
@@ -300,7 +299,7 @@ def _cross_buildings(rng: np.random.Generator, st: _Street, scene: Scene, sx: in
         x += sx * width
 
 
-def _street_clutter(rng: np.random.Generator, st: _Street, scene: Scene, clutter: float, spots: _Spots) -> None:
+def _street_clutter(rng: np.random.Generator, st: _Street, scene: Scene, clutter: float, spots: Spots) -> None:
     gy, top = st.gy, st.gy - st.curb
     reach = 80.0  # beyond, clutter is a few pixels
     free = spots.take
@@ -368,7 +367,7 @@ def _street_traffic(rng: np.random.Generator, st: _Street, scene: Scene, clutter
             scene.overlay.append(wire(a, b, rng.uniform(0.3, 1.5)))
 
 
-def _street_additions(add: Additions, st: _Street, scene: Scene, spots: _Spots) -> None:
+def _street_additions(add: Additions, st: _Street, scene: Scene, spots: Spots) -> None:
     """Stairs along the facades and billboards turned off the axes, on the sidewalks, within 60 m."""
     rng, top = add.rng, st.gy - st.curb
     skip = (st.zs - st.cw - st.sw - 1, st.zs + st.cw + st.sw + 1)
@@ -386,119 +385,3 @@ def _street_additions(add: Additions, st: _Street, scene: Scene, spots: _Spots) 
         x = st.xs + s * (st.rw + 0.5 * st.sw)
         if width > 1.2 and not skip[0] < z < skip[1] and spots.take(x, z, 0.5 * width + 0.2):
             scene.items.append(make_billboard(rng, (x, z), turn + 90.0, top, width))
-
-
-def make_atlanta(rng: np.random.Generator, cam_height: float, clutter: float = 1.0, view_yaw: float = 0.0,
-                 additions: Additions | None = None) -> Scene:
-    """An Atlanta world: a paved plaza with blocks of several yaws sharing the vertical.
-
-    The dominant group has yaw 0 (the ground-truth Manhattan frame): it owns the largest block, placed ahead of
-    the camera (whose heading is ``view_yaw`` degrees), about half of the other blocks, and the paving grid.
-
-    Args:
-        rng: random generator.
-        cam_height: camera height above the plaza.
-        clutter: amount of trees, people, poles.
-        view_yaw: the camera's yaw in degrees, to put the dominant block in view.
-        additions: hard cases (stairs, billboards) on the plaza, drawn from their own generator.
-
-    Returns:
-        The scene; ``frames`` lists the yaws of the groups, dominant first.
-
-    Example:
-        >>> scene = make_atlanta(np.random.default_rng(0), 1.6)
-        >>> scene.kind, scene.frames[0], len(scene.frames) > 1
-        ('atlanta', 0.0, True)
-    """
-    gy = cam_height
-    scene = Scene("atlanta", gy)
-    scene.ground_color = _pick(rng, _PAVEMENT)
-    n_groups = int(rng.integers(2, 4))
-    yaws = [0.0]
-    while len(yaws) < n_groups:
-        y = float(rng.choice([-1, 1]) * rng.uniform(15.0, 75.0))
-        if all(abs(((y - o + 45) % 90) - 45) > 12 for o in yaws):
-            yaws.append(y)
-    scene.frames = yaws
-    district = ["downtown", "mixed"][rng.integers(2)]
-    spots = _Spots(cell=60.0)  # blocks are large: few per cell
-    spots.take(0.0, 0.0, 3.0)  # keep the camera free
-    place = spots.take
-
-    # the dominant block, ahead
-    h = (rng.uniform(10, 25), rng.uniform(8, 20))
-    d = rng.uniform(12.0, 35.0) + math.hypot(*h)
-    head = math.radians(view_yaw + rng.uniform(-15, 15))
-    c = (d * math.sin(head), d * math.cos(head))
-    place(c[0], c[1], math.hypot(*h) + 1.0)
-    _add_block(rng, scene, c, h, 0.0, gy, rng.uniform(15.0, 60.0), district)
-    p = np.array([0.5, 0.3, 0.2][:n_groups])
-    for _ in range(int(rng.integers(6, 15))):
-        g = int(rng.choice(n_groups, p=p / p.sum()))
-        h = (rng.uniform(5, 18), rng.uniform(5, 18))
-        r = math.hypot(*h) + 1.0
-        # most blocks around the view direction (a plaza is photographed towards its buildings), some anywhere
-        spread = math.radians(70.0) if rng.random() < 0.7 else math.pi
-        ang, dist = math.radians(view_yaw) + rng.uniform(-spread, spread), rng.uniform(r + 8, 120)
-        x, z = dist * math.sin(ang), dist * math.cos(ang)
-        if place(x, z, r):
-            _add_block(rng, scene, (x, z), h, yaws[g], gy, _height(rng, district), district)
-    _plaza_ground(rng, scene, gy)
-    if clutter > 0:
-        _plaza_clutter(rng, scene, gy, clutter, place)
-    return _plaza_additions(additions, scene, gy, view_yaw, place)
-
-
-def _plaza_additions(add: Additions | None, scene: Scene, gy: float, view_yaw: float, place) -> Scene:
-    """Stairs along the axes of a block group and billboards at any yaw, towards the view direction."""
-    if add is None:
-        return scene
-    rng = add.rng
-    for n, stairs in ((rng.poisson(add.stairs), True), (rng.poisson(add.billboards), False)):
-        for _ in range(n):
-            ang, dist = math.radians(view_yaw + rng.uniform(-50, 50)), rng.uniform(6.0, 40.0)
-            x, z = dist * math.sin(ang), dist * math.cos(ang)
-            yaw = float(scene.frames[rng.integers(len(scene.frames))]) + (0.0 if stairs else rng.uniform(0, 180))
-            size = rng.uniform(3.0, 7.0) if stairs else rng.uniform(2.5, 7.0)
-            if not place(x, z, 0.5 * size + 0.3):
-                continue
-            if stairs:
-                scene.items.append(make_stairs(rng, (x, z), yaw, gy, size, rng.uniform(1.2, 3.0)))
-            else:
-                scene.items.append(make_billboard(rng, (x, z), yaw, gy, size))
-    return scene
-
-
-def _add_block(rng, scene: Scene, center, half, yaw: float, gy: float, height: float, district: str) -> None:
-    item, box = make_building(int(rng.integers(2**31)), center, half, yaw, gy, height, district, fronts=(0, 1, 2, 3))
-    scene.items.append(item)
-    if yaw == 0.0:
-        scene.boxes.append(box)
-
-
-def _plaza_ground(rng: np.random.Generator, scene: Scene, gy: float) -> None:
-    step = rng.uniform(2.0, 6.0)
-    r = 60.0
-    ticks = np.arange(-r, r + 1e-9, step) + rng.uniform(0, step)
-    segs = [[[t, gy, -r], [t, gy, r]] for t in ticks] + [[[-r, gy, t], [r, gy, t]] for t in ticks]
-    color = scene.ground_color * 0.78
-    scene.ground.append(Face(_ground_rects(0, 1, 0, 1, gy)[0], None, UP.copy(),
-                             [Decal(np.array(segs), color, width=0.05)]))
-
-
-def _plaza_clutter(rng: np.random.Generator, scene: Scene, gy: float, clutter: float, place) -> None:
-    for _ in range(rng.poisson(14 * clutter)):
-        x, z = rng.uniform(-60, 60, 2)
-        kind = rng.choice(5, p=[0.3, 0.35, 0.15, 0.1, 0.1])
-        if not place(x, z, [1.0, 0.5, 0.6, 1.3, 0.8][kind]):
-            continue
-        if kind == 0:
-            scene.items.append(make_tree(rng, (x, z), gy))
-        elif kind == 1:
-            scene.items.append(make_person(rng, (x, z), gy))
-        elif kind == 2:
-            scene.items.append(make_pole(rng, (x, z), gy, rng.uniform(0, 360)))
-        elif kind == 3:
-            scene.items.append(make_bench(rng, (x, z), rng.uniform(0, 360), gy))
-        else:
-            scene.items.append(make_bush(rng, (x, z), gy))

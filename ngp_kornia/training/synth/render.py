@@ -45,9 +45,10 @@ from ngp_kornia.geometry.camera import (
 )
 from ngp_kornia.training.synth.hard import Additions
 from ngp_kornia.training.synth.interior import make_room
-from ngp_kornia.training.synth.layouts import make_atlanta, make_street
+from ngp_kornia.training.synth.layouts import make_street
 from ngp_kornia.training.synth.painter import Canvas, PinholeView
 from ngp_kornia.training.synth.pixels import ground_haze, photometric, sky_and_ground, view_rays
+from ngp_kornia.training.synth.plaza import make_atlanta
 from ngp_kornia.training.synth.scene import Lighting, Scene, draw_ground, draw_objects
 
 __all__ = [

@@ -34,6 +34,7 @@ from torch import Tensor
 from ngp_kornia.data.synth.hard import Additions
 from ngp_kornia.data.synth.interior import make_room
 from ngp_kornia.data.synth.layouts import make_atlanta, make_street
+from ngp_kornia.data.synth.objects import ObjectMap, draw_object_map
 from ngp_kornia.data.synth.painter import Canvas, PinholeView
 from ngp_kornia.data.synth.pixels import ground_haze, photometric, sky_and_ground, view_rays
 from ngp_kornia.data.synth.scene import Lighting, Scene, draw_ground, draw_objects
@@ -204,6 +205,8 @@ class RenderedScene:
         frames: yaws (degrees) of the block groups in the scene, the ground-truth one (0) first.
         scene: the 3D scene (for checks and debugging).
         k1: the radial distortion coefficient the image was warped with (0: a pinhole image).
+        objects: what each pixel shows (:class:`~ngp_kornia.data.synth.objects.ObjectMap`), warped as the image
+            is; None unless :func:`render_scene` was asked for it.
     """
 
     image: np.ndarray
@@ -223,6 +226,7 @@ class RenderedScene:
     frames: tuple[float, ...] = (0.0,)
     scene: Scene | None = field(default=None, repr=False)
     k1: float = 0.0
+    objects: ObjectMap | None = field(default=None, repr=False)
 
     @property
     def height(self) -> int:
@@ -316,13 +320,15 @@ def _uniform(rng: np.random.Generator, r) -> float:
     return float(rng.uniform(r[0], r[1])) if r[1] > r[0] else float(r[0])
 
 
-def render_scene(seed: int, size: tuple[int, int] = (640, 480), config: RenderConfig | None = None) -> RenderedScene:
+def render_scene(seed: int, size: tuple[int, int] = (640, 480), config: RenderConfig | None = None,
+                 objects: bool = False) -> RenderedScene:
     """Render one random scene with its exact calibration ground truth, deterministically from ``seed``.
 
     Args:
         seed: non-negative integer; the same seed, size and config always give the same image.
         size: image ``(W, H)``.
         config: what to draw; :class:`RenderConfig` defaults when None.
+        objects: also draw the object map (what each pixel shows); the image is the same either way.
 
     Returns:
         The image and its ground truth.
@@ -365,11 +371,16 @@ def render_scene(seed: int, size: tuple[int, int] = (640, 480), config: RenderCo
     else:
         scene = make_atlanta(scene_rng, cam_h, cfg.clutter, view_yaw=yaw, additions=add)
     image = _paint(view, scene, *_lighting(photo_rng, kind, cfg), cfg.antialias)
+    object_map = draw_object_map(view, scene) if objects else None
     if source is not None:
         image = cv2.remap(image, *(source + margin), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        if object_map is not None:  # nearest: ids are labels, never blended
+            ids = cv2.remap(object_map.ids, *(source + margin), cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
+            object_map = ObjectMap(ids, object_map.kinds)
     if cfg.photometric:
         image = photometric(photo_rng, image, cfg)
-    return RenderedScene(image=image, seed=int(seed), kind=kind, frames=tuple(scene.frames), scene=scene, k1=k1, **gt)
+    return RenderedScene(image=image, seed=int(seed), kind=kind, frames=tuple(scene.frames), scene=scene, k1=k1,
+                         objects=object_map, **gt)
 
 
 def _paint(view: PinholeView, scene: Scene, light: Lighting, sky: tuple, antialias: bool) -> np.ndarray:

@@ -16,6 +16,7 @@ from torch import nn
 from ngp_kornia.errors import WeightsError
 from ngp_kornia.models.fsnet import FSNet
 from ngp_kornia.models.zsnet import ZSNet
+from ngp_kornia.nets.line_evidence import LineEvidenceNet
 
 __all__ = [
     "NETWORKS",
@@ -33,7 +34,7 @@ FORMAT = "ngp-kornia-weights"
 VERSION = 1
 WEIGHTS_DIR = Path(__file__).resolve().parent.parent / "weights"
 #: the networks a weights file may hold, by name
-NETWORKS: dict[str, type[nn.Module]] = {"FSNet": FSNet, "ZSNet": ZSNet}
+NETWORKS: dict[str, type[nn.Module]] = {"FSNet": FSNet, "LineEvidenceNet": LineEvidenceNet, "ZSNet": ZSNet}
 
 
 def save_network(net: nn.Module, path: str | Path, settings: dict, metadata: dict | None = None) -> Path:

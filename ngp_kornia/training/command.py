@@ -28,8 +28,8 @@ from ngp_kornia.models.weights import NETWORKS, build_network, load_tensors_safe
 __all__ = ["config_path", "export_checkpoint", "main", "packaged_configs", "read_checkpoint"]
 
 _DESCRIPTION = (
-    "Train ZSNet and FSNet with Lightning (fit, validate, test, predict), then export the network (export) and "
-    "plot its curves (plot)."
+    "Train ZSNet, FSNet and the line-evidence network with Lightning (fit, validate, test, predict), then export the "
+    "network (export) and plot its curves (plot)."
 )
 _EPILOG = (
     "Packaged configs, by name: {names} (e.g. --config zsnet; a path to a YAML file of your own works too). "

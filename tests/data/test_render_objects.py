@@ -124,3 +124,25 @@ def test_labels_of_no_segments():
     m = ObjectMap(np.zeros((4, 4), np.int32), np.zeros(1, np.int16))
     assert structure_targets(np.zeros((0, 2, 2)), m).shape == (0,)
     assert direction_classes(torch.zeros(0, 2, 2), torch.tensor([0.0, 1, 0]), torch.zeros(0, 3)).shape == (0,)
+
+
+def test_foliage_texture_changes_only_the_leaves():
+    outdoor = {"street": 1.0}
+    for seed in range(3):
+        plain = render_scene(seed, SMALL, RenderConfig(kinds=outdoor, photometric=False), objects=True)
+        leafy = render_scene(seed, SMALL, RenderConfig(kinds=outdoor, photometric=False, foliage=0.8))
+        again = render_scene(seed, SMALL, RenderConfig(kinds=outdoor, photometric=False, foliage=0.8))
+        assert np.array_equal(leafy.image, again.image)
+        kinds = plain.objects.kind_map()
+        leaves = np.isin(kinds, [OBJECT_KINDS.index(k) for k in ("tree", "bush", "plant")])
+        changed = (leafy.image != plain.image).any(-1)
+        assert not changed[~leaves].any()
+        assert changed[leaves].mean() > 0.5 or not leaves.any()
+
+
+def test_foliage_off_keeps_the_config_digest():
+    from ngp_kornia.data.synth.render import config_spec
+
+    assert "foliage" not in config_spec(RenderConfig()) and config_spec(RenderConfig(foliage=0.5))["foliage"] == 0.5
+    with pytest.raises(ValueError, match="foliage"):
+        RenderConfig(foliage=2.0)

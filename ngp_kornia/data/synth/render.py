@@ -34,10 +34,11 @@ from torch import Tensor
 from ngp_kornia.data.synth.hard import Additions
 from ngp_kornia.data.synth.interior import make_room
 from ngp_kornia.data.synth.layouts import make_atlanta, make_street
+from ngp_kornia.data.synth.lighting import scene_lighting
 from ngp_kornia.data.synth.objects import ObjectMap, draw_object_map
 from ngp_kornia.data.synth.painter import Canvas, PinholeView
-from ngp_kornia.data.synth.pixels import ground_haze, photometric, sky_and_ground, view_rays
-from ngp_kornia.data.synth.scene import Lighting, Scene, draw_ground, draw_objects
+from ngp_kornia.data.synth.pixels import foliage_texture, ground_haze, photometric, sky_and_ground, view_rays
+from ngp_kornia.data.synth.scene import OBJECT_KINDS, Lighting, Scene, draw_ground, draw_objects
 from ngp_kornia.geometry.camera import (
     focal_from_fov,
     fov_from_focal,
@@ -56,6 +57,7 @@ __all__ = [
     "KINDS",
     "RenderConfig",
     "RenderedScene",
+    "TEXTURE_DEFAULTS",
     "camera_ground_truth",
     "config_spec",
     "render_dataset",
@@ -108,6 +110,9 @@ class RenderConfig:
             centre along each axis, as a fraction of the image height (Gaussian, clipped at 3 standard deviations).
             Real cameras rarely have it exactly at the centre; the label's ``K`` carries the true one, so the
             horizon is measured against it while pitch and roll (from ``R``) do not depend on it.
+        foliage: texture, the largest relative change of brightness of the leafy texture laid on trees, bushes and
+            plants (:func:`~ngp_kornia.data.synth.pixels.foliage_texture`; its amplitude is drawn in
+            ``[foliage / 2, foliage]``); 0 leaves them as flat polygons.
         radial_distortion: camera imperfection, standard deviation of the radial distortion coefficient ``k1``
             (Gaussian, clipped at 3 standard deviations) of the division model ``x_u = x_d / (1 + k1 |x_d|^2)``,
             ``x`` the ray's coordinates ``(p - c) / f`` about the principal point: the pinhole image, drawn with a
@@ -148,6 +153,7 @@ class RenderConfig:
     fronto_jitter: float = 3.0
     principal_point_std: float = 0.0
     radial_distortion: float = 0.0
+    foliage: float = 0.0
 
     def __post_init__(self) -> None:
         _check_range("fov_v", self.fov_v, 1.0, 179.0)
@@ -174,6 +180,8 @@ class RenderConfig:
         if not (isinstance(self.radial_distortion, int | float) and 0.0 <= self.radial_distortion <= 0.1):
             raise ValueError(f"radial_distortion must be a standard deviation of k1 in [0, 0.1], "
                              f"got {self.radial_distortion!r}")
+        if not (isinstance(self.foliage, int | float) and 0.0 <= self.foliage <= 1.0):
+            raise ValueError(f"foliage must be a relative change of brightness in [0, 1], got {self.foliage!r}")
         if not 0.0 <= self.fronto_prob <= 1.0:
             raise ValueError(f"fronto_prob must be a probability, got {self.fronto_prob}")
         unknown = set(self.kinds) - set(KINDS)
@@ -257,6 +265,9 @@ HARD_DEFAULTS = {"stairs": 0.0, "billboards": 0.0, "fronto_prob": 0.0, "fronto_j
 IMPERFECTION_DEFAULTS = {"principal_point_std": 0.0, "radial_distortion": 0.0}
 """The camera-imperfection options of :class:`RenderConfig` and their defaults (off: an ideal pinhole)."""
 
+TEXTURE_DEFAULTS = {"foliage": 0.0}
+"""The texture options of :class:`RenderConfig` and their defaults (off: flat polygons)."""
+
 
 def config_spec(config: RenderConfig) -> dict:
     """The settings of a config that change its renders, as a plain dict: every field, less the hard-case options
@@ -269,7 +280,7 @@ def config_spec(config: RenderConfig) -> dict:
     spec = asdict(config)
     if config.fronto_prob == 0.0:
         spec.pop("fronto_jitter")  # has no effect then
-    defaults = {**HARD_DEFAULTS, **IMPERFECTION_DEFAULTS}
+    defaults = {**HARD_DEFAULTS, **IMPERFECTION_DEFAULTS, **TEXTURE_DEFAULTS}
     return {k: v for k, v in spec.items() if not (k in defaults and v == defaults[k])}
 
 
@@ -342,10 +353,11 @@ def render_scene(seed: int, size: tuple[int, int] = (640, 480), config: RenderCo
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
     W, H = _check_size(size)
     cfg = RenderConfig() if config is None else config
-    # the hard cases draw from a fourth stream, the camera imperfections from a fifth: the first three are those of
-    # spawn(3), as before they existed (a SeedSequence's i-th child does not depend on how many are spawned)
-    cam_rng, scene_rng, photo_rng, hard_rng, lens_rng = (
-        np.random.default_rng(s) for s in np.random.SeedSequence(int(seed)).spawn(5))
+    # the hard cases draw from a fourth stream, the camera imperfections from a fifth, the textures from a sixth: the
+    # first three are those of spawn(3), as before they existed (a SeedSequence's i-th child does not depend on how
+    # many are spawned)
+    cam_rng, scene_rng, photo_rng, hard_rng, lens_rng, texture_rng = (
+        np.random.default_rng(s) for s in np.random.SeedSequence(int(seed)).spawn(6))
     names = [k for k in KINDS if cfg.kinds.get(k, 0.0) > 0]
     p = np.array([cfg.kinds[k] for k in names])
     kind = names[int(cam_rng.choice(len(names), p=p / p.sum()))]
@@ -370,8 +382,13 @@ def render_scene(seed: int, size: tuple[int, int] = (640, 480), config: RenderCo
         scene = make_room(scene_rng, cam_h, cfg.clutter, view_yaw=yaw)
     else:
         scene = make_atlanta(scene_rng, cam_h, cfg.clutter, view_yaw=yaw, additions=add)
-    image = _paint(view, scene, *_lighting(photo_rng, kind, cfg), cfg.antialias)
-    object_map = draw_object_map(view, scene) if objects else None
+    image = _paint(view, scene, *scene_lighting(photo_rng, kind, cfg), cfg.antialias)
+    object_map = draw_object_map(view, scene) if objects or cfg.foliage > 0 else None
+    if cfg.foliage > 0:
+        leaves = np.isin(object_map.kind_map(), [OBJECT_KINDS.index(k) for k in ("tree", "bush", "plant")])
+        foliage_texture(texture_rng, image, leaves, cfg.foliage * float(texture_rng.uniform(0.5, 1.0)))
+    if not objects:
+        object_map = None
     if source is not None:
         image = cv2.remap(image, *(source + margin), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         if object_map is not None:  # nearest: ids are labels, never blended
@@ -421,38 +438,6 @@ def _fronto_yaw(rng: np.random.Generator, kind: str, yaw: float, jitter: float) 
     step = 180.0 if kind == "street" else 90.0
     base = 90.0 + step * round((yaw - 90.0) / step)
     return float(base + rng.normal(0.0, jitter))
-
-
-_SKIES = {
-    "clear": ((75, 125, 200), (195, 210, 230)),
-    "pale": ((120, 160, 210), (215, 222, 232)),
-    "dusk": ((80, 95, 150), (235, 190, 150)),
-    "overcast": ((170, 175, 185), (215, 218, 222)),
-}
-
-
-def _lighting(rng: np.random.Generator, kind: str, cfg: RenderConfig) -> tuple[Lighting, tuple[np.ndarray, ...]]:
-    """Lights, haze, and the sky colours (zenith, horizon)."""
-    overcast = kind != "indoor" and rng.random() < cfg.overcast_prob
-    sky_name = "overcast" if overcast else ["clear", "pale", "dusk"][rng.choice(3, p=[0.5, 0.35, 0.15])]
-    top, horizon = (np.asarray(c, float) + rng.normal(0, 6, 3) for c in _SKIES[sky_name])
-    if kind == "indoor":
-        sun = np.array([rng.normal(0, 0.3), -1.0, rng.normal(0, 0.3)])
-        fill = np.array([math.cos(a := rng.uniform(0, 2 * math.pi)), -0.2, math.sin(a)])
-        light = Lighting(ambient=rng.uniform(0.55, 0.75), sun_dir=sun / np.linalg.norm(sun), sun=rng.uniform(0.15, 0.3),
-                         fill_dir=fill / np.linalg.norm(fill), fill=rng.uniform(0.1, 0.3))
-        return light, (top, horizon)
-    az, el = rng.uniform(0, 2 * math.pi), math.radians(rng.uniform(15, 70))
-    sun = np.array([math.cos(el) * math.sin(az), -math.sin(el), math.cos(el) * math.cos(az)])
-    fill = np.array([-sun[0], -0.3, -sun[2]])
-    light = Lighting(
-        ambient=rng.uniform(0.75, 0.9) if overcast else rng.uniform(0.45, 0.62),
-        sun_dir=sun, sun=rng.uniform(0.1, 0.2) if overcast else rng.uniform(0.35, 0.6),
-        fill_dir=fill / np.linalg.norm(fill), fill=rng.uniform(0.05, 0.15),
-        haze=horizon.copy(),
-        visibility=_uniform(rng, cfg.visibility) if rng.random() < cfg.haze_prob else math.inf,
-    )
-    return light, (top, horizon)
 
 
 def render_dataset(outdir: str | Path, count: int, seed: int = 0, size: tuple[int, int] = (640, 480),

@@ -3,7 +3,8 @@ building, a wall, a window, a door, box-like furniture) and which 3D direction i
 neither).
 
 It is small on purpose (it runs on every image, between line detection and candidate sampling): the segment
-features of :mod:`ngp_kornia.nets.line_features`, fixed and cheap, go through a per-segment MLP; a summary of all
+features of :mod:`ngp_kornia.nets.line_features` (geometry and what the image's other segments say, fixed and
+cheap) go through a per-segment MLP; a summary of all
 the image's segments (masked mean and max of their embeddings) is put back beside each one, and a second MLP gives
 one structure logit and three direction logits per segment. Trained on renders only
 (:class:`ngp_kornia.training.evidence_module.LineEvidenceModule`).

@@ -1,19 +1,19 @@
 """The inputs of the line-evidence network: fixed, cheap features of each detected segment, pure batched functions.
 
-Three groups, each a function of its own (:func:`segment_features` puts them together):
+Two groups, each a function of its own (:func:`segment_features` puts them together):
 
-* :func:`appearance_features`: the image sampled on a small grid along and across each segment (``POINTS`` points
-  along it, at the ``OFFSETS`` distances across): the brightness profile across the segment and how much it varies
-  along it (a wall's edge is one clean step; a tree's texture is not), the step's contrast, the colour on both sides.
-  The profile is turned so that the brighter side comes first.
 * :func:`geometry_features`: length, orientation, position in the image.
 * :func:`context_features`: what the other segments of the image say: how crowded the segment's neighbourhood is,
   with parallel segments and along its own line, its rank by length, and whether it points at one of the image's
-  dominant vanishing points (found by a small vote of all segments on the Gaussian sphere of the pseudo camera,
-  then refined) and how many segments back that point.
+  dominant vanishing points (found by a small vote of the longest segments on the Gaussian sphere of the pseudo
+  camera, then refined) and how much line length backs that point.
 
-Everything is measured at the working resolution (long side at most :data:`WORKING_SIZE` pixels, the images
-downscaled there when larger), so the same scene gives the same features at any input size.
+The image itself is not sampled: features of the image around each segment (its brightness profile across the
+segment, the step's contrast and how it varies along it, the colour on both sides) were measured and gave a network
+trained on renders nothing on York Urban's labelled segments (see BENCHMARKS.md), at a third of the stage's cost.
+
+Everything is measured at the working resolution (long side :data:`WORKING_SIZE` pixels), so the same scene gives
+the same features at any input size.
 """
 
 from __future__ import annotations
@@ -21,17 +21,13 @@ from __future__ import annotations
 import math
 
 import torch
-import torch.nn.functional as F
 from torch import Tensor
 
 from ngp_kornia.geometry import pseudo_focal, segment_vp_angle
 
 __all__ = [
     "FEATURE_NAMES",
-    "OFFSETS",
-    "POINTS",
     "WORKING_SIZE",
-    "appearance_features",
     "check_inputs",
     "context_features",
     "geometry_features",
@@ -42,37 +38,31 @@ __all__ = [
 
 #: long side (pixels) of the resolution the features are measured at
 WORKING_SIZE = 640
-#: points sampled along each segment
-POINTS = 8
-#: distances across the segment (working pixels) at which the image is sampled, symmetric
-OFFSETS = (-6.0, -3.0, -1.5, 1.5, 3.0, 6.0)
 #: directions of the vote for vanishing points, the longest segments that vote, and the dominant VPs kept
 _SPHERE_BINS, _VOTERS, _PEAKS = 300, 128, 6
 #: cell size (pixels) and orientation bins of the crowding counts
 _CELL, _ORIENTATIONS = 32, 12
 
 FEATURE_NAMES = (
-    *(f"gray_mean_{o:+g}" for o in OFFSETS),
-    *(f"gray_std_{o:+g}" for o in OFFSETS),
-    "contrast_mean", "contrast_std", "contrast_min", "contrast_wide",
-    "chroma_rg_dark", "chroma_bg_dark", "chroma_rg_bright", "chroma_bg_bright",
     "log_length", "cos_2theta", "sin_2theta", "mid_x", "mid_y",
     "neighbours", "parallel_neighbours", "collinear_length", "length_rank",
     "vp_angle", "vp_support", "vp_vertical", "vp_angle_second",
 )
 
 
-def to_working_resolution(images: Tensor, segments: Tensor) -> tuple[Tensor, Tensor]:
-    """Images larger than :data:`WORKING_SIZE` (long side) downscaled there by area averaging, with the segments
-    mapped along (pixel-centre convention); smaller ones as they are. (B, 3, H, W), (B, N, 2, 2)."""
-    h, w = images.shape[-2:]
-    scale = WORKING_SIZE / max(h, w)
-    if scale >= 1.0:
-        return images, segments
-    size = (max(1, round(h * scale)), max(1, round(w * scale)))
-    small = F.interpolate(images, size=size, mode="area")
-    factor = torch.tensor([size[1] / w, size[0] / h], dtype=segments.dtype, device=segments.device)
-    return small, (segments + 0.5) * factor - 0.5
+def to_working_resolution(segments: Tensor, height: int, width: int) -> tuple[Tensor, int, int]:
+    """Segments of an image of ``height`` x ``width`` mapped to the working resolution (long side
+    :data:`WORKING_SIZE`, aspect ratio kept; pixel-centre convention), and that resolution's height and width.
+
+    Example:
+        >>> seg, h, w = to_working_resolution(torch.tensor([[[[-0.5, -0.5], [1279.5, 959.5]]]]), 960, 1280)
+        >>> seg.tolist(), h, w
+        ([[[[-0.5, -0.5], [639.5, 479.5]]]], 480, 640)
+    """
+    scale = WORKING_SIZE / max(height, width)
+    h, w = max(1, round(height * scale)), max(1, round(width * scale))
+    factor = torch.tensor([w / width, h / height], dtype=segments.dtype, device=segments.device)
+    return (segments + 0.5) * factor - 0.5, h, w
 
 
 def _frames(segments: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
@@ -83,49 +73,6 @@ def _frames(segments: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     u = torch.where(length[..., None] > 1e-6, d / length.clamp_min(1e-6)[..., None], torch.zeros_like(d))
     u = u + torch.stack([(length <= 1e-6).to(d), torch.zeros_like(length)], -1)
     return start, u, torch.stack([-u[..., 1], u[..., 0]], -1), length
-
-
-def appearance_features(images: Tensor, segments: Tensor) -> Tensor:
-    """The image around each segment: brightness profile across it (mean and spread along it at each offset of
-    :data:`OFFSETS`), the step's contrast (mean, spread, least along the segment, and between the wider offsets)
-    and the colour (red and blue against green) on its dark and its bright side. The profile is turned so that the
-    brighter side comes last, whatever the segment's direction.
-
-    Args:
-        images: (B, 3, H, W) RGB in [0, 1] at the working resolution.
-        segments: (B, N, 2, 2) pixels of those images.
-
-    Returns:
-        (B, N, 20).
-    """
-    b, n = segments.shape[:2]
-    h, w = images.shape[-2:]
-    start, u, normal, length = _frames(segments)
-    t = (torch.arange(POINTS, dtype=segments.dtype, device=segments.device) + 0.5) / POINTS
-    off = torch.tensor(OFFSETS, dtype=segments.dtype, device=segments.device)
-    along = start[:, :, None] + (t * length[..., None])[..., None] * u[:, :, None]  # (B, N, P, 2)
-    # offsets outside, points along inside: the reductions along the segment run over the innermost dimension
-    points = along[:, :, None] + off[:, None, None] * normal[:, :, None, None]  # (B, N, O, P, 2)
-    scale = torch.tensor([2.0 / max(w - 1, 1), 2.0 / max(h - 1, 1)], dtype=points.dtype, device=points.device)
-    grid = (points * scale - 1.0).reshape(b, n, -1, 2).to(images.dtype)
-    rgb = F.grid_sample(images, grid, mode="bilinear", padding_mode="border", align_corners=True)
-    rgb = rgb.reshape(b, 3, n, len(OFFSETS), POINTS)
-    gray = 0.299 * rgb[:, 0] + 0.587 * rgb[:, 1] + 0.114 * rgb[:, 2]  # (B, N, O, P)
-    inner = len(OFFSETS) // 2  # the first offset on the positive side
-    step = gray[:, :, inner] - gray[:, :, inner - 1]  # (B, N, P)
-    turn = (step.sum(-1) < 0)[..., None]  # (B, N, 1): the profile read from the other side
-    step = torch.where(turn, -step, step)
-    mean = gray.mean(-1)
-    spread = ((gray * gray).mean(-1) - mean * mean).clamp_min(0.0).sqrt()
-    mean = torch.where(turn, mean.flip(-1), mean)
-    spread = torch.where(turn, spread.flip(-1), spread)
-    sides = torch.stack([rgb[:, :, :, inner - 2], rgb[:, :, :, inner + 1]], -1).mean(-2)  # (B, 3, N, 2)
-    chroma = torch.stack([sides[:, 0] - sides[:, 1], sides[:, 2] - sides[:, 1]], -1)  # (B, N, 2 sides, 2)
-    chroma = torch.where(turn[..., None], chroma.flip(-2), chroma).flatten(-2)
-    wide = (mean[..., -1] - mean[..., 0])[..., None]
-    m = step.mean(-1)
-    contrast = torch.stack([m, ((step * step).mean(-1) - m * m).clamp_min(0.0).sqrt(), step.amin(-1)], -1)
-    return torch.cat([mean, spread, contrast, wide, chroma], -1)
 
 
 def geometry_features(segments: Tensor, height: int, width: int) -> Tensor:
@@ -197,15 +144,20 @@ def sphere_directions(count: int = _SPHERE_BINS) -> Tensor:
     return torch.stack([r * phi.cos(), r * phi.sin(), z], -1).float()
 
 
+_BINS = sphere_directions()
+#: pairs of bins too close (within 12 degrees) to be two peaks of the vote
+_APART = (_BINS @ _BINS.T).abs() > math.cos(math.radians(12.0))
+
+
 def _refine(lines: Tensor, weights: Tensor, vps: Tensor, angle: float) -> Tensor:
-    """Each VP (B, K, 3) moved to the least-squares point of the lines within ``angle`` degrees of it (kept where
-    none is)."""
-    near = (torch.einsum("bnc,bkc->bkn", lines, vps).abs() < math.sin(math.radians(angle))).to(lines)
-    near = near * weights[:, None]
-    tensor = torch.einsum("bkn,bnc,bne->bkce", near, lines, lines)
+    """Each VP (B, K, 3) moved to the least-squares point of the lines (B, N, 3) within ``angle`` degrees of it
+    (kept where none is)."""
+    near = torch.where((vps @ lines.transpose(1, 2)).abs() < math.sin(math.radians(angle)), weights[:, None], 0.0)
+    weighted = near[..., None] * lines[:, None]  # (B, K, N, 3)
+    tensor = weighted.transpose(-1, -2) @ lines[:, None]  # (B, K, 3, 3)
     eye = torch.eye(3, dtype=lines.dtype, device=lines.device)
     refined = torch.linalg.eigh(tensor + 1e-9 * eye)[1][..., :, 0]  # the direction the lines are most orthogonal to
-    refined = refined * torch.where((refined * vps).sum(-1, keepdim=True) < 0, -1.0, 1.0).to(refined)
+    refined = torch.where((refined * vps).sum(-1, keepdim=True) < 0, -refined, refined)
     return torch.where(near.sum(-1, keepdim=True) > 0, refined, vps)
 
 
@@ -214,20 +166,19 @@ def _dominant_vps(lines: Tensor, weights: Tensor) -> tuple[Tensor, Tensor]:
     lines passes within 4 degrees of, each refined twice to the least-squares point of the lines near it: VPs
     (B, K, 3) in the pseudo camera and their support (B, K), the share of the image's line length within 1.5
     degrees of them."""
-    voters = weights.topk(min(_VOTERS, weights.shape[1]), dim=-1).indices
-    vl = lines.gather(1, voters[..., None].expand(-1, -1, 3))
-    bins = sphere_directions().to(lines)
-    hits = ((vl @ bins.T).abs() < math.sin(math.radians(4.0))).to(lines)  # (B, V, D)
-    votes = (weights.gather(1, voters)[:, None] @ hits)[:, 0]  # (B, D)
-    apart = (bins @ bins.T).abs() > math.cos(math.radians(12.0))  # (D, D): bins too close to be two peaks
+    top = weights.topk(min(_VOTERS, weights.shape[1]), dim=-1)
+    voters = lines.gather(1, top.indices[..., None].expand(-1, -1, 3))
+    bins, apart = _BINS.to(lines), _APART.to(lines.device)
+    hits = torch.where((voters @ bins.T).abs() < math.sin(math.radians(4.0)), top.values[..., None], 0.0)
+    votes = hits.sum(1)  # (B, D)
     peaks = []
     for _ in range(_PEAKS):  # greedy: the strongest bin, then none near it
         best = votes.argmax(-1)
         peaks.append(best)
         votes = votes.masked_fill(apart[best], -1.0)
     vps = _refine(lines, weights, _refine(lines, weights, bins[torch.stack(peaks, -1)], 4.0), 1.5)
-    close = torch.einsum("bnc,bkc->bkn", lines, vps).abs() < math.sin(math.radians(1.5))
-    support = (close.to(lines) * weights[:, None]).sum(-1) / weights.sum(-1, keepdim=True).clamp_min(1e-9)
+    close = (vps @ lines.transpose(1, 2)).abs() < math.sin(math.radians(1.5))
+    support = torch.where(close, weights[:, None], 0.0).sum(-1) / weights.sum(-1, keepdim=True).clamp_min(1e-9)
     return vps, support
 
 
@@ -299,7 +250,7 @@ def segment_features(images: Tensor, segments: Tensor, mask: Tensor) -> Tensor:
     """All the features of each segment, :data:`FEATURE_NAMES` in order; zeros where ``mask`` is False.
 
     Args:
-        images: (B, 3, H, W) RGB in [0, 1].
+        images: (B, 3, H, W) RGB in [0, 1] (their size sets the working resolution).
         segments: (B, N, 2, 2) pixels ``[[x0, y0], [x1, y1]]`` of those images.
         mask: (B, N) bool.
 
@@ -315,12 +266,9 @@ def segment_features(images: Tensor, segments: Tensor, mask: Tensor) -> Tensor:
         (torch.Size([2, 2]), True, 0.0)
     """
     check_inputs(images, segments, mask)
-    mask = mask.bool()
     if segments.shape[1] == 0:
         return images.new_zeros(images.shape[0], 0, len(FEATURE_NAMES))
     seg = torch.where(mask[..., None, None], segments.to(images.dtype), torch.zeros_like(segments, dtype=images.dtype))
-    small, seg = to_working_resolution(images, seg)
-    h, w = small.shape[-2:]
-    out = torch.cat([appearance_features(small, seg), geometry_features(seg, h, w),
-                     context_features(seg, mask, h, w)], -1)
+    seg, h, w = to_working_resolution(seg, *images.shape[-2:])
+    out = torch.cat([geometry_features(seg, h, w), context_features(seg, mask, h, w)], -1)
     return torch.where(mask[..., None], out, torch.zeros_like(out))

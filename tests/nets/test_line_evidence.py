@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from ngp_kornia.nets import DIRECTION_CLASSES, FEATURE_NAMES, LineEvidenceNet, segment_features, structure_weights
-from ngp_kornia.nets.line_features import WORKING_SIZE, sphere_directions, to_working_resolution
+from ngp_kornia.nets.line_features import WORKING_SIZE, sphere_directions
 
 
 def _inputs(b=2, n=12, h=48, w=64, seed=0, dtype=torch.float32):
@@ -98,8 +98,8 @@ def test_float64_and_float32_features_agree():
     f64 = segment_features(images, segments, mask)
     f32 = segment_features(images.float(), segments.float(), mask)
     # bins of the crowding counts and the vanishing-point vote may differ at their borders between precisions, so
-    # compare the appearance and geometry columns (sampled values, 1e-4 of their unit)
-    torch.testing.assert_close(f32[..., :25].double(), f64[..., :25], atol=1e-4, rtol=1e-4)
+    # compare the geometry columns (1e-5 of their unit)
+    torch.testing.assert_close(f32[..., :5].double(), f64[..., :5], atol=1e-5, rtol=1e-5)
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
@@ -132,30 +132,14 @@ def test_structure_weights():
     torch.testing.assert_close(w, torch.tensor([[0.0, 0.5, 0.0]]))
 
 
-def test_profile_of_a_step_edge():
-    # a vertical step from black to white at x = 31.5, a segment on it: the brighter side comes last, whichever
-    # way the segment runs, and the contrast is the step's
-    images = torch.zeros(1, 3, 48, 64)
-    images[..., 32:] = 1.0
-    down = torch.tensor([[[[31.5, 5.0], [31.5, 40.0]]]])
-    up = down.flip(-2)
-    mask = torch.ones(1, 1, dtype=torch.bool)
-    fd, fu = segment_features(images, down, mask), segment_features(images, up, mask)
-    names = list(FEATURE_NAMES)
-    torch.testing.assert_close(fd[..., :20], fu[..., :20])
-    assert fd[0, 0, names.index("gray_mean_-6")] == 0 and fd[0, 0, names.index("gray_mean_+6")] == 1
-    torch.testing.assert_close(fd[0, 0, names.index("contrast_mean")], torch.tensor(1.0))
-    assert fd[0, 0, names.index("gray_std_+1.5")] == 0
-
-
 def test_geometry_columns():
-    seg = torch.tensor([[[[0.0, 23.5], [63.0, 23.5]], [[31.5, 0.0], [31.5, 47.0]]]])
-    f = segment_features(torch.rand(1, 3, 48, 64), seg, torch.ones(1, 2, dtype=torch.bool))[0]
+    seg = torch.tensor([[[[0.0, 239.5], [639.0, 239.5]], [[319.5, 0.0], [319.5, 470.0]]]])
+    f = segment_features(torch.rand(1, 3, 480, 640), seg, torch.ones(1, 2, dtype=torch.bool))[0]
     names = list(FEATURE_NAMES)
     torch.testing.assert_close(f[:, names.index("cos_2theta")], torch.tensor([1.0, -1.0]))
     torch.testing.assert_close(f[:, names.index("mid_x")], torch.tensor([0.0, 0.0]), atol=1e-6, rtol=0)
     torch.testing.assert_close(f[:, names.index("log_length")],
-                               torch.log1p(torch.tensor([63.0, 47.0])) / math.log(WORKING_SIZE))
+                               torch.log1p(torch.tensor([639.0, 470.0])) / math.log(WORKING_SIZE))
     assert f[0, names.index("length_rank")] == 0 and f[1, names.index("length_rank")] == 1
 
 
@@ -170,13 +154,12 @@ def test_segments_through_one_point_find_it():
     assert (f[:, list(FEATURE_NAMES).index("vp_support")] > 0.9).all()
 
 
-def test_large_images_are_measured_at_the_working_size():
-    images, segments, mask = _inputs(h=480, w=640)
-    big = torch.nn.functional.interpolate(images, scale_factor=2, mode="nearest")
-    small, seg = to_working_resolution(big, segments * 2 + 0.5)
-    assert small.shape[-2:] == (480, 640)
-    torch.testing.assert_close(seg, segments)
-    torch.testing.assert_close(small, images)
+def test_the_features_do_not_depend_on_the_image_size():
+    images, segments, mask = _inputs(h=120, w=160, n=30)
+    big = torch.nn.functional.interpolate(images, scale_factor=4, mode="nearest")
+    # the same scene at four times the size; tolerance: float32 round-off of the scaled coordinates
+    torch.testing.assert_close(segment_features(big, (segments + 0.5) * 4 - 0.5, mask),
+                               segment_features(images, segments, mask), atol=1e-4, rtol=1e-4)
 
 
 def test_sphere_directions_cover_the_half_sphere():

@@ -66,6 +66,9 @@ class LineEvidenceNet(nn.Module):
         self.embed = _mlp([features, width, width])
         self.summary = nn.Linear(width, context)
         self.head = _mlp([width + 2 * context, width, 1 + len(DIRECTION_CLASSES)])
+        # added to every structure logit: set after training so that a weight of 0.1 sits at a chosen share of the
+        # structural segments kept (LineEvidenceModule's keep_share), saved with the weights
+        self.register_buffer("structure_offset", torch.zeros(()))
 
     def settings(self) -> dict:
         """The constructor arguments that rebuild this network (stored with its weights)."""
@@ -104,7 +107,7 @@ class LineEvidenceNet(nn.Module):
         out = features.new_zeros(b, n, 1 + len(DIRECTION_CLASSES))
         if bool(mask.any()):
             out[mask] = self._score(features[mask], mask.nonzero()[:, 0], b)
-        return out[..., 0], out[..., 1:]
+        return torch.where(mask, out[..., 0] + self.structure_offset, out[..., 0]), out[..., 1:]
 
     def _score(self, packed: Tensor, image: Tensor, batch: int) -> Tensor:
         """Logits (M, 4) of the valid segments packed together (M, F), ``image`` (M,) the index of each one's image."""

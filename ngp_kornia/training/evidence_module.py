@@ -50,23 +50,57 @@ class LineEvidenceModule(NetworkModule):
         lr: Adam learning rate.
         lr_step: epochs between halvings of the learning rate.
         direction_weight: weight of the direction loss against the structure loss.
-        keep: the weight at or above which a segment counts as kept in the logged figures.
+        keep: the weight at or above which a segment is kept.
+        keep_share: after each validation, the network's structure offset is set so that this share of the
+            validation set's structural segments gets a weight of at least ``keep`` (None: left as it is).
     """
 
+    #: bins of the histogram of validation logits the offset is read from (logits beyond the range fall in the
+    #: first or last bin)
+    HISTOGRAM = (-30.0, 30.0, 60000)
+
     def __init__(self, net: LineEvidenceNet, lr: float = 3e-3, lr_step: int = 4, direction_weight: float = 0.5,
-                 keep: float = 0.1) -> None:
+                 keep: float = 0.1, keep_share: float | None = 0.97) -> None:
         super().__init__()
+        if keep_share is not None and not 0.0 < keep_share < 1.0:
+            raise ValueError(f"keep_share must lie in (0, 1) or be None, got {keep_share}")
         self.save_hyperparameters(ignore=["net"])
         self.net = net
+        self._positives: Tensor | None = None
+
+    def on_validation_epoch_start(self) -> None:
+        self._positives = torch.zeros(self.HISTOGRAM[2], dtype=torch.float64, device=self.device)
+
+    def _count_positives(self, raw: Tensor, batch: LineBatch) -> None:
+        lo, hi, bins = self.HISTOGRAM
+        positive = raw[batch.mask & (batch.structure >= 0.5)].detach().double()
+        index = ((positive - lo) / (hi - lo) * bins).long().clamp(0, bins - 1)
+        self._positives.index_add_(0, index, torch.ones_like(positive))
+
+    def on_validation_epoch_end(self) -> None:
+        if self.hparams.keep_share is None or self._positives is None or self.trainer.sanity_checking:
+            return
+        counts = self.trainer.strategy.reduce(self._positives, reduce_op="sum")  # every process's share of the set
+        if float(counts.sum()) == 0:
+            return
+        lo, hi, bins = self.HISTOGRAM
+        below = torch.cumsum(counts, 0) / counts.sum()  # share of positives at or below each bin's upper edge
+        edge = int(torch.searchsorted(below, torch.tensor(1.0 - self.hparams.keep_share, dtype=below.dtype)))
+        logit = lo + (hi - lo) * edge / bins  # the lower edge of the bin where the dropped share is reached
+        target = torch.logit(torch.tensor(self.hparams.keep, dtype=torch.float64))
+        self.net.structure_offset.fill_(float(target) - logit)
 
     def forward(self, features: Tensor, mask: Tensor) -> tuple[Tensor, Tensor]:
         return self.net.classify(features, mask)
 
     def _step(self, batch: LineBatch, stage: str, batch_idx: int) -> Tensor:
         structure, direction = self.net.classify(batch.features, batch.mask)
+        raw = structure - self.net.structure_offset  # the loss and the offset's calibration use the raw logits
+        if stage == "val" and self._positives is not None:
+            self._count_positives(raw, batch)
         valid = batch.mask
         count = valid.sum().clamp_min(1)
-        bce = F.binary_cross_entropy_with_logits(structure, batch.structure, reduction="none")
+        bce = F.binary_cross_entropy_with_logits(raw, batch.structure, reduction="none")
         structure_loss = (bce * valid).sum() / count
         ce = F.cross_entropy(direction.flatten(0, 1), batch.direction.flatten(), reduction="none")
         direction_loss = (ce * valid.flatten()).sum() / count

@@ -66,6 +66,16 @@ def test_fast_dev_run_trains_and_exports(datamodule, tmp_path):
     assert any(not torch.equal(a, b) for a, b in zip(before, module.parameters(), strict=True))
     assert torch.isfinite(trainer.callback_metrics["train/loss"])
     assert "val/keep_structure" in trainer.callback_metrics or "val/drop_other" in trainer.callback_metrics
+    # the validation set the offset was set on: about keep_share of its structural segments keep a weight >= 0.1
+    module.net.eval()
+    with torch.no_grad():
+        batch = next(iter(datamodule.val_dataloader()))
+        structure, _ = module.net.classify(batch.features, batch.mask)
+    positive = batch.mask & (batch.structure >= 0.5)
+    n = int(positive.sum())
+    share = float((torch.sigmoid(structure[positive]) >= 0.1).double().mean())
+    assert n > 10 and abs(share - 0.97) <= 1.0 / n + 0.01, (share, n)  # one segment, plus the histogram's bins
+    assert float(module.net.structure_offset) != 0.0
     ckpt = tmp_path / "m.ckpt"
     trainer.save_checkpoint(ckpt)
     weights = export_checkpoint(ckpt, tmp_path / "evidence.pt")
@@ -76,9 +86,14 @@ def test_fast_dev_run_trains_and_exports(datamodule, tmp_path):
     images = torch.rand(1, 3, 60, 80)
     segments = torch.tensor([[[[5.0, 5.0], [70.0, 8.0]], [[40.0, 2.0], [41.0, 55.0]]]])
     mask = torch.ones(1, 2, dtype=torch.bool)
-    module.net.eval()
     with torch.no_grad():
         assert torch.equal(net(images, segments, mask)[0], module.net(images, segments, mask)[0])
+    assert float(net.structure_offset) == float(module.net.structure_offset)
+
+
+def test_keep_share_must_be_a_share():
+    with pytest.raises(ValueError, match="keep_share"):
+        LineEvidenceModule(LineEvidenceNet(width=4, context=2), keep_share=1.5)
 
 
 def test_a_render_without_its_object_map_is_refused():

@@ -26,7 +26,7 @@ from ngp_kornia.data.synth.objects import ObjectMap
 from ngp_kornia.data.synth.scene import yaw_axes
 from ngp_kornia.geometry import segment_vp_angle
 
-__all__ = ["DIRECTIONS", "direction_classes", "frame_vanishing_points", "structure_targets"]
+__all__ = ["DIRECTIONS", "direction_classes", "frame_vanishing_points", "outline_lengths", "structure_targets"]
 
 #: the direction classes, in the order of the labels and of the network's logits
 DIRECTIONS = ("vertical", "horizontal", "neither")
@@ -68,16 +68,70 @@ def structure_targets(segments: np.ndarray, objects: ObjectMap, points: int = 16
     normal = np.stack([-d[:, 1], d[:, 0]], -1) / np.maximum(np.linalg.norm(d, axis=-1, keepdims=True), 1e-9)
     t = (np.arange(points) + 0.5) / points
     at = seg[:, None, 0] + t[None, :, None] * d[:, None]  # (N, P, 2)
-    front = np.zeros(at.shape[:2], np.int64)
-    found = np.zeros(at.shape[:2], bool)
-    for off in offsets:
-        left = _sample_ids(objects.ids, at + off * normal[:, None])
-        right = _sample_ids(objects.ids, at - off * normal[:, None])
-        new = ~found & (left != right)
-        front[new] = np.maximum(left, right)[new]
-        found |= new
-    on_structure = found & objects.structure()[front]
+    front = _front_ids(objects.ids, at, normal, offsets)
+    found = front >= 0
+    on_structure = found & objects.structure()[np.maximum(front, 0)]
     return on_structure.mean(-1).astype(np.float32)
+
+
+def _front_ids(ids: np.ndarray, at: np.ndarray, normal: np.ndarray, offsets: tuple[float, ...]) -> np.ndarray:
+    """At points (N, P, 2) of lines with unit normals (N, 2): the id of the primitive whose outline passes there
+    (the larger of the two ids read across, at the nearest offset where they differ), -1 where none does."""
+    front = np.full(at.shape[:2], -1, np.int64)
+    for off in offsets:
+        left = _sample_ids(ids, at + off * normal[:, None])
+        right = _sample_ids(ids, at - off * normal[:, None])
+        new = (front < 0) & (left != right)
+        front[new] = np.maximum(left, right)[new]
+    return front
+
+
+def outline_lengths(segments: np.ndarray, objects: ObjectMap, reach: float = 320.0, step: float = 2.0,
+                    offsets: tuple[float, ...] = (1.5, 3.0)) -> np.ndarray:
+    """How long the outline under each segment is: along the segment's line, how far on both sides of its midpoint
+    the outline of the primitive it follows (the most common one under it) goes on without a break of more than
+    one step.
+
+    Args:
+        segments: (N, 2, 2) pixels.
+        objects: the render's object map.
+        reach: how far (pixels) from the midpoint to look, each way.
+        step: spacing (pixels) of the points read.
+        offsets: see :func:`structure_targets`.
+
+    Returns:
+        (N,) float32 pixels; 0 where the segment follows no outline.
+
+    Example:
+        >>> ids = np.zeros((40, 40), np.int32); ids[10:30, 20:] = 1  # an outline 20 pixels long at column 19.5
+        >>> outline_lengths(np.array([[[19.5, 15.0], [19.5, 25.0]]]), ObjectMap(ids, np.array([0, 2], np.int16)))
+        array([20.], dtype=float32)
+    """
+    seg = np.asarray(segments, dtype=np.float64).reshape(-1, 2, 2)
+    if len(seg) == 0:
+        return np.zeros(0, np.float32)
+    d = seg[:, 1] - seg[:, 0]
+    u = d / np.maximum(np.linalg.norm(d, axis=-1, keepdims=True), 1e-9)
+    normal = np.stack([-u[:, 1], u[:, 0]], -1)
+    t = np.arange(-reach, reach + step / 2, step)
+    at = seg.mean(1)[:, None] + t[None, :, None] * u[:, None]
+    front = _front_ids(objects.ids, at, normal, offsets)
+    centre = np.abs(t) <= 0.5 * np.linalg.norm(d, axis=-1, keepdims=True)  # (N, T): the segment itself
+    under = np.where(centre & (front >= 0), front, -1)
+    followed = np.array([np.bincount(row[row >= 0]).argmax() if (row >= 0).any() else -1 for row in under])
+    same = (front == followed[:, None]) & (followed[:, None] >= 0)
+    same = same | (np.roll(same, 1, 1) & np.roll(same, -1, 1))  # a one-step break does not end it
+    hits = same & centre
+    found = hits.any(1)
+    idx = np.arange(len(t))
+    first = np.where(found, hits.argmax(1), 0)
+    last = np.where(found, len(t) - 1 - hits[:, ::-1].argmax(1), 0)
+    # the run around the segment's own points: from just after the last break before them to just before the next
+    before = np.maximum.accumulate(np.where(same, -1, idx), axis=1)
+    after = np.minimum.accumulate(np.where(same, len(t), idx)[:, ::-1], axis=1)[:, ::-1]
+    rows = np.arange(len(seg))
+    lo, hi = before[rows, first] + 1, after[rows, last] - 1
+    return np.where(found, (hi - lo + 1) * step, 0.0).astype(np.float32)
 
 
 def frame_vanishing_points(K: Tensor, R: Tensor, frames: tuple[float, ...]) -> tuple[Tensor, Tensor]:

@@ -12,7 +12,7 @@ from ngp_kornia.nets.line_evidence import LineEvidenceNet
 from ngp_kornia.training.base import NetworkModule
 from ngp_kornia.training.evidence_data import LineBatch
 
-__all__ = ["LineEvidenceModule", "evidence_figures"]
+__all__ = ["LineEvidenceModule", "evidence_figures", "structure_offset"]
 
 
 def evidence_figures(structure: Tensor, direction: Tensor, batch: LineBatch, keep: float = 0.1) -> dict[str, Tensor]:
@@ -40,6 +40,31 @@ def evidence_figures(structure: Tensor, direction: Tensor, batch: LineBatch, kee
 
     return {"keep_structure": share(kept, positive), "drop_other": share(~kept, negative),
             "direction_accuracy": share(right, positive)}
+
+
+def structure_offset(counts: Tensor, histogram: tuple[float, float, int], keep: float, keep_share: float) -> float:
+    """The offset to add to raw structure logits so that ``keep_share`` of the segments counted get a weight of at
+    least ``keep``.
+
+    Args:
+        counts: (bins,) how many structural segments' raw logits fall in each bin.
+        histogram: ``(lowest, highest, bins)``, the bins' range.
+        keep: the weight at or above which a segment is kept.
+        keep_share: the share to keep.
+
+    Returns:
+        The offset; a segment whose raw logit lies in the bin where the dropped share is reached, or above, is kept.
+
+    Example:
+        >>> counts = torch.zeros(100); counts[[10, 50, 60, 70]] = 1.0  # logits about -4, 0, 1, 2 on (-5, 5)
+        >>> round(structure_offset(counts, (-5.0, 5.0, 100), 0.5, 0.75), 3)  # keep 3 of 4: the one at 0 and above
+        -0.0
+    """
+    lo, hi, bins = histogram
+    below = torch.cumsum(counts.double(), 0) / counts.sum()  # share at or below each bin's upper edge
+    edge = int(torch.searchsorted(below, torch.tensor(1.0 - keep_share, dtype=below.dtype), right=True))
+    logit = lo + (hi - lo) * edge / bins  # the lower edge of the first bin kept
+    return float(torch.logit(torch.tensor(keep, dtype=torch.float64))) - logit
 
 
 class LineEvidenceModule(NetworkModule):
@@ -83,12 +108,8 @@ class LineEvidenceModule(NetworkModule):
         counts = self.trainer.strategy.reduce(self._positives, reduce_op="sum")  # every process's share of the set
         if float(counts.sum()) == 0:
             return
-        lo, hi, bins = self.HISTOGRAM
-        below = torch.cumsum(counts, 0) / counts.sum()  # share of positives at or below each bin's upper edge
-        edge = int(torch.searchsorted(below, torch.tensor(1.0 - self.hparams.keep_share, dtype=below.dtype)))
-        logit = lo + (hi - lo) * edge / bins  # the lower edge of the bin where the dropped share is reached
-        target = torch.logit(torch.tensor(self.hparams.keep, dtype=torch.float64))
-        self.net.structure_offset.fill_(float(target) - logit)
+        self.net.structure_offset.fill_(structure_offset(counts, self.HISTOGRAM, self.hparams.keep,
+                                                         self.hparams.keep_share))
 
     def forward(self, features: Tensor, mask: Tensor) -> tuple[Tensor, Tensor]:
         return self.net.classify(features, mask)

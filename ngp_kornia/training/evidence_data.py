@@ -5,7 +5,7 @@ features and their labels, cached on disk like the other training sets
 Each scene is rendered with its object map, its segments detected as the parser detects them (the default
 :class:`~ngp_kornia.models.ParserConfig`), their features computed by
 :func:`~ngp_kornia.nets.line_features.segment_features` (fixed, so they are cached with the sample and training
-reads them instead of the image) and labelled by :mod:`ngp_kornia.data.synth.line_labels`.
+reads them instead of the image) and labelled by :func:`ngp_kornia.data.synth.line_labels.line_targets`.
 """
 
 from __future__ import annotations
@@ -17,17 +17,18 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ngp_kornia.data.synth.line_labels import direction_classes, frame_vanishing_points, structure_targets
+from ngp_kornia.data.synth.line_labels import frame_vanishing_points, line_targets
 from ngp_kornia.data.synth.render import RenderConfig, config_spec, render_scene
 from ngp_kornia.detect import detect_segments, pad_segments
 from ngp_kornia.models.parser import ParserConfig
 from ngp_kornia.nets.line_features import FEATURE_NAMES, segment_features
+from ngp_kornia.threads import helper_threads
 from ngp_kornia.training.datamodules import CachedScenes, RenderedDataModule, SceneDataModule
 
 __all__ = ["LineBatch", "LineSample", "LineEvidenceDataModule", "RenderedLines", "collate_lines", "label_render"]
 
 #: changes whenever the features or the labels change, so that old caches are not read
-LABEL_VERSION = 1
+LABEL_VERSION = 2
 
 
 @dataclass
@@ -77,17 +78,19 @@ def label_render(scene, config: ParserConfig | None = None) -> LineSample:
     """
     if scene.objects is None:
         raise ValueError("the render has no object map: render it with render_scene(..., objects=True)")
-    segments, mask = detect_segments(scene.image, config or ParserConfig())
+    with helper_threads(1):  # LSD's strips one after the other on this thread: the same segments, one core
+        segments, mask = detect_segments(scene.image, config or ParserConfig())
     image = torch.from_numpy(scene.image).permute(2, 0, 1)[None].float() / 255.0
     with torch.no_grad():
         features = segment_features(image, segments, mask)[0]
     seg = segments[0]
-    zenith, horizontal = frame_vanishing_points(scene.K, scene.R, scene.frames)
+    structure, direction = line_targets(seg.numpy(), scene.objects, *frame_vanishing_points(scene.K, scene.R,
+                                                                                              scene.frames))
     return LineSample(
         segments=seg.numpy().astype(np.float32),
         features=features.numpy().astype(np.float32),
-        structure=structure_targets(seg.numpy(), scene.objects),
-        direction=direction_classes(seg, zenith, horizontal).numpy(),
+        structure=structure.astype(np.float32),
+        direction=direction,
         image_size=np.array(scene.image.shape[:2]),
     )
 

@@ -8,7 +8,13 @@ import numpy as np
 import pytest
 import torch
 
-from ngp_kornia.data.synth.line_labels import direction_classes, frame_vanishing_points, structure_targets
+from ngp_kornia.data.synth.line_labels import (
+    direction_classes,
+    frame_vanishing_points,
+    line_targets,
+    outline_lengths,
+    structure_targets,
+)
 from ngp_kornia.data.synth.objects import STRUCTURE_KINDS, ObjectMap, draw_object_map
 from ngp_kornia.data.synth.painter import Canvas, PinholeView
 from ngp_kornia.data.synth.pixels import sky_and_ground, view_rays
@@ -146,3 +152,22 @@ def test_foliage_off_keeps_the_config_digest():
     assert "foliage" not in config_spec(RenderConfig()) and config_spec(RenderConfig(foliage=0.5))["foliage"] == 0.5
     with pytest.raises(ValueError, match="foliage"):
         RenderConfig(foliage=2.0)
+
+
+def test_line_targets_keep_long_manhattan_outlines_only():
+    # a 640 x 480 map: a room (structural) wall right of column 299.5 over rows 40-439, and a small window in it;
+    # the level camera's zenith is straight down the image, a horizontal VP far to the right
+    ids = np.zeros((480, 640), np.int32)
+    ids[40:440, 300:] = 1
+    ids[200:212, 400:412] = 2  # a 12-pixel window pane
+    objects = ObjectMap(ids, np.array([OBJECT_KINDS.index(k) for k in ("sky", "room", "room")], np.int16))
+    segments = np.array([
+        [[299.5, 100.0], [299.5, 300.0]],  # on the wall's long edge, vertical
+        [[399.5, 201.0], [399.5, 210.0]],  # on the window's 12-pixel edge, vertical
+        [[299.5, 100.0], [310.0, 300.0]],  # across the wall's edge at a slant: points at no VP
+    ])
+    zenith, horizontal = torch.tensor([0.0, 1.0, 0.0]), torch.tensor([[1.0, 0.0, 0.0]])
+    structure, direction = line_targets(segments, objects, zenith, horizontal)
+    assert direction.tolist()[:2] == [0, 0] and direction[2] == 2
+    assert structure[0] == 1.0 and structure[1] == 0.0 and structure[2] == 0.0
+    assert outline_lengths(segments[:2], objects).tolist() == [400.0, 12.0]

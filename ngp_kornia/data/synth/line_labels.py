@@ -26,10 +26,21 @@ from ngp_kornia.data.synth.objects import ObjectMap
 from ngp_kornia.data.synth.scene import yaw_axes
 from ngp_kornia.geometry import segment_vp_angle
 
-__all__ = ["DIRECTIONS", "direction_classes", "frame_vanishing_points", "outline_lengths", "structure_targets"]
+__all__ = [
+    "DIRECTIONS",
+    "MIN_OUTLINE",
+    "direction_classes",
+    "frame_vanishing_points",
+    "line_targets",
+    "outline_lengths",
+    "structure_targets",
+]
 
 #: the direction classes, in the order of the labels and of the network's logits
 DIRECTIONS = ("vertical", "horizontal", "neither")
+#: the shortest outline (pixels at a 640-pixel long side) whose segments count as structure in
+#: :func:`line_targets`: people labelling lines draw the long, clear edges of buildings, not every window pane
+MIN_OUTLINE = 30.0
 
 
 def _sample_ids(ids: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -182,3 +193,29 @@ def direction_classes(segments: Tensor, zenith: Tensor, horizontal: Tensor, max_
     out[(to_horizontal <= reach) & (to_horizontal < to_zenith)] = 1
     out[(to_zenith <= reach) & (to_zenith <= to_horizontal)] = 0
     return out
+
+
+def line_targets(segments: np.ndarray, objects: ObjectMap, zenith: Tensor, horizontal: Tensor,
+                 min_outline: float = MIN_OUTLINE) -> tuple[np.ndarray, np.ndarray]:
+    """The labels the line-evidence network is trained on: what a person labelling the lines of a man-made scene
+    for its vanishing points would draw.
+
+    A segment's structure target is its share on a structural outline (:func:`structure_targets`), where it points
+    at a vanishing point of the scene's frames (its direction class is not ``neither``) and the outline it follows
+    is at least ``min_outline`` long (:func:`outline_lengths`; pixels at a 640-pixel long side); 0 otherwise.
+
+    Args:
+        segments: (N, 2, 2) pixels of the render.
+        objects: its object map.
+        zenith: (3,) the true zenith VP, homogeneous pixels.
+        horizontal: (V, 3) the true horizontal VPs.
+        min_outline: see above.
+
+    Returns:
+        structure targets (N,) float32 in [0, 1] and direction classes (N,) int64.
+    """
+    seg = np.asarray(segments, dtype=np.float64).reshape(-1, 2, 2)
+    direction = direction_classes(torch.from_numpy(seg), zenith, horizontal).numpy()
+    scale = max(objects.ids.shape) / 640.0
+    long = outline_lengths(seg, objects) >= min_outline * scale
+    return structure_targets(seg, objects) * ((direction < 2) & long), direction

@@ -376,19 +376,9 @@ def render_scene(seed: int, size: tuple[int, int] = (640, 480), config: RenderCo
     K = gt["K"].numpy() + np.array([[0, 0, margin], [0, 0, margin], [0, 0, 0]])
     view = PinholeView(K, gt["R"].numpy(), np.zeros(3), W + 2 * margin, H + 2 * margin)
     add = Additions(hard_rng, cfg.stairs, cfg.billboards) if cfg.stairs > 0 or cfg.billboards > 0 else None
-    if kind == "street":
-        scene = make_street(scene_rng, cam_h, cfg.clutter, view=view, additions=add)
-    elif kind == "indoor":
-        scene = make_room(scene_rng, cam_h, cfg.clutter, view_yaw=yaw)
-    else:
-        scene = make_atlanta(scene_rng, cam_h, cfg.clutter, view_yaw=yaw, additions=add)
+    scene = _make_scene(kind, scene_rng, cam_h, cfg.clutter, view, yaw, add)
     image = _paint(view, scene, *scene_lighting(photo_rng, kind, cfg), cfg.antialias)
-    object_map = draw_object_map(view, scene) if objects or cfg.foliage > 0 else None
-    if cfg.foliage > 0:
-        leaves = np.isin(object_map.kind_map(), [OBJECT_KINDS.index(k) for k in ("tree", "bush", "plant")])
-        foliage_texture(texture_rng, image, leaves, cfg.foliage * float(texture_rng.uniform(0.5, 1.0)))
-    if not objects:
-        object_map = None
+    object_map = _objects_and_foliage(view, scene, image, cfg, texture_rng, objects)
     if source is not None:
         image = cv2.remap(image, *(source + margin), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         if object_map is not None:  # nearest: ids are labels, never blended
@@ -398,6 +388,27 @@ def render_scene(seed: int, size: tuple[int, int] = (640, 480), config: RenderCo
         image = photometric(photo_rng, image, cfg)
     return RenderedScene(image=image, seed=int(seed), kind=kind, frames=tuple(scene.frames), scene=scene, k1=k1,
                          objects=object_map, **gt)
+
+
+def _make_scene(kind: str, rng: np.random.Generator, cam_h: float, clutter: float, view: PinholeView, yaw: float,
+                add: Additions | None) -> Scene:
+    if kind == "street":
+        return make_street(rng, cam_h, clutter, view=view, additions=add)
+    if kind == "indoor":
+        return make_room(rng, cam_h, clutter, view_yaw=yaw)
+    return make_atlanta(rng, cam_h, clutter, view_yaw=yaw, additions=add)
+
+
+def _objects_and_foliage(view: PinholeView, scene: Scene, image: np.ndarray, cfg: RenderConfig,
+                         rng: np.random.Generator, objects: bool) -> ObjectMap | None:
+    """The object map when asked for, and the leafy texture (drawn on the map's leaf pixels) when the config asks."""
+    if not objects and cfg.foliage <= 0:
+        return None
+    object_map = draw_object_map(view, scene)
+    if cfg.foliage > 0:
+        leaves = np.isin(object_map.kind_map(), [OBJECT_KINDS.index(k) for k in ("tree", "bush", "plant")])
+        foliage_texture(rng, image, leaves, cfg.foliage * float(rng.uniform(0.5, 1.0)))
+    return object_map if objects else None
 
 
 def _paint(view: PinholeView, scene: Scene, light: Lighting, sky: tuple, antialias: bool) -> np.ndarray:

@@ -43,6 +43,8 @@ _SPHERE_BINS, _VOTERS, _PEAKS = 300, 128, 6
 #: cell size (pixels) and orientation bins of the crowding counts
 _CELL, _ORIENTATIONS = 32, 12
 
+_UNIT_X = torch.tensor([1.0, 0.0])
+
 FEATURE_NAMES = (
     "log_length", "cos_2theta", "sin_2theta", "mid_x", "mid_y",
     "neighbours", "parallel_neighbours", "collinear_length", "length_rank",
@@ -60,6 +62,8 @@ def to_working_resolution(segments: Tensor, height: int, width: int) -> tuple[Te
         ([[[[-0.5, -0.5], [639.5, 479.5]]]], 480, 640)
     """
     scale = WORKING_SIZE / max(height, width)
+    if scale == 1.0:
+        return segments, height, width
     h, w = max(1, round(height * scale)), max(1, round(width * scale))
     factor = torch.tensor([w / width, h / height], dtype=segments.dtype, device=segments.device)
     return (segments + 0.5) * factor - 0.5, h, w
@@ -70,8 +74,7 @@ def _frames(segments: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     zero-length segment gets the direction (1, 0)."""
     start, d = segments[..., 0, :], segments[..., 1, :] - segments[..., 0, :]
     length = d.norm(dim=-1)
-    u = torch.where(length[..., None] > 1e-6, d / length.clamp_min(1e-6)[..., None], torch.zeros_like(d))
-    u = u + torch.stack([(length <= 1e-6).to(d), torch.zeros_like(length)], -1)
+    u = torch.where(length[..., None] > 1e-6, d / length.clamp_min(1e-6)[..., None], _UNIT_X.to(d))
     return start, u, torch.stack([-u[..., 1], u[..., 0]], -1), length
 
 

@@ -31,7 +31,7 @@ def test_package_data_ships_weights_configs_and_py_typed():
     data = PYPROJECT["tool"]["setuptools"]["package-data"]["ngp_kornia"]
     assert {"weights/*.pt", "configs/*.yaml", "py.typed"} <= set(data)
     assert (package / "py.typed").is_file()
-    assert sorted(p.name for p in (package / "configs").glob("*.yaml")) == ["fsnet.yaml", "zsnet.yaml"]
+    assert sorted(p.name for p in (package / "configs").glob("*.yaml")) == ["evidence.yaml", "fsnet.yaml", "zsnet.yaml"]
 
 
 def test_extras_for_notebooks_plots_and_tensorboard():

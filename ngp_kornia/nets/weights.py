@@ -17,6 +17,7 @@ from torch import nn
 from ngp_kornia.errors import WeightsError
 from ngp_kornia.io.files import open_file
 from ngp_kornia.nets.fsnet import FSNet
+from ngp_kornia.nets.line_evidence import LineEvidenceNet
 from ngp_kornia.nets.zsnet import ZSNet
 
 __all__ = [
@@ -39,7 +40,7 @@ VERSION = 1
 MAX_INFLATION = 16
 WEIGHTS_DIR = Path(__file__).resolve().parent.parent / "weights"
 #: the networks a weights file may hold, by name
-NETWORKS: dict[str, type[nn.Module]] = {"FSNet": FSNet, "ZSNet": ZSNet}
+NETWORKS: dict[str, type[nn.Module]] = {"FSNet": FSNet, "LineEvidenceNet": LineEvidenceNet, "ZSNet": ZSNet}
 
 
 def save_network(net: nn.Module, path: str | Path, settings: dict, metadata: dict | None = None) -> Path:

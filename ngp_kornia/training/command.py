@@ -42,8 +42,8 @@ LIGHTNING_COMMANDS = ("fit", "validate", "test", "predict")
 _OWN = ("-h", "--help", "--version")
 
 _DESCRIPTION = (
-    "Train ZSNet and FSNet with Lightning (fit, validate, test, predict), then export the network (export) and "
-    "plot its curves (plot)."
+    "Train ZSNet, FSNet and the line-evidence network with Lightning (fit, validate, test, predict), then export the "
+    "network (export) and plot its curves (plot)."
 )
 _EPILOG = (
     "Packaged configs, by name: {names} (e.g. --config zsnet; a path to a YAML file of your own works too). "

@@ -15,7 +15,7 @@ import sys
 import zipfile
 from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import asdict, dataclass, fields
+from dataclasses import MISSING, asdict, dataclass, fields
 from pathlib import Path
 
 import cv2
@@ -94,15 +94,16 @@ def _digest(spec: dict) -> str:
     return hashlib.sha1(json.dumps(spec, sort_keys=True, default=str).encode()).hexdigest()[:12]
 
 
-def read_cached_sample(path: Path) -> Sample | None:
-    """A cached sample, or None when the file cannot be used (truncated, damaged, or holding pickled objects, which
-    are never loaded: ``allow_pickle=False``); the caller then computes the sample again and rewrites the file."""
+def read_cached_sample(path: Path, sample_type: type = Sample):
+    """A cached sample (a ``sample_type``, a dataclass of arrays), or None when the file cannot be used (truncated,
+    damaged, missing a field without a default, or holding pickled objects, which are never loaded:
+    ``allow_pickle=False``); the caller then computes the sample again and rewrites the file."""
     try:
         with np.load(path, allow_pickle=False) as data:
-            sample = Sample(**{f.name: data[f.name] if f.name in data else None for f in fields(Sample)})
+            sample = sample_type(**{f.name: data[f.name] if f.name in data else None for f in fields(sample_type)})
     except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError):
         return None
-    complete = all(getattr(sample, f.name) is not None for f in fields(Sample) if f.name != "image")
+    complete = all(getattr(sample, f.name) is not None for f in fields(sample_type) if f.default is MISSING)
     return sample if complete else None
 
 
@@ -120,6 +121,9 @@ class CachedScenes(Dataset):
         max_segments: longest segments kept per image.
         input_size: also keep the image resized to ``(w, h)``, the network's input (for FSNet), or None.
     """
+
+    #: the dataclass :meth:`compute` returns and the cache holds
+    sample_type: type = Sample
 
     def __init__(
         self,
@@ -151,7 +155,7 @@ class CachedScenes(Dataset):
         key = self.keys[index]
         path = None if self.cache is None else self.cache / f"{key}.npz"
         if path is not None and path.exists():
-            cached = read_cached_sample(path)
+            cached = read_cached_sample(path, self.sample_type)
             if cached is not None:
                 return cached
         sample = self.compute(key)
@@ -338,6 +342,9 @@ class SceneDataModule(L.LightningDataModule):
     run.
     """
 
+    #: how the loaders batch the samples
+    collate = staticmethod(collate_scenes)
+
     def __init__(self, batch_size: int = 16, num_workers: int = 0) -> None:
         super().__init__()
         self.batch_size, self.num_workers = batch_size, num_workers
@@ -381,7 +388,7 @@ class SceneDataModule(L.LightningDataModule):
             batch_size=self.batch_size,
             shuffle=shuffle,
             num_workers=self.num_workers,
-            collate_fn=collate_scenes,
+            collate_fn=self.collate,
             persistent_workers=self.num_workers > 0,
         )
 

@@ -109,11 +109,11 @@ def _facing_basis(view: PinholeView, center: np.ndarray) -> tuple[np.ndarray, np
     return -side, UP
 
 
-def _lazy(rng: np.random.Generator, footprint: np.ndarray, y_top: float, y_bottom: float, make) -> Item:
+def _lazy(rng: np.random.Generator, footprint: np.ndarray, y_top: float, y_bottom: float, make, kind: str) -> Item:
     """An item whose details are drawn from its own seed only when it is built, i.e. seen: creating the many
     objects of a scene then costs one random draw each."""
     seed = int(rng.integers(2**31))
-    return Item(footprint, y_top, y_bottom, lambda view: make(np.random.default_rng(seed), view))
+    return Item(footprint, y_top, y_bottom, lambda view: make(np.random.default_rng(seed), view), kind)
 
 
 def make_car(rng: np.random.Generator, center, yaw: float, ground_y: float) -> Item:
@@ -126,7 +126,7 @@ def make_car(rng: np.random.Generator, center, yaw: float, ground_y: float) -> I
     """
     center = np.asarray(center, dtype=np.float64)
     return _lazy(rng, _footprint(center, (1.1, 2.6), yaw), ground_y - 2.1, ground_y,
-                 lambda r, view: _car_faces(r, view, center, yaw, ground_y))
+                 lambda r, view: _car_faces(r, view, center, yaw, ground_y), "car")
 
 
 def _car_faces(rng: np.random.Generator, view: PinholeView, center: np.ndarray, yaw: float, ground_y: float):
@@ -178,7 +178,7 @@ def make_tree(rng: np.random.Generator, center, ground_y: float, scale: float = 
     """A tree: a slightly leaning trunk and a canopy of irregular blobs (or a conifer's stacked triangles)."""
     center = np.asarray(center, dtype=np.float64)
     return _lazy(rng, _footprint(center, (0.5, 0.5), 0.0), ground_y - 13.0 * scale, ground_y,
-                 lambda r, view: _tree_faces(r, view, center, ground_y, scale))
+                 lambda r, view: _tree_faces(r, view, center, ground_y, scale), "tree")
 
 
 def _tree_faces(rng: np.random.Generator, view: PinholeView, center: np.ndarray, ground_y: float, scale: float):
@@ -220,7 +220,7 @@ def make_bush(rng: np.random.Generator, center, ground_y: float) -> Item:
         return [Face(blob(c, size, e1, e2, r, squash=0.6), leaves * 0.8),
                 Face(blob(c + 0.2 * size * e2, 0.6 * size, e1, e2, r, squash=0.6), leaves)]
 
-    return _lazy(rng, _footprint(center, (0.3, 0.3), 0.0), ground_y - 1.4, ground_y, faces)
+    return _lazy(rng, _footprint(center, (0.3, 0.3), 0.0), ground_y - 1.4, ground_y, faces, "bush")
 
 
 def make_pole(rng: np.random.Generator, center, ground_y: float, arm_yaw: float) -> Item:
@@ -228,7 +228,7 @@ def make_pole(rng: np.random.Generator, center, ground_y: float, arm_yaw: float)
     or square sign, or a traffic light. Its footprint is the foot of the pole: the arm hangs high above the rest."""
     center = np.asarray(center, dtype=np.float64)
     return _lazy(rng, _footprint(center, (0.3, 0.3), 0.0), ground_y - 8.5, ground_y,
-                 lambda r, view: _pole_faces(r, center, ground_y, arm_yaw))
+                 lambda r, view: _pole_faces(r, center, ground_y, arm_yaw), "pole")
 
 
 def _pole_faces(rng: np.random.Generator, center: np.ndarray, ground_y: float, arm_yaw: float) -> list[Face]:
@@ -290,7 +290,7 @@ def make_person(rng: np.random.Generator, center, ground_y: float) -> Item:
     """A pedestrian as a flat silhouette turned towards the camera (legs, body, arms, head)."""
     center = np.asarray(center, dtype=np.float64)
     return _lazy(rng, _footprint(center, (0.3, 0.3), 0.0), ground_y - 2.0, ground_y,
-                 lambda r, view: _person_faces(r, view, center, ground_y))
+                 lambda r, view: _person_faces(r, view, center, ground_y), "person")
 
 
 def _person_faces(rng: np.random.Generator, view: PinholeView, center: np.ndarray, ground_y: float) -> list[Face]:
@@ -325,7 +325,7 @@ def make_bench(rng: np.random.Generator, center, yaw: float, ground_y: float) ->
         # the back stands above the seat's rear edge: it may hide the seat, never the other way round
         return seat_f + hexahedron_faces(back, back - [0, 0.45, 0], color * 0.9)
 
-    return _lazy(rng, _footprint(center, (0.3, 1.1), yaw), ground_y - 0.9, ground_y, faces)
+    return _lazy(rng, _footprint(center, (0.3, 1.1), yaw), ground_y - 0.9, ground_y, faces, "bench")
 
 
 def make_bollard(rng: np.random.Generator, center, ground_y: float) -> Item:
@@ -337,7 +337,7 @@ def make_bollard(rng: np.random.Generator, center, ground_y: float) -> Item:
         bottom = _box_corners(center, (w, w), r.uniform(0, 90), ground_y)
         return hexahedron_faces(bottom, bottom - [0, h, 0], _pick(r, _METAL + [(170, 40, 30), (40, 90, 60)]))
 
-    return _lazy(rng, _footprint(center, (0.45, 0.45), 0.0), ground_y - 1.1, ground_y, faces)
+    return _lazy(rng, _footprint(center, (0.45, 0.45), 0.0), ground_y - 1.1, ground_y, faces, "bollard")
 
 
 def wire(a: np.ndarray, b: np.ndarray, sag: float, color=(30, 30, 30), n: int = 16) -> Face:

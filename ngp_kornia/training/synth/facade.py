@@ -434,5 +434,5 @@ def make_building(seed: int, center, half, yaw: float, ground_y: float, height: 
 
     # the top is a bound: a tower may rise up to max(5, height) above the block
     item = Item(rotated_rect(center, (half[0] + reach, half[1] + reach), yaw), y_top - max(5.0, height), ground_y,
-                build)
+                build, "building")
     return item, (lo, hi)

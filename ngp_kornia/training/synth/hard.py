@@ -82,7 +82,8 @@ def make_stairs(rng: np.random.Generator, center, yaw: float, ground_y: float, l
     seed = int(rng.integers(2**31))
     rise_max = length * math.tan(math.radians(40.0)) + 1.2
     return Item(rotated_rect(center, (0.5 * width + 0.1, 0.5 * length + 0.1), yaw), ground_y - rise_max, ground_y,
-                lambda view: _stairs_faces(np.random.default_rng(seed), view, center, yaw, ground_y, length, width))
+                lambda view: _stairs_faces(np.random.default_rng(seed), view, center, yaw, ground_y, length, width),
+                "stairs")
 
 
 def _stairs_faces(rng: np.random.Generator, view: PinholeView, center: np.ndarray, yaw: float, ground_y: float,
@@ -151,7 +152,8 @@ def make_billboard(rng: np.random.Generator, center, yaw: float, ground_y: float
     center = np.asarray(center, dtype=np.float64)
     seed = int(rng.integers(2**31))
     return Item(rotated_rect(center, (0.5 * width + 0.1, 0.3), yaw), ground_y - 7.5, ground_y,
-                lambda view: _billboard_faces(np.random.default_rng(seed), center, yaw, ground_y, width))
+                lambda view: _billboard_faces(np.random.default_rng(seed), center, yaw, ground_y, width),
+                "billboard")
 
 
 def _billboard_faces(rng: np.random.Generator, center: np.ndarray, yaw: float, ground_y: float,

@@ -416,7 +416,7 @@ def _place(rng, scene: Scene, kind: str, r: np.ndarray, wall_k: int, gy: float) 
         return faces + _box(center, (half[0] - 0.04, half[1] - 0.04), 0.0, gy - 0.28, 0.2, fabric,
                             fabric * 1.1 if kind == "sofa" else np.array([235.0, 235.0, 230.0]))
 
-    scene.items.append(Item(_rect_fp(r), gy - height - 0.5, gy, build))
+    scene.items.append(Item(_rect_fp(r), gy - height - 0.5, gy, build, "furniture"))
     if kind in ("shelf", "cabinet", "wardrobe"):
         scene.boxes.append((np.array([r[0], gy - height, r[1]]), np.array([r[2], gy, r[3]])))
 
@@ -428,7 +428,8 @@ def _rect_fp(r: np.ndarray) -> np.ndarray:
 def _add_box_item(scene: Scene, r: np.ndarray, gy: float, height: float, color: np.ndarray) -> None:
     center = np.array([(r[0] + r[2]) / 2, (r[1] + r[3]) / 2])
     half = ((r[2] - r[0]) / 2, (r[3] - r[1]) / 2)
-    scene.items.append(Item(_rect_fp(r), gy - height, gy, lambda view: _box(center, half, 0.0, gy, height, color)))
+    scene.items.append(Item(_rect_fp(r), gy - height, gy, lambda view: _box(center, half, 0.0, gy, height, color),
+                            "furniture"))
     scene.boxes.append((np.array([r[0], gy - height, r[1]]), np.array([r[2], gy, r[3]])))
 
 
@@ -464,4 +465,4 @@ def _free_standing(rng, scene: Scene, kind: str, bounds, gy: float, free, taken)
         leaves = _pick(drng, [(60, 110, 50), (40, 90, 40), (90, 130, 60)])
         return pot + [Face(blob(crown, 0.5 * (height - 0.3), e1, e2, drng, rough=0.2), leaves, None)]
 
-    scene.items.append(Item(fp, gy - height, gy, build))
+    scene.items.append(Item(fp, gy - height, gy, build, {"table": "furniture"}.get(kind, kind)))

@@ -239,8 +239,9 @@ class DrawList:
         self._nseg += len(segs)
         self._cmds.append((1, 0, start, self._nseg, (color, float(width), under)))
 
-    def draw(self, view: PinholeView, image: np.ndarray, antialias: bool = True) -> None:
-        """Clip, project and draw everything queued, in order, into ``image`` (H, W, 3) uint8."""
+    def draw(self, view: PinholeView, image: np.ndarray, antialias: bool = True, min_width: float = 0.0) -> None:
+        """Clip, project and draw everything queued, in order, into ``image`` (H, W, 3) uint8; lines narrower than
+        ``min_width`` pixels are left out."""
         line_type = cv2.LINE_AA if antialias else cv2.LINE_8
         polys = {k: _project_batch(view, np.concatenate(v)) for k, v in self._polys.items()}
         segs = _project_segments(view, np.concatenate(self._segs)) if self._segs else None
@@ -256,6 +257,8 @@ class DrawList:
                 continue
             color, width, under = arg
             px = view.focal * width / float(depth[a:b][sel].mean()) if width > 0 else 1.0
+            if px < min_width:
+                continue
             if px < 1.0 and under is not None:
                 c, u = np.asarray(color, dtype=np.float64), np.asarray(under, dtype=np.float64)
                 color = u + px * (c - u)

@@ -15,7 +15,7 @@ import numpy as np
 
 from ngp_kornia.training.synth.painter import PinholeView
 
-__all__ = ["ground_haze", "photometric", "sky_and_ground", "view_rays"]
+__all__ = ["foliage_texture", "ground_haze", "photometric", "sky_and_ground", "view_rays"]
 
 _local = threading.local()
 
@@ -137,6 +137,31 @@ def ground_haze(image: np.ndarray, ground_y: float, visibility: float, haze, sin
         a += b
         a += np.float32(0.5)
         image[..., c] = a
+
+
+def foliage_texture(rng: np.random.Generator, image: np.ndarray, leaves: np.ndarray, amplitude: float) -> None:
+    """Leafy texture on the pixels of ``leaves``, in place: blotches of light and shade a few pixels wide with sharp
+    borders in every direction, as the leaves of real trees and bushes give (and line detectors then find many
+    short segments on them, which flat polygons do not give).
+
+    Args:
+        rng: random generator.
+        image: (H, W, 3) uint8 RGB.
+        leaves: (H, W) bool, the pixels to texture.
+        amplitude: the largest relative change of brightness (0 none).
+    """
+    rows, cols = np.flatnonzero(leaves.any(1)), np.flatnonzero(leaves.any(0))
+    if amplitude <= 0 or len(rows) == 0:
+        return
+    y0, y1, x0, x1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
+    h, w = int(y1 - y0), int(x1 - x0)
+    scale = float(rng.uniform(3.0, 8.0))  # blotch size in pixels
+    coarse = rng.standard_normal((int(h / scale) + 2, int(w / scale) + 2), dtype=np.float32)
+    blotch = cv2.resize(coarse, (w, h), interpolation=cv2.INTER_LINEAR)
+    gain = 1.0 + np.float32(amplitude) * np.tanh(np.float32(3.0) * blotch)  # mostly near +-amplitude: sharp borders
+    box = image[y0:y1, x0:x1]
+    mask = leaves[y0:y1, x0:x1]
+    box[mask] = np.clip(box[mask] * gain[mask][:, None] + 0.5, 0, 255).astype(np.uint8)
 
 
 def photometric(rng: np.random.Generator, image: np.ndarray, cfg) -> np.ndarray:

@@ -46,10 +46,12 @@ from ngp_kornia.geometry.camera import (
 from ngp_kornia.training.synth.hard import Additions
 from ngp_kornia.training.synth.interior import make_room
 from ngp_kornia.training.synth.layouts import make_street
+from ngp_kornia.training.synth.lighting import scene_lighting
+from ngp_kornia.training.synth.objects import ObjectMap, draw_object_map
 from ngp_kornia.training.synth.painter import Canvas, PinholeView
-from ngp_kornia.training.synth.pixels import ground_haze, photometric, sky_and_ground, view_rays
+from ngp_kornia.training.synth.pixels import foliage_texture, ground_haze, photometric, sky_and_ground, view_rays
 from ngp_kornia.training.synth.plaza import make_atlanta
-from ngp_kornia.training.synth.scene import Lighting, Scene, draw_ground, draw_objects
+from ngp_kornia.training.synth.scene import OBJECT_KINDS, Lighting, Scene, draw_ground, draw_objects
 
 __all__ = [
     "HARD_DEFAULTS",
@@ -57,6 +59,7 @@ __all__ = [
     "KINDS",
     "RenderConfig",
     "RenderedScene",
+    "TEXTURE_DEFAULTS",
     "camera_ground_truth",
     "config_spec",
     "render_dataset",
@@ -119,6 +122,9 @@ class RenderConfig:
             centre along each axis, as a fraction of the image height (Gaussian, clipped at 3 standard deviations).
             Real cameras rarely have it exactly at the centre; the label's ``K`` carries the true one, so the
             horizon is measured against it while pitch and roll (from ``R``) do not depend on it.
+        foliage: texture, the largest relative change of brightness of the leafy texture laid on trees, bushes and
+            plants (:func:`~ngp_kornia.training.synth.pixels.foliage_texture`; its amplitude is drawn in
+            ``[foliage / 2, foliage]``); 0 leaves them as flat polygons.
         radial_distortion: camera imperfection, standard deviation of the radial distortion coefficient ``k1``
             (Gaussian, clipped at 3 standard deviations) of the division model ``x_u = x_d / (1 + k1 |x_d|^2)``,
             ``x`` the ray's coordinates ``(p - c) / f`` about the principal point: the pinhole image, drawn with a
@@ -159,6 +165,7 @@ class RenderConfig:
     fronto_jitter: float = 3.0
     principal_point_std: float = 0.0
     radial_distortion: float = 0.0
+    foliage: float = 0.0
 
     def __post_init__(self) -> None:
         _check_numbers(self)
@@ -186,6 +193,8 @@ class RenderConfig:
         if not (isinstance(self.radial_distortion, int | float) and 0.0 <= self.radial_distortion <= 0.1):
             raise ValueError(f"radial_distortion must be a standard deviation of k1 in [0, 0.1], "
                              f"got {self.radial_distortion!r}")
+        if not (isinstance(self.foliage, int | float) and 0.0 <= self.foliage <= 1.0):
+            raise ValueError(f"foliage must be a relative change of brightness in [0, 1], got {self.foliage!r}")
         if not 0.0 <= self.fronto_prob <= 1.0:
             raise ValueError(f"fronto_prob must be a probability, got {self.fronto_prob}")
         unknown = set(self.kinds) - set(KINDS)
@@ -217,6 +226,8 @@ class RenderedScene:
         frames: yaws (degrees) of the block groups in the scene, the ground-truth one (0) first.
         scene: the 3D scene (for checks and debugging).
         k1: the radial distortion coefficient the image was warped with (0: a pinhole image).
+        objects: what each pixel shows (:class:`~ngp_kornia.training.synth.objects.ObjectMap`), warped as the image
+            is; None unless :func:`render_scene` was asked for it.
     """
 
     image: np.ndarray
@@ -236,6 +247,7 @@ class RenderedScene:
     frames: tuple[float, ...] = (0.0,)
     scene: Scene | None = field(default=None, repr=False)
     k1: float = 0.0
+    objects: ObjectMap | None = field(default=None, repr=False)
 
     @property
     def height(self) -> int:
@@ -266,6 +278,9 @@ HARD_DEFAULTS = {"stairs": 0.0, "billboards": 0.0, "fronto_prob": 0.0, "fronto_j
 IMPERFECTION_DEFAULTS = {"principal_point_std": 0.0, "radial_distortion": 0.0}
 """The camera-imperfection options of :class:`RenderConfig` and their defaults (off: an ideal pinhole)."""
 
+TEXTURE_DEFAULTS = {"foliage": 0.0}
+"""The texture options of :class:`RenderConfig` and their defaults (off: flat polygons)."""
+
 
 def config_spec(config: RenderConfig) -> dict:
     """The settings of a config that change its renders, as a plain dict: every field, less the hard-case options
@@ -278,7 +293,7 @@ def config_spec(config: RenderConfig) -> dict:
     spec = asdict(config)
     if config.fronto_prob == 0.0:
         spec.pop("fronto_jitter")  # has no effect then
-    defaults = {**HARD_DEFAULTS, **IMPERFECTION_DEFAULTS}
+    defaults = {**HARD_DEFAULTS, **IMPERFECTION_DEFAULTS, **TEXTURE_DEFAULTS}
     return {k: v for k, v in spec.items() if not (k in defaults and v == defaults[k])}
 
 
@@ -329,13 +344,15 @@ def _uniform(rng: np.random.Generator, r) -> float:
     return float(rng.uniform(r[0], r[1])) if r[1] > r[0] else float(r[0])
 
 
-def render_scene(seed: int, size: tuple[int, int] = (640, 480), config: RenderConfig | None = None) -> RenderedScene:
+def render_scene(seed: int, size: tuple[int, int] = (640, 480), config: RenderConfig | None = None,
+                 objects: bool = False) -> RenderedScene:
     """Render one random scene with its exact calibration ground truth, deterministically from ``seed``.
 
     Args:
         seed: non-negative integer; the same seed, size and config always give the same image.
         size: image ``(W, H)``.
         config: what to draw; :class:`RenderConfig` defaults when None.
+        objects: also draw the object map (what each pixel shows); the image is the same either way.
 
     Returns:
         The image and its ground truth.
@@ -349,10 +366,11 @@ def render_scene(seed: int, size: tuple[int, int] = (640, 480), config: RenderCo
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
     W, H = _check_size(size)
     cfg = RenderConfig() if config is None else config
-    # the hard cases draw from a fourth stream, the camera imperfections from a fifth: the first three are those of
-    # spawn(3), as before they existed (a SeedSequence's i-th child does not depend on how many are spawned)
-    cam_rng, scene_rng, photo_rng, hard_rng, lens_rng = (
-        np.random.default_rng(s) for s in np.random.SeedSequence(int(seed)).spawn(5))
+    # the hard cases draw from a fourth stream, the camera imperfections from a fifth, the textures from a sixth: the
+    # first three are those of spawn(3), as before they existed (a SeedSequence's i-th child does not depend on how
+    # many are spawned)
+    cam_rng, scene_rng, photo_rng, hard_rng, lens_rng, texture_rng = (
+        np.random.default_rng(s) for s in np.random.SeedSequence(int(seed)).spawn(6))
     names = [k for k in KINDS if cfg.kinds.get(k, 0.0) > 0]
     p = np.array([cfg.kinds[k] for k in names])
     kind = names[int(cam_rng.choice(len(names), p=p / p.sum()))]
@@ -371,18 +389,39 @@ def render_scene(seed: int, size: tuple[int, int] = (640, 480), config: RenderCo
     K = gt["K"].numpy() + np.array([[0, 0, margin], [0, 0, margin], [0, 0, 0]])
     view = PinholeView(K, gt["R"].numpy(), np.zeros(3), W + 2 * margin, H + 2 * margin)
     add = Additions(hard_rng, cfg.stairs, cfg.billboards) if cfg.stairs > 0 or cfg.billboards > 0 else None
-    if kind == "street":
-        scene = make_street(scene_rng, cam_h, cfg.clutter, view=view, additions=add)
-    elif kind == "indoor":
-        scene = make_room(scene_rng, cam_h, cfg.clutter, view_yaw=yaw)
-    else:
-        scene = make_atlanta(scene_rng, cam_h, cfg.clutter, view_yaw=yaw, additions=add)
-    image = _paint(view, scene, *_lighting(photo_rng, kind, cfg), cfg.antialias)
+    scene = _make_scene(kind, scene_rng, cam_h, cfg.clutter, view, yaw, add)
+    image = _paint(view, scene, *scene_lighting(photo_rng, kind, cfg), cfg.antialias)
+    object_map = _objects_and_foliage(view, scene, image, cfg, texture_rng, objects)
     if source is not None:
         image = cv2.remap(image, *(source + margin), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        if object_map is not None:  # nearest: ids are labels, never blended
+            ids = cv2.remap(object_map.ids, *(source + margin), cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
+            object_map = ObjectMap(ids, object_map.kinds)
     if cfg.photometric:
         image = photometric(photo_rng, image, cfg)
-    return RenderedScene(image=image, seed=int(seed), kind=kind, frames=tuple(scene.frames), scene=scene, k1=k1, **gt)
+    return RenderedScene(image=image, seed=int(seed), kind=kind, frames=tuple(scene.frames), scene=scene, k1=k1,
+                         objects=object_map, **gt)
+
+
+def _make_scene(kind: str, rng: np.random.Generator, cam_h: float, clutter: float, view: PinholeView, yaw: float,
+                add: Additions | None) -> Scene:
+    if kind == "street":
+        return make_street(rng, cam_h, clutter, view=view, additions=add)
+    if kind == "indoor":
+        return make_room(rng, cam_h, clutter, view_yaw=yaw)
+    return make_atlanta(rng, cam_h, clutter, view_yaw=yaw, additions=add)
+
+
+def _objects_and_foliage(view: PinholeView, scene: Scene, image: np.ndarray, cfg: RenderConfig,
+                         rng: np.random.Generator, objects: bool) -> ObjectMap | None:
+    """The object map when asked for, and the leafy texture (drawn on the map's leaf pixels) when the config asks."""
+    if not objects and cfg.foliage <= 0:
+        return None
+    object_map = draw_object_map(view, scene)
+    if cfg.foliage > 0:
+        leaves = np.isin(object_map.kind_map(), [OBJECT_KINDS.index(k) for k in ("tree", "bush", "plant")])
+        foliage_texture(rng, image, leaves, cfg.foliage * float(rng.uniform(0.5, 1.0)))
+    return object_map if objects else None
 
 
 def _paint(view: PinholeView, scene: Scene, light: Lighting, sky: tuple, antialias: bool) -> np.ndarray:
@@ -423,38 +462,6 @@ def _fronto_yaw(rng: np.random.Generator, kind: str, yaw: float, jitter: float) 
     step = 180.0 if kind == "street" else 90.0
     base = 90.0 + step * round((yaw - 90.0) / step)
     return float(base + rng.normal(0.0, jitter))
-
-
-_SKIES = {
-    "clear": ((75, 125, 200), (195, 210, 230)),
-    "pale": ((120, 160, 210), (215, 222, 232)),
-    "dusk": ((80, 95, 150), (235, 190, 150)),
-    "overcast": ((170, 175, 185), (215, 218, 222)),
-}
-
-
-def _lighting(rng: np.random.Generator, kind: str, cfg: RenderConfig) -> tuple[Lighting, tuple[np.ndarray, ...]]:
-    """Lights, haze, and the sky colours (zenith, horizon)."""
-    overcast = kind != "indoor" and rng.random() < cfg.overcast_prob
-    sky_name = "overcast" if overcast else ["clear", "pale", "dusk"][rng.choice(3, p=[0.5, 0.35, 0.15])]
-    top, horizon = (np.asarray(c, float) + rng.normal(0, 6, 3) for c in _SKIES[sky_name])
-    if kind == "indoor":
-        sun = np.array([rng.normal(0, 0.3), -1.0, rng.normal(0, 0.3)])
-        fill = np.array([math.cos(a := rng.uniform(0, 2 * math.pi)), -0.2, math.sin(a)])
-        light = Lighting(ambient=rng.uniform(0.55, 0.75), sun_dir=sun / np.linalg.norm(sun), sun=rng.uniform(0.15, 0.3),
-                         fill_dir=fill / np.linalg.norm(fill), fill=rng.uniform(0.1, 0.3))
-        return light, (top, horizon)
-    az, el = rng.uniform(0, 2 * math.pi), math.radians(rng.uniform(15, 70))
-    sun = np.array([math.cos(el) * math.sin(az), -math.sin(el), math.cos(el) * math.cos(az)])
-    fill = np.array([-sun[0], -0.3, -sun[2]])
-    light = Lighting(
-        ambient=rng.uniform(0.75, 0.9) if overcast else rng.uniform(0.45, 0.62),
-        sun_dir=sun, sun=rng.uniform(0.1, 0.2) if overcast else rng.uniform(0.35, 0.6),
-        fill_dir=fill / np.linalg.norm(fill), fill=rng.uniform(0.05, 0.15),
-        haze=horizon.copy(),
-        visibility=_uniform(rng, cfg.visibility) if rng.random() < cfg.haze_prob else math.inf,
-    )
-    return light, (top, horizon)
 
 
 def render_dataset(outdir: str | Path, count: int, seed: int = 0, size: tuple[int, int] = (640, 480),

@@ -27,6 +27,7 @@ import numpy as np
 from ngp_kornia.training.synth.painter import Canvas, DrawList, PinholeView
 
 __all__ = [
+    "OBJECT_KINDS",
     "UP",
     "Decal",
     "Face",
@@ -39,13 +40,20 @@ __all__ = [
     "draw_ground",
     "draw_objects",
     "draw_scene",
+    "faces_viewer",
     "order_items",
+    "ordered_items",
     "rect_corners",
     "visible_items",
     "yaw_axes",
 ]
 
 UP = np.array([0.0, -1.0, 0.0])  # world up: y points down
+
+#: what a pixel of a render can show: the sky, the ground plane with what lies on it (pavements, markings), a room's
+#: shell (walls, floor, ceiling with their doors and windows), and the kinds of :class:`Item`
+OBJECT_KINDS = ("sky", "ground", "room", "building", "furniture", "stairs", "billboard", "car", "tree", "bush",
+                "pole", "person", "bench", "bollard", "plant", "chair", "wire", "other")
 
 
 @dataclass
@@ -93,12 +101,19 @@ class Item:
         y_top: smallest world y of the object (its top; y points down).
         y_bottom: largest world y (its base).
         build: ``build(view) -> list[Face]`` returns the faces in drawing order for that camera.
+        kind: what the object is, one of :data:`OBJECT_KINDS` (``"building"``, ``"car"``, ``"tree"``, ...): the
+            object map of :mod:`ngp_kornia.training.synth.objects` labels its pixels with it.
     """
 
     footprint: np.ndarray
     y_top: float
     y_bottom: float
     build: Callable[[PinholeView], list[Face]]
+    kind: str = "other"
+
+    def __post_init__(self) -> None:
+        if self.kind not in OBJECT_KINDS:
+            raise ValueError(f"unknown item kind {self.kind!r}; choose one of {', '.join(OBJECT_KINDS)}")
 
 
 @dataclass
@@ -372,13 +387,19 @@ def _toposort(n: int, src: np.ndarray, dst: np.ndarray, dist: np.ndarray) -> lis
     return out
 
 
+def faces_viewer(face: Face, center: np.ndarray) -> bool:
+    """Whether a face is seen from its front by a camera at ``center`` (3,): False for a back face (two-sided
+    faces, without a normal, always True)."""
+    if face.normal is None:
+        return True
+    n, v0 = face.normal, face.verts[0]
+    return n[0] * (center[0] - v0[0]) + n[1] * (center[1] - v0[1]) + n[2] * (center[2] - v0[2]) > 0
+
+
 def _queue_face(todo: DrawList, view: PinholeView, face: Face, light: Lighting, haze: bool = True) -> None:
     center = view.center
-    v0 = face.verts[0]
-    if face.normal is not None:
-        n = face.normal
-        if n[0] * (center[0] - v0[0]) + n[1] * (center[1] - v0[1]) + n[2] * (center[2] - v0[2]) <= 0:
-            return  # back face
+    if not faces_viewer(face, center):
+        return
     w = 0.0
     if haze and not math.isinf(light.visibility):
         w = light.haze_weight(float(np.linalg.norm(face.verts.mean(0) - center)))
@@ -414,15 +435,21 @@ def draw_objects(canvas: Canvas, scene: Scene, light: Lighting) -> None:
     todo = DrawList()
     for face in scene.shell:
         _queue_face(todo, view, face, light)
-    vis = visible_items(scene.items, view)
-    if vis:
-        order = order_items(np.stack([scene.items[k].footprint for k in vis]), view.center[[0, 2]])
-        for k in order:
-            for face in scene.items[vis[k]].build(view):
-                _queue_face(todo, view, face, light)
+    for item in ordered_items(scene, view):
+        for face in item.build(view):
+            _queue_face(todo, view, face, light)
     for face in scene.overlay:
         _queue_face(todo, view, face, light)
     todo.draw(view, canvas.image, canvas.antialias)
+
+
+def ordered_items(scene: Scene, view: PinholeView) -> list[Item]:
+    """The items of a scene the view may see, in drawing order (far to near, :func:`order_items`)."""
+    vis = visible_items(scene.items, view)
+    if not vis:
+        return []
+    order = order_items(np.stack([scene.items[k].footprint for k in vis]), view.center[[0, 2]])
+    return [scene.items[vis[k]] for k in order]
 
 
 def draw_scene(canvas: Canvas, scene: Scene, light: Lighting) -> None:

@@ -57,7 +57,7 @@ def add_render_command(sub) -> None:
         "--config",
         help='a JSON file of RenderConfig settings, e.g. {"stairs": 1.5, "fronto_prob": 0.3, "pitch": [-45, 55]} '
         "(the hard cases, the camera imperfections principal_point_std and radial_distortion, and every range of "
-        "ngp_kornia.training.synth.render.RenderConfig)",
+        "ngp_kornia.training.synth.render_config.RenderConfig)",
     )
 
 
@@ -91,7 +91,7 @@ def render_command(args: argparse.Namespace) -> int:
 
 
 def read_render_config(path: str | None):
-    """The :class:`~ngp_kornia.training.synth.render.RenderConfig` of a JSON settings file (None: the defaults).
+    """The :class:`~ngp_kornia.training.synth.render_config.RenderConfig` of a JSON settings file (None: the defaults).
 
     Raises:
         ValueError: not a readable JSON object, an unknown setting, or a value RenderConfig refuses (the message
@@ -99,7 +99,7 @@ def read_render_config(path: str | None):
     """
     from dataclasses import fields
 
-    from ngp_kornia.training.synth.render import RenderConfig
+    from ngp_kornia.training.synth.render_config import RenderConfig
 
     if path is None:
         return None

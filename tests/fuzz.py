@@ -184,7 +184,7 @@ def _(tmp: Path) -> str:
 
 @case("code", "planted pickle and a truncated file in the training cache (.npz)")
 def _(tmp: Path) -> str:
-    from ngp_kornia.training.datamodules import RenderedScenes
+    from ngp_kornia.training.scene_data import RenderedScenes
 
     scenes = RenderedScenes([0], cache_dir=tmp, size=(160, 120))
     good = scenes[0]

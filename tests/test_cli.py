@@ -93,7 +93,8 @@ def test_render_writes_images_and_ground_truth(tmp_path, capsys):
 
 
 def test_render_config_file_renders_what_render_scene_gives_with_it(tmp_path, capsys):
-    from ngp_kornia.training.synth.render import RenderConfig, render_scene
+    from ngp_kornia.training.synth.render import render_scene
+    from ngp_kornia.training.synth.render_config import RenderConfig
 
     settings = {"stairs": 2.0, "fronto_prob": 1.0, "pitch": [30, 40], "kinds": {"street": 1.0}}
     (tmp_path / "hard.json").write_text(json.dumps(settings))

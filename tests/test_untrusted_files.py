@@ -140,7 +140,7 @@ def test_errors_are_ngp_errors():
 
 
 def test_planted_pickle_in_a_training_cache_is_recomputed_without_running(tmp_path):
-    from ngp_kornia.training.datamodules import RenderedScenes
+    from ngp_kornia.training.scene_data import RenderedScenes
 
     scenes = RenderedScenes([0], cache_dir=tmp_path, size=(160, 120))
     good = scenes[0]

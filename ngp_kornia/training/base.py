@@ -8,7 +8,7 @@ import lightning as L
 import torch
 from torch import Tensor
 
-from ngp_kornia.training.datamodules import SceneBatch
+from ngp_kornia.training.scene_data import SceneBatch
 
 __all__ = ["NetworkModule"]
 

@@ -20,9 +20,11 @@ from torch import Tensor
 from ngp_kornia.nets.line_features import FEATURE_NAMES, segment_features
 from ngp_kornia.pipeline.segments import detect_segments, line_workers, pad_segments
 from ngp_kornia.pipeline.settings import SegmentSettings
-from ngp_kornia.training.datamodules import CachedScenes, RenderedDataModule, SceneDataModule
+from ngp_kornia.training.datamodules import RenderedDataModule, SceneDataModule
+from ngp_kornia.training.scene_data import CachedScenes
 from ngp_kornia.training.synth.line_labels import frame_vanishing_points, line_targets
-from ngp_kornia.training.synth.render import RenderConfig, config_spec, render_scene
+from ngp_kornia.training.synth.render import render_scene
+from ngp_kornia.training.synth.render_config import RenderConfig, config_spec
 
 __all__ = ["LineBatch", "LineSample", "LineEvidenceDataModule", "RenderedLines", "collate_lines", "label_render"]
 

@@ -21,8 +21,8 @@ from ngp_kornia.nets.weights import load_network, shipped_weights
 from ngp_kornia.pipeline.parser import NeuralGeometricParser
 from ngp_kornia.pipeline.settings import ParserConfig
 from ngp_kornia.training.base import NetworkModule
-from ngp_kornia.training.datamodules import SceneBatch
 from ngp_kornia.training.losses import frame_classification_loss, frame_labels
+from ngp_kornia.training.scene_data import SceneBatch
 
 __all__ = ["FSNetModule"]
 

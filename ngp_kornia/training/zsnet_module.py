@@ -17,8 +17,8 @@ from ngp_kornia.metrics import zenith_error_deg
 from ngp_kornia.nets.zsnet import ZSNet, zenith_estimate, zenith_weights_from_scores
 from ngp_kornia.pipeline.candidates import sample_zenith_candidates
 from ngp_kornia.training.base import NetworkModule
-from ngp_kornia.training.datamodules import SceneBatch
 from ngp_kornia.training.losses import zenith_classification_loss, zenith_labels, zenith_localisation_loss
+from ngp_kornia.training.scene_data import SceneBatch
 
 __all__ = ["ZSNetModule"]
 

@@ -179,7 +179,8 @@ def test_settings_rebuild_the_network(net):
 def test_the_shipped_weights_tell_structure_from_clutter_on_renders():
     from ngp_kornia.nets.weights import load_network, shipped_weights
     from ngp_kornia.training.evidence_data import label_render
-    from ngp_kornia.training.synth.render import RenderConfig, render_scene
+    from ngp_kornia.training.synth.render import render_scene
+    from ngp_kornia.training.synth.render_config import RenderConfig
 
     net = load_network(shipped_weights("evidence"), "LineEvidenceNet")
     kept, dropped, right, total = [], [], 0, 0

@@ -12,8 +12,9 @@ from lightning.pytorch.loggers import CSVLogger
 import ngp_kornia
 from ngp_kornia.nets.zsnet import ZSNet
 from ngp_kornia.training.command import config_path, main, packaged_configs
-from ngp_kornia.training.datamodules import RenderedDataModule, RenderedScenes
+from ngp_kornia.training.datamodules import RenderedDataModule
 from ngp_kornia.training.plots import metric_label, plot_curves, read_metrics
+from ngp_kornia.training.scene_data import RenderedScenes
 from ngp_kornia.training.zsnet_module import ZSNetModule
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -8,14 +8,10 @@ import numpy as np
 import torch
 
 from ngp_kornia.nets.zsnet import ZSNet
-from ngp_kornia.training.datamodules import (
-    JoinedScenes,
-    ManifestDataModule,
-    PanoramaDataModule,
-    RenderedDataModule,
-    RenderedScenes,
-)
-from ngp_kornia.training.synth.render import RenderConfig, render_scene
+from ngp_kornia.training.datamodules import ManifestDataModule, PanoramaDataModule, RenderedDataModule
+from ngp_kornia.training.scene_data import JoinedScenes, RenderedScenes
+from ngp_kornia.training.synth.render import render_scene
+from ngp_kornia.training.synth.render_config import RenderConfig
 from ngp_kornia.training.zsnet_module import ZSNetModule
 
 
@@ -93,8 +89,15 @@ def test_cache_digest_unchanged_by_default_hard_options(tmp_path):
 
 
 def test_datamodule_joins_the_hard_scenes():
-    dm = RenderedDataModule(cache_dir=None, train_size=2, val_size=1, test_size=1, size=(96, 72),
-                            hard_size=2, hard_config={"stairs": 2.0, "kinds": {"street": 1.0, "atlanta": 1.0}})
+    dm = RenderedDataModule(
+        cache_dir=None,
+        train_size=2,
+        val_size=1,
+        test_size=1,
+        size=(96, 72),
+        hard_size=2,
+        hard_config={"stairs": 2.0, "kinds": {"street": 1.0, "atlanta": 1.0}},
+    )
     train = dm.make_datasets()["train"]
     assert isinstance(train, JoinedScenes) and len(train) == 4
     assert train.keys == [0, 1, 3_000_000, 3_000_001]

@@ -10,9 +10,10 @@ from ngp_kornia.geometry import horizon_from_zenith, intrinsics_matrix
 from ngp_kornia.geometry.frames import FrameCandidates, select_frames
 from ngp_kornia.metrics import frame_horizon_error
 from ngp_kornia.nets.fsnet import FSNet
-from ngp_kornia.training.datamodules import RenderedDataModule, SceneBatch
+from ngp_kornia.training.datamodules import RenderedDataModule
 from ngp_kornia.training.fsnet_module import FSNetModule
 from ngp_kornia.training.losses import frame_classification_loss, frame_labels
+from ngp_kornia.training.scene_data import SceneBatch
 
 H, W = 480, 640
 

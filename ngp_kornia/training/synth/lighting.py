@@ -25,7 +25,7 @@ _SKIES = {
 
 def scene_lighting(rng: np.random.Generator, kind: str, cfg) -> tuple[Lighting, tuple[np.ndarray, ...]]:
     """Lights, haze, and the sky colours (zenith, horizon) of a scene of ``kind``, drawn with ``rng`` within the
-    ranges of ``cfg`` (a :class:`~ngp_kornia.training.synth.render.RenderConfig`)."""
+    ranges of ``cfg`` (a :class:`~ngp_kornia.training.synth.render_config.RenderConfig`)."""
     overcast = kind != "indoor" and rng.random() < cfg.overcast_prob
     sky_name = "overcast" if overcast else ["clear", "pale", "dusk"][rng.choice(3, p=[0.5, 0.35, 0.15])]
     top, horizon = (np.asarray(c, float) + rng.normal(0, 6, 3) for c in _SKIES[sky_name])

@@ -171,7 +171,7 @@ def photometric(rng: np.random.Generator, image: np.ndarray, cfg) -> np.ndarray:
     Args:
         rng: random generator.
         image: (H, W, 3) uint8 RGB.
-        cfg: a :class:`ngp_kornia.training.synth.render.RenderConfig`.
+        cfg: a :class:`ngp_kornia.training.synth.render_config.RenderConfig`.
 
     Returns:
         The degraded image (``image`` itself unless a JPEG round trip made a new one).

@@ -20,7 +20,8 @@ from ngp_kornia.geometry.camera import (
 )
 from ngp_kornia.training.synth.painter import Canvas, PinholeView, clip_polygon
 from ngp_kornia.training.synth.pixels import sky_and_ground, view_rays
-from ngp_kornia.training.synth.render import RenderConfig, camera_ground_truth, render_dataset, render_scene
+from ngp_kornia.training.synth.render import camera_ground_truth, render_dataset, render_scene
+from ngp_kornia.training.synth.render_config import RenderConfig
 from ngp_kornia.training.synth.scene import Item, Lighting, Scene, box_faces, draw_scene, order_items
 
 SMALL = (160, 120)

@@ -9,7 +9,8 @@ import pytest
 
 from ngp_kornia.training.synth.hard import make_billboard, make_stairs
 from ngp_kornia.training.synth.painter import PinholeView
-from ngp_kornia.training.synth.render import HARD_DEFAULTS, RenderConfig, camera_ground_truth, config_spec, render_scene
+from ngp_kornia.training.synth.render import camera_ground_truth, render_scene
+from ngp_kornia.training.synth.render_config import HARD_DEFAULTS, RenderConfig, config_spec
 
 SMALL = (160, 120)
 OUTDOOR = {"street": 1.0, "atlanta": 1.0}

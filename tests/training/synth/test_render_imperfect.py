@@ -8,13 +8,8 @@ import torch
 
 from ngp_kornia.evaluation import load_renders
 from ngp_kornia.geometry.camera import horizon_from_zenith, pitch_roll_from_up, zenith_from_up
-from ngp_kornia.training.synth.render import (
-    IMPERFECTION_DEFAULTS,
-    RenderConfig,
-    config_spec,
-    render_dataset,
-    render_scene,
-)
+from ngp_kornia.training.synth.render import render_dataset, render_scene
+from ngp_kornia.training.synth.render_config import IMPERFECTION_DEFAULTS, RenderConfig, config_spec
 
 SIZE = (320, 240)
 OFF = RenderConfig(principal_point_std=0.08)

@@ -18,7 +18,8 @@ from ngp_kornia.training.synth.line_labels import (
 from ngp_kornia.training.synth.objects import STRUCTURE_KINDS, ObjectMap, draw_object_map
 from ngp_kornia.training.synth.painter import Canvas, PinholeView
 from ngp_kornia.training.synth.pixels import sky_and_ground, view_rays
-from ngp_kornia.training.synth.render import RenderConfig, camera_ground_truth, render_scene
+from ngp_kornia.training.synth.render import camera_ground_truth, render_scene
+from ngp_kornia.training.synth.render_config import RenderConfig
 from ngp_kornia.training.synth.scene import OBJECT_KINDS, Item, Lighting, Scene, box_faces, draw_scene
 
 SMALL = (160, 120)
@@ -147,7 +148,7 @@ def test_foliage_texture_changes_only_the_leaves():
 
 
 def test_foliage_off_keeps_the_config_digest():
-    from ngp_kornia.training.synth.render import config_spec
+    from ngp_kornia.training.synth.render_config import config_spec
 
     assert "foliage" not in config_spec(RenderConfig()) and config_spec(RenderConfig(foliage=0.5))["foliage"] == 0.5
     with pytest.raises(ValueError, match="foliage"):

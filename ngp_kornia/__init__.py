@@ -22,6 +22,7 @@ if TYPE_CHECKING:
     from ngp_kornia.io import ImageError
     from ngp_kornia.pipeline import (
         Calibration,
+        EvidenceSettings,
         HorizonSettings,
         NeuralGeometricParser,
         ParserConfig,
@@ -36,8 +37,8 @@ if TYPE_CHECKING:
 # The public names are imported on first use (torch and OpenCV take a second or two to import): the ``ngp``
 # command can then answer Ctrl+C during its start-up with a message instead of a traceback.
 _PIPELINE = (
-    "Calibration HorizonSettings NeuralGeometricParser ParserConfig PolishSettings Priors SamplingSettings "
-    "ScoringSettings SegmentSettings TrustSettings"
+    "Calibration EvidenceSettings HorizonSettings NeuralGeometricParser ParserConfig PolishSettings Priors "
+    "SamplingSettings ScoringSettings SegmentSettings TrustSettings"
 )
 _ERRORS = "CheckpointError ConfigError ImageReadError InputError ManifestError NGPError OutputError WeightsError"
 _HOMES = {
@@ -52,6 +53,7 @@ __all__ = [
     "Calibration",
     "CheckpointError",
     "ConfigError",
+    "EvidenceSettings",
     "HorizonSettings",
     "ImageError",
     "ImageReadError",

@@ -52,7 +52,7 @@ def check_weights(weights: object) -> list[torch.nn.Module]:
     if isinstance(weights, str) and weights == "default":
         weights = DEFAULT_WEIGHTS
     if isinstance(weights, str) and weights in _NAMED:
-        return [_network(str(shipped_weights(name))) for name in _NAMED[weights]]
+        return [_network(str(shipped_weights(name))) for name in (*_NAMED[weights], "evidence")]
     paths = [weights] if isinstance(weights, (str, Path)) else list(weights)
     if not paths or not all(isinstance(p, Path) or str(p).endswith(".pt") for p in paths):
         raise ValueError(
@@ -64,10 +64,12 @@ def check_weights(weights: object) -> list[torch.nn.Module]:
         name = type(net).__name__
         if name in seen:
             raise WeightsError(
-                f"two {name} weights files given ({seen[name]}, {path}); give at most one ZSNet and one FSNet file"
+                f"two {name} weights files given ({seen[name]}, {path}); give at most one file of each network"
             )
         seen[name] = path
         nets.append(net)
+    if "LineEvidenceNet" not in seen:  # every weight set has the line evidence unless a file of its own is given
+        nets.append(_network(str(shipped_weights("evidence"))))
     return nets
 
 
@@ -89,7 +91,7 @@ def load_parser(
 
 def _parser(nets: list[torch.nn.Module], config: ParserConfig | None, copy: bool) -> NeuralGeometricParser:
     nets = {type(net).__name__: deepcopy(net) if copy else net for net in nets}
-    return NeuralGeometricParser(config, zsnet=nets.get("ZSNet"), fsnet=nets.get("FSNet"))
+    return NeuralGeometricParser(config, nets.get("ZSNet"), nets.get("FSNet"), nets.get("LineEvidenceNet"))
 
 
 def calibrate(

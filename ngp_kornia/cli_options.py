@@ -35,7 +35,8 @@ def add_setting_options(command: argparse.ArgumentParser) -> None:
     for stage, f, doc in setting_fields():
         if stage not in groups:
             groups[stage] = command.add_argument_group(f"pipeline settings: {stage}")
-        kwargs: dict = {"dest": f"{_PREFIX}{stage}.{f.name}", "default": None, "help": f"{doc} (default: {f.default})"}
+        text = f"{doc} (default: {f.default})".replace("%", "%%")  # argparse formats help with %
+        kwargs: dict = {"dest": f"{_PREFIX}{stage}.{f.name}", "default": None, "help": text}
         if "flag" in f.metadata:
             kwargs.update(type=_flag, metavar="{true,false}")
         elif "choices" in f.metadata:
@@ -44,7 +45,8 @@ def add_setting_options(command: argparse.ArgumentParser) -> None:
             count = f.metadata["tuple"][0]
             kwargs.update(type=float, nargs=count or "+", metavar="X")
         else:
-            kwargs.update(type=int if f.type in ("int", int) else float)
+            integer = f.type in ("int", int)
+            kwargs.update(type=int if integer else float, metavar="N" if integer else "X")
         groups[stage].add_argument(f"--{stage}.{f.name}", **kwargs)
 
 

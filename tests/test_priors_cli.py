@@ -133,7 +133,7 @@ def test_cli_polish_frame_gives_the_polished_answer(capsys, tmp_path):
     polished = _rows(capsys)[0]
     assert main(["calibrate", str(image)]) == 0
     plain = _rows(capsys)[0]
-    expected = calibrate(str(image), config=ParserConfig().replace(enabled=True))
+    expected = calibrate(str(image), config=ParserConfig().replace(**{"polish.enabled": True}))
     assert polished["pitch"] == pytest.approx(float(expected.pitch), abs=1e-5) and polished["pitch"] != plain["pitch"]
     out = tmp_path / "rows.jsonl"
     assert main(["predict", str(tmp_path), "--out", str(out), "--polish.enabled", "true"]) == 0

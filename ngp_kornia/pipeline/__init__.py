@@ -13,6 +13,7 @@ if TYPE_CHECKING:
     from ngp_kornia.pipeline.priors import Priors
     from ngp_kornia.pipeline.result import Calibration
     from ngp_kornia.pipeline.settings import (
+        EvidenceSettings,
         HorizonSettings,
         ParserConfig,
         PolishSettings,
@@ -29,7 +30,7 @@ _HOMES = {
     "Calibration": "result",
     "ParserTrace": "trace",
     **dict.fromkeys(
-        ("HorizonSettings", "ParserConfig", "PolishSettings", "SamplingSettings", "ScoringSettings")
+        ("EvidenceSettings", "HorizonSettings", "ParserConfig", "PolishSettings", "SamplingSettings", "ScoringSettings")
         + ("SegmentSettings", "TrustSettings"),
         "settings",
     ),
@@ -37,6 +38,7 @@ _HOMES = {
 
 __all__ = [
     "Calibration",
+    "EvidenceSettings",
     "HorizonSettings",
     "NeuralGeometricParser",
     "ParserConfig",

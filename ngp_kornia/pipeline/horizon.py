@@ -141,26 +141,30 @@ def search_horizon(
     mask: Tensor,
     settings: HorizonSettings | None = None,
     known_focal: bool = False,
+    weights: Tensor | None = None,
 ) -> Refinement:
     """The search of :func:`refine_horizon` (same arguments) without the choice: the best hypothesis and what is
-    known about it and about the frame's own horizon."""
+    known about it and about the frame's own horizon. ``weights`` (B, N), when given, multiply the segments'
+    lengths in the line support (the line evidence's structure weights)."""
     settings = settings or HorizonSettings()
     if torch.is_grad_enabled():
-        return _search_horizon(cal, segments, mask, settings, known_focal)
+        return _search_horizon(cal, segments, mask, settings, known_focal, weights)
     # without autograd, inference mode spares every operation its autograd bookkeeping (about a tenth of the
     # search's time, the same arithmetic); the answers are cloned out of it as ordinary tensors
     with torch.inference_mode():
-        found = _search_horizon(cal, segments, mask, settings, known_focal)
+        found = _search_horizon(cal, segments, mask, settings, known_focal, weights)
     return Refinement(*(t.clone() for t in found))
 
 
 def _search_horizon(
-    cal: Calibration, segments: Tensor, mask: Tensor, settings: HorizonSettings, known_focal: bool
+    cal: Calibration, segments: Tensor, mask: Tensor, settings: HorizonSettings, known_focal: bool, weights
 ) -> Refinement:
     seg = segments.to(cal.K.dtype)
     # the frame's focal length first; with a known focal length only that one
     scales = [1.0] + ([] if known_focal else [x for x in settings.focal_scales if x != 1.0])
     (cam, cam_s), lengths = camera_segments_at_scales(seg, cal.K, scales), masked_lengths(seg, mask)
+    if weights is not None:
+        lengths = lengths * weights.to(lengths)
     s = settings
     grid = _pitch_grid(cal.up, cam, lengths, mask, s.pitch_range, s.pitch_step, s.zenith_tol, s.frame_roll)
     search = _Search(s.num_peaks, s.kernel_deg, s.tie_zenith)

@@ -1,6 +1,7 @@
 """The Neural Geometric Parser as an ``nn.Module``: it runs the pipeline's stages in order.
 
-segments (:mod:`~ngp_kornia.pipeline.segments`) -> zenith, horizontal-VP and frame candidates
+segments (:mod:`~ngp_kornia.pipeline.segments`) -> line evidence (:mod:`~ngp_kornia.pipeline.evidence`, where
+the parser has its network) -> zenith, horizontal-VP and frame candidates
 (:mod:`~ngp_kornia.pipeline.candidates`, scored by ZSNet where given) -> Manhattan scores, rescored by FSNet where
 given (Eq. 22) -> the top-k answer (:mod:`~ngp_kornia.pipeline.answer`) -> optional polish
 (:mod:`~ngp_kornia.pipeline.polish`) -> horizon search and choice (:mod:`~ngp_kornia.pipeline.horizon`) -> trust
@@ -37,6 +38,7 @@ from ngp_kornia.pipeline.candidates import (
     sample_zenith_candidates,
     split_by_pseudo_horizon,
 )
+from ngp_kornia.pipeline.evidence import apply_evidence
 from ngp_kornia.pipeline.horizon import choose_horizon, search_horizon
 from ngp_kornia.pipeline.polish import polish_frame
 from ngp_kornia.pipeline.priors import Priors, checked_seed
@@ -58,6 +60,9 @@ class NeuralGeometricParser(nn.Module):
             candidate equally (the geometric path).
         fsnet: an :class:`~ngp_kornia.nets.fsnet.FSNet` scoring the best frames; None ranks the frames by the
             Manhattan score alone.
+        evidence: a :class:`~ngp_kornia.nets.line_evidence.LineEvidenceNet` whose structure weights drop segments
+            on no man-made structure (:class:`~ngp_kornia.pipeline.settings.EvidenceSettings`); None keeps every
+            segment. :func:`ngp_kornia.api.load_parser` gives every weight set the shipped one.
 
     Example:
         >>> img = torch.rand(1, 3, 96, 128)
@@ -67,7 +72,11 @@ class NeuralGeometricParser(nn.Module):
     """
 
     def __init__(
-        self, config: ParserConfig | None = None, zsnet: nn.Module | None = None, fsnet: nn.Module | None = None
+        self,
+        config: ParserConfig | None = None,
+        zsnet: nn.Module | None = None,
+        fsnet: nn.Module | None = None,
+        evidence: nn.Module | None = None,
     ) -> None:
         super().__init__()
         if config is not None and not isinstance(config, ParserConfig):
@@ -75,6 +84,7 @@ class NeuralGeometricParser(nn.Module):
         self.config = config or ParserConfig()
         self.zsnet = zsnet
         self.fsnet = fsnet
+        self.evidence = evidence
 
     def forward(
         self,
@@ -120,19 +130,37 @@ class NeuralGeometricParser(nn.Module):
         segments = segments.to(images)
         if segments.shape[1] == 0:  # no lines anywhere in the batch: one masked dummy keeps every shape non-empty
             segments, mask = segments.new_zeros(len(images), 1, 2, 2), mask.new_zeros(len(images), 1)
-        stages = {"segments": segments, "mask": mask} if return_trace else None
-        result = self._calibrate(images, segments, mask, seed, priors, stages)
+        stages = {"segments": segments, "detected": mask} if return_trace else None
+        weights = None
+        if self.evidence is not None and self.config.evidence.enabled:
+            weights, mask = apply_evidence(self.evidence, images, segments, mask, self.config.evidence.keep)
+            if stages is not None:
+                stages["evidence"] = weights
+            weights = weights if self.config.evidence.weigh else None
+        if stages is not None:
+            stages["mask"] = mask
+        result = self._calibrate(images, segments, mask, seed, priors, stages, weights)
         return (result, ParserTrace(**stages)) if return_trace else result
 
     def _calibrate(
-        self, images: Tensor, segments: Tensor, mask: Tensor, seed: int, priors: Priors, stages: dict | None
+        self,
+        images: Tensor,
+        segments: Tensor,
+        mask: Tensor,
+        seed: int,
+        priors: Priors,
+        stages: dict | None,
+        weights: Tensor | None = None,
     ) -> Calibration:
+        """The stages after the line evidence; ``weights`` (B, N), when given, multiply the segments' lengths."""
         cfg = self.config
         height, width = images.shape[-2:]
         # one generator per image, each seeded alike: an image's answer does not depend on its batch or position
         generators = [torch.Generator().manual_seed(seed) for _ in range(len(images))]
         # the segments' lines and lengths serve the scores, FSNet's inputs and the trust fields: computed once
         pseudo = pseudo_lines(segments, mask, height, width)
+        if weights is not None:
+            pseudo = (pseudo[0], pseudo[1], pseudo[2] * weights)
         frames, scores = self.score_frames(segments, mask, height, width, generators, stages, pseudo, priors)
         if self.fsnet is not None:
             frames, scores = self.rescore_frames(images, segments, mask, frames, scores, stages, pseudo[1])
@@ -146,7 +174,7 @@ class NeuralGeometricParser(nn.Module):
             result = self._polished(result, segments, mask, priors.known_focal, height, width)
         # the horizon search serves the refinement and the confidence (how well the lines support a rival horizon);
         # with a known focal length only the horizon moves, never the focal length
-        found = search_horizon(result, segments, mask, cfg.horizon, known_focal=priors.known_focal)
+        found = search_horizon(result, segments, mask, cfg.horizon, priors.known_focal, weights)
         if cfg.horizon.refine:
             result = choose_horizon(result, found, cfg.horizon.margin)
         return attach_trust(

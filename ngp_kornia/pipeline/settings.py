@@ -31,6 +31,7 @@ from ngp_kornia.errors import ConfigError
 
 __all__ = [
     "DETECTORS",
+    "EvidenceSettings",
     "HorizonSettings",
     "ParserConfig",
     "PolishSettings",
@@ -84,6 +85,29 @@ class SegmentSettings:
     max_segments: int = _number(512, 1, 16384)
     detector: str = _choice("lsd", DETECTORS)
     line_strips: int = _number(2, 1, 16)
+
+    def __post_init__(self) -> None:
+        check_settings(self)
+
+
+@dataclass(frozen=True)
+class EvidenceSettings:
+    """The line-evidence stage (:mod:`ngp_kornia.pipeline.evidence`), between line detection and candidate sampling.
+
+    Attributes:
+        enabled: drop the segments the learned line evidence says lie on no man-made structure (where the parser has
+            the network: every weight set of :func:`ngp_kornia.calibrate` has it). Opt-in: on the development
+            photos it gains on York Urban and loses on the Eurasian Cities photos, within the seed noise pooled
+            (BENCHMARKS.md).
+        keep: the least structure weight of a segment kept (the network's weights are set so that 0.1 keeps 97% of
+            the structural segments of renders).
+        weigh: the kept segments' structure weights also multiply their lengths in the candidates' sampling, the
+            Manhattan score and the horizon search.
+    """
+
+    enabled: bool = _flag(False)
+    keep: float = _number(0.1, 0.0, 1.0)
+    weigh: bool = _flag(False)
 
     def __post_init__(self) -> None:
         check_settings(self)
@@ -225,6 +249,7 @@ class TrustSettings:
 #: the stages of :class:`ParserConfig`, in pipeline order
 _STAGES = {
     "segments": SegmentSettings,
+    "evidence": EvidenceSettings,
     "sampling": SamplingSettings,
     "scoring": ScoringSettings,
     "polish": PolishSettings,
@@ -239,6 +264,7 @@ class ParserConfig:
 
     Attributes:
         segments: line detection (:class:`SegmentSettings`).
+        evidence: the learned line evidence (:class:`EvidenceSettings`).
         sampling: candidate sampling (:class:`SamplingSettings`).
         scoring: frame scores and the top-k answer (:class:`ScoringSettings`).
         polish: the optional frame refit (:class:`PolishSettings`).
@@ -247,6 +273,7 @@ class ParserConfig:
     """
 
     segments: SegmentSettings = field(default_factory=SegmentSettings)
+    evidence: EvidenceSettings = field(default_factory=EvidenceSettings)
     sampling: SamplingSettings = field(default_factory=SamplingSettings)
     scoring: ScoringSettings = field(default_factory=ScoringSettings)
     polish: PolishSettings = field(default_factory=PolishSettings)

@@ -25,7 +25,7 @@ class ParserTrace:
 
     Attributes:
         segments: (B, N, 2, 2) the line segments used, in input pixels (detected or given).
-        mask: (B, N) bool, False for padding.
+        mask: (B, N) bool, False for padding and for the segments the line evidence dropped.
         lines: (B, N, 3) the segments' homogeneous lines in the pseudo camera (Eq. 1-2).
         zenith_lines: (B, L, 3) the near-vertical lines L_z sampled for the zenith candidates (Eq. 3-4).
         zenith_lines_ok: (B, L) bool.
@@ -52,6 +52,9 @@ class ParserTrace:
         top_k_weights: (B, F') weights of the top-k average of focal length and zenith (Eq. 23): zero outside the
             top ``top_k`` valid frames, summing to 1 where any frame is valid.
         best: (B,) index into ``final_frames`` of the best frame, whose horizontal VP fixes the yaw.
+        evidence: (B, N) the line evidence's structure weight of every segment (0 for padding); None where the stage
+            is off.
+        detected: (B, N) bool, the segments before the line evidence (the mask of ``segments`` as detected or given).
     """
 
     segments: Tensor
@@ -75,3 +78,5 @@ class ParserTrace:
     best: Tensor
     scored_index: Tensor | None = None
     fsnet_scores: Tensor | None = None
+    evidence: Tensor | None = None
+    detected: Tensor | None = None

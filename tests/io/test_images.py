@@ -53,7 +53,8 @@ def test_phone_photo_stored_sideways_is_calibrated_as_displayed(tmp_path, scene)
     d = phone.to_dict()
     assert d["exif_orientation"] == 6 and (d["height"], d["width"]) == upright.shape[:2]
     truth = scene.to_dict()
-    assert abs(d["pitch"] - truth["pitch"]) < 1.5 and abs(d["fov_v"] - truth["fov_v"]) < 3.0
+    # a JPEG of the render, calibrated the right way up: degrees off (a turn left unapplied would be 90 off)
+    assert abs(d["pitch"] - truth["pitch"]) < 3.0 and abs(d["fov_v"] - truth["fov_v"]) < 3.0
     assert calibrate(upright).to_dict()["exif_orientation"] == 1  # arrays are taken as they are
 
 

@@ -46,7 +46,7 @@ def test_without_segments_nothing_changes():
 
 def test_calibrate_with_polish_keeps_a_known_focal_length_and_a_consistent_camera():
     scene = render_scene(11, (640, 480))
-    cal = calibrate(scene.image, config=ParserConfig().replace(enabled=True), focal=510.0)
+    cal = calibrate(scene.image, config=ParserConfig().replace(**{"polish.enabled": True}), focal=510.0)
     assert float(cal.focal) == pytest.approx(510.0)
     up = cal.up / torch.linalg.vector_norm(cal.up)
     zenith = cal.K @ up  # the horizon is the polar of the zenith
@@ -65,11 +65,11 @@ def test_polish_brings_renders_closer_to_the_true_horizon():
         up = -torch.as_tensor(scene.R, dtype=torch.float32)[:, 1]
         truth = (torch.linalg.inv(torch.as_tensor(scene.K, dtype=torch.float32)).T @ up)[None]
         for polish in (False, True):
-            found = calibrate(scene.image, config=ParserConfig().replace(enabled=polish)).horizon[None]
+            found = calibrate(scene.image, config=ParserConfig().replace(**{"polish.enabled": polish})).horizon[None]
             errors[polish] += float(horizon_error(found, truth, 480, 640))
     assert errors[True] < 0.8 * errors[False]  # measured: 0.059 against 0.100 of the image height in all
 
 
 def test_polish_frame_must_be_a_bool():
     with pytest.raises(ConfigError, match="PolishSettings.enabled must be True or False"):
-        calibrate(torch.rand(3, 64, 64), config=ParserConfig().replace(enabled="yes"))
+        calibrate(torch.rand(3, 64, 64), config=ParserConfig().replace(**{"polish.enabled": "yes"}))

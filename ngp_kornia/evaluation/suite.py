@@ -128,7 +128,7 @@ def run_suite(
         for seed in seeds:
             if progress is not None:
                 print(f"{suite_set.name}, seed {seed}", file=progress)
-            methods = {spec: calibrate_method(spec, seed) for spec in specs}
+            methods = {spec: calibrate_method(spec, seed, suite_set.images) for spec in specs}
             for spec, run in run_interleaved(methods, suite_set.images, progress).items():
                 for truth, images in suite_set.truths.items():
                     records.append(

@@ -37,6 +37,7 @@ __all__ = [
     "SamplingSettings",
     "ScoringSettings",
     "SegmentSettings",
+    "SharedSettings",
     "TrustSettings",
     "check_settings",
     "locate_setting",
@@ -222,6 +223,31 @@ class TrustSettings:
         check_settings(self)
 
 
+@dataclass(frozen=True)
+class SharedSettings:
+    """One camera across many photos, ``calibrate(photos, shared_intrinsics=True)``
+    (:mod:`ngp_kornia.pipeline.shared_camera`).
+
+    Attributes:
+        focal_step: relative step of the common grid of focal lengths every photo's frame is scored at.
+        window: each photo is scored at the focal lengths within this fraction of its own answer.
+        kernel_deg: width of the closeness kernel of each photo's line support, degrees.
+        inlier_deg: inlier angle of the rotation refitted at each focal length, degrees.
+        iterations: Gauss-Newton steps of that refit.
+        bootstrap: resamples of the photos behind the shared focal length's standard deviation.
+    """
+
+    focal_step: float = _number(0.01, 0.001, 0.2)
+    window: float = _number(0.3, 0.0, 10.0, open_low=True)
+    kernel_deg: float = _number(1.0, 0.0, 45.0, open_low=True)
+    inlier_deg: float = _number(1.5, 0.0, 45.0, open_low=True)
+    iterations: int = _number(3, 1, 20)
+    bootstrap: int = _number(200, 0, 10000)
+
+    def __post_init__(self) -> None:
+        check_settings(self)
+
+
 #: the stages of :class:`ParserConfig`, in pipeline order
 _STAGES = {
     "segments": SegmentSettings,
@@ -230,6 +256,7 @@ _STAGES = {
     "polish": PolishSettings,
     "horizon": HorizonSettings,
     "trust": TrustSettings,
+    "shared": SharedSettings,
 }
 
 
@@ -244,6 +271,7 @@ class ParserConfig:
         polish: the optional frame refit (:class:`PolishSettings`).
         horizon: the horizon search (:class:`HorizonSettings`).
         trust: confidence and standard deviations (:class:`TrustSettings`).
+        shared: one camera across many photos (:class:`SharedSettings`).
     """
 
     segments: SegmentSettings = field(default_factory=SegmentSettings)
@@ -252,6 +280,7 @@ class ParserConfig:
     polish: PolishSettings = field(default_factory=PolishSettings)
     horizon: HorizonSettings = field(default_factory=HorizonSettings)
     trust: TrustSettings = field(default_factory=TrustSettings)
+    shared: SharedSettings = field(default_factory=SharedSettings)
 
     def __post_init__(self) -> None:
         for name, kind in _STAGES.items():

@@ -112,6 +112,8 @@ class RenderConfig:
             ``x`` the ray's coordinates ``(p - c) / f`` about the principal point: the pinhole image, drawn with a
             margin, is warped so that straight lines bend (``k1 < 0`` barrel). The ground truth stays the pinhole
             camera's (``K``, ``R``); the label also carries ``k1``.
+        k1_range: camera imperfection, ``(min, max)`` of a uniformly drawn ``k1`` of the same model instead of the
+            Gaussian one (``(0, 0)``: off); ``(-0.3, 0)`` is barrel distortion up to a strong wide-angle lens.
 
     The hard cases and the camera imperfections are off by default and drawn from random streams of their own, after
     the scene: with all of them off a render is the same, bit for bit, as before they existed (:data:`HARD_DEFAULTS`,
@@ -147,6 +149,7 @@ class RenderConfig:
     fronto_jitter: float = 3.0
     principal_point_std: float = 0.0
     radial_distortion: float = 0.0
+    k1_range: tuple[float, float] = (0.0, 0.0)
 
     def __post_init__(self) -> None:
         _check_range("fov_v", self.fov_v, 1.0, 179.0)
@@ -173,6 +176,10 @@ class RenderConfig:
         if not (isinstance(self.radial_distortion, int | float) and 0.0 <= self.radial_distortion <= 0.1):
             raise ValueError(f"radial_distortion must be a standard deviation of k1 in [0, 0.1], "
                              f"got {self.radial_distortion!r}")
+        _check_range("k1_range", self.k1_range, -0.5, 0.5)
+        self.k1_range = (float(self.k1_range[0]), float(self.k1_range[1]))
+        if self.radial_distortion > 0 and tuple(self.k1_range) != (0.0, 0.0):
+            raise ValueError("give radial_distortion (a Gaussian k1) or k1_range (a uniform one), not both")
         if not 0.0 <= self.fronto_prob <= 1.0:
             raise ValueError(f"fronto_prob must be a probability, got {self.fronto_prob}")
         unknown = set(self.kinds) - set(KINDS)
@@ -250,7 +257,7 @@ class RenderedScene:
 HARD_DEFAULTS = {"stairs": 0.0, "billboards": 0.0, "fronto_prob": 0.0, "fronto_jitter": 3.0}
 """The hard-case options of :class:`RenderConfig` and their defaults (off)."""
 
-IMPERFECTION_DEFAULTS = {"principal_point_std": 0.0, "radial_distortion": 0.0}
+IMPERFECTION_DEFAULTS = {"principal_point_std": 0.0, "radial_distortion": 0.0, "k1_range": (0.0, 0.0)}
 """The camera-imperfection options of :class:`RenderConfig` and their defaults (off: an ideal pinhole)."""
 
 
@@ -353,6 +360,8 @@ def render_scene(seed: int, size: tuple[int, int] = (640, 480), config: RenderCo
     gt = camera_ground_truth(fov_v, pitch, roll, yaw, (W, H), offset)
 
     k1 = float(np.clip(lens_rng.normal(), -3, 3) * cfg.radial_distortion) if cfg.radial_distortion > 0 else 0.0
+    if tuple(cfg.k1_range) != (0.0, 0.0):
+        k1 = _uniform(lens_rng, cfg.k1_range)
     source = _undistorted_coordinates(gt["K"].numpy(), k1, W, H) if k1 != 0.0 else None
     margin = 0 if source is None else _margin(source, W, H)
     K = gt["K"].numpy() + np.array([[0, 0, margin], [0, 0, margin], [0, 0, 0]])

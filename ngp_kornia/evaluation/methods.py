@@ -74,7 +74,8 @@ def failed_estimate() -> Estimate:
 
 def estimate_from_calibration(result: Calibration) -> Estimate:
     """The fields of one image's :class:`ngp_kornia.Calibration` that the evaluation uses, as float64 on the CPU;
-    ``focal``, ``valid`` and ``score`` go to :attr:`Estimate.extra`."""
+    ``focal``, ``valid``, ``score``, the principal point ``cx``, ``cy`` and ``k1`` (0 for a pinhole) go to
+    :attr:`Estimate.extra`."""
 
     def f64(t: Tensor) -> Tensor:
         return t.detach().cpu().double()
@@ -85,7 +86,14 @@ def estimate_from_calibration(result: Calibration) -> Estimate:
         pitch=float(result.pitch),
         roll=float(result.roll),
         fov_v=float(result.fov_v),
-        extra={"focal": float(result.focal), "valid": bool(result.valid), "score": float(result.score)},
+        extra={
+            "focal": float(result.focal),
+            "valid": bool(result.valid),
+            "score": float(result.score),
+            "cx": float(result.K[0, 2]),
+            "cy": float(result.K[1, 2]),
+            "k1": 0.0 if result.k1 is None else float(result.k1),
+        },
     )
 
 

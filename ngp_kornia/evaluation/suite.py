@@ -154,7 +154,8 @@ def _variant_rows(title: str, set_name: str, result: dict, first: bool) -> dict[
     summary = result["summary"]
     if summary.get("horizon", {}).get("count"):
         rows[f"{title}: median horizon error (% of height)"] = 100 * summary["horizon"]["median"]
-    for key, what in (("up", "up error (deg)"), ("fov_v", "FoV_v error (deg)")):
+    cameras = (("principal_point", "principal point error (px)"), ("k1", "k1 error"))
+    for key, what in (("up", "up error (deg)"), ("fov_v", "FoV_v error (deg)"), *cameras):
         if first and summary.get(key, {}).get("count"):
             rows[f"{set_name}: {what} mean"] = summary[key]["mean"]
             rows[f"{set_name}: {what} median"] = summary[key]["median"]

@@ -88,8 +88,8 @@ def opencv_radial(
     over an image.
 
     OpenCV distorts undistorted rays ``x_u`` as ``x_d = x_u (1 + k1 r_u^2 + k2 r_u^4 + k3 r_u^6)``; the division
-    model gives ``x_d / x_u = 1 + k1 r_d^2``. The coefficients are the least-squares fit of the second by the
-    first at ``samples`` radii from the principal point to the image's farthest corner (for small ``k1``, OpenCV's
+    model gives ``x_d / x_u = 1 + k1 r_d^2``. The coefficients are the least-squares fit of the distorted radius at
+    ``samples`` radii from the principal point to the image's farthest corner (for small ``k1``, OpenCV's
     ``k1`` is the division model's to first order). COLMAP's ``SIMPLE_RADIAL`` and ``RADIAL`` are the same
     polynomial with one and two terms.
 
@@ -114,7 +114,8 @@ def opencv_radial(
     r_d = reach[:, None] * torch.linspace(0.0, 1.0, samples + 1, dtype=torch.float64, device=K64.device)[1:]
     scale = 1.0 + k[:, None] * r_d.square()
     r_u = r_d / scale.clamp_min(1e-6)
-    design = torch.stack([r_u**2, r_u**4, r_u**6][:terms], -1)  # (B, S, terms)
-    target = (scale - 1.0)[..., None]  # x_d / x_u - 1
+    # the fit weighs each radius by r_u: its error is then the distorted radius's, in the rays' units
+    design = torch.stack([r_u**3, r_u**5, r_u**7][:terms], -1)  # (B, S, terms)
+    target = (r_d - r_u)[..., None]
     solution = torch.linalg.lstsq(design, target).solution[..., 0]
     return torch.where(k[:, None] == 0, torch.zeros_like(solution), solution)

@@ -31,6 +31,7 @@ from ngp_kornia.errors import ConfigError
 
 __all__ = [
     "DETECTORS",
+    "DistortionSettings",
     "HorizonSettings",
     "ParserConfig",
     "PolishSettings",
@@ -248,6 +249,39 @@ class SharedSettings:
         check_settings(self)
 
 
+@dataclass(frozen=True)
+class DistortionSettings:
+    """Radial distortion from the curvature of chained segments, ``calibrate(..., k1="estimate")``
+    (:mod:`ngp_kornia.pipeline.distortion`); the coefficients here are in units of half the image's long side.
+
+    Attributes:
+        gap: two segments chain when an endpoint of one is this close to an endpoint of the other (units of half
+            the long side).
+        angle_deg: and their directions differ by less than this, degrees.
+        max_pairs: at most this many chained pairs per image, the longest.
+        min_pairs: fewer pairs keep a distortion-free camera (no evidence).
+        min_gain: so does a best coefficient whose cost is not below the distortion-free one's by this fraction.
+        tolerance_deg: a pair whose pieces' endpoints are off the other piece's line by more than this angle (root
+            mean square, degrees) counts as two lines that met by chance.
+        search_low: the least coefficient searched (barrel distortion is negative).
+        search_high: the largest coefficient searched.
+        step: the search's step.
+    """
+
+    gap: float = _number(0.03, 0.0, 1.0, open_low=True)
+    angle_deg: float = _number(10.0, 0.0, 45.0, open_low=True)
+    max_pairs: int = _number(1000, 1, 100000)
+    min_pairs: int = _number(8, 1, 100000)
+    min_gain: float = _number(0.05, 0.0, 1.0)
+    tolerance_deg: float = _number(1.0, 0.0, 45.0, open_low=True)
+    search_low: float = _number(-0.6, -2.0, 0.0)
+    search_high: float = _number(0.3, 0.0, 2.0)
+    step: float = _number(0.005, 0.0001, 0.5)
+
+    def __post_init__(self) -> None:
+        check_settings(self)
+
+
 #: the stages of :class:`ParserConfig`, in pipeline order
 _STAGES = {
     "segments": SegmentSettings,
@@ -257,6 +291,7 @@ _STAGES = {
     "horizon": HorizonSettings,
     "trust": TrustSettings,
     "shared": SharedSettings,
+    "distortion": DistortionSettings,
 }
 
 
@@ -272,6 +307,7 @@ class ParserConfig:
         horizon: the horizon search (:class:`HorizonSettings`).
         trust: confidence and standard deviations (:class:`TrustSettings`).
         shared: one camera across many photos (:class:`SharedSettings`).
+        distortion: radial distortion from the segments' curvature (:class:`DistortionSettings`).
     """
 
     segments: SegmentSettings = field(default_factory=SegmentSettings)
@@ -281,6 +317,7 @@ class ParserConfig:
     horizon: HorizonSettings = field(default_factory=HorizonSettings)
     trust: TrustSettings = field(default_factory=TrustSettings)
     shared: SharedSettings = field(default_factory=SharedSettings)
+    distortion: DistortionSettings = field(default_factory=DistortionSettings)
 
     def __post_init__(self) -> None:
         for name, kind in _STAGES.items():

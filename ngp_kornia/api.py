@@ -14,14 +14,22 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ngp_kornia.errors import WeightsError
+from ngp_kornia.errors import NGPError, WeightsError
 from ngp_kornia.exif import exif_focal
 from ngp_kornia.io import as_batch, read_rgb_oriented
 from ngp_kornia.nets.weights import load_network, network_name, shipped_weights
 from ngp_kornia.pipeline import Calibration, NeuralGeometricParser, ParserConfig
-from ngp_kornia.pipeline.priors import Priors, checked_seed
+from ngp_kornia.pipeline.priors import ESTIMATE, Priors, checked_seed
 from ngp_kornia.pipeline.segments import detect_segments
-from ngp_kornia.pipeline.shared_camera import SharedFocal, focal_grid, focal_support, joint_focal, with_shared_focal
+from ngp_kornia.pipeline.shared_camera import (
+    SharedFocal,
+    focal_grid,
+    focal_support,
+    joint_focal,
+    joint_k1,
+    joint_principal_point,
+    with_shared_focal,
+)
 from ngp_kornia.threads import Lookahead, pipeline_threads, resolve_num_threads
 
 __all__ = [
@@ -32,6 +40,7 @@ __all__ = [
     "check_weights",
     "file_priors",
     "load_parser",
+    "shared_focal",
     "with_orientation",
 ]
 
@@ -286,6 +295,10 @@ def calibrate_shared(image, call: _Call, num_threads: int | None) -> Calibration
     with pipeline_threads(num_threads):
         kept, shared = _first_pass(items, call)
         priors = replace(call.priors, focal=shared.focal, fov_v=None)
+        if shared.principal_point is not None:
+            priors = replace(priors, principal_point=shared.principal_point)
+        if shared.k1 is not None:
+            priors = replace(priors, k1=shared.k1)
         results = []
         with Lookahead(lambda i: _pixels_again(items[i], kept[i], call)) as ahead:
             for i, item in enumerate(items):
@@ -295,28 +308,84 @@ def calibrate_shared(image, call: _Call, num_threads: int | None) -> Calibration
     return results if isinstance(image, (list, tuple)) else results[0]
 
 
-def _first_pass(items: list, call: _Call) -> tuple[list[tuple], SharedFocal]:
+def shared_focal(
+    images: Sequence[str | Path],
+    weights: str | Path | Sequence[str | Path] = "default",
+    seed: int = 0,
+    config: ParserConfig | None = None,
+    priors: Priors | None = None,
+) -> SharedFocal:
+    """The focal length that ``calibrate(images, shared_intrinsics=True)`` gives every photo, without calibrating
+    them again with it (``ngp predict --same-camera`` does that as it writes its rows). Files that cannot be read
+    or calibrated are left out (they give no evidence).
+
+    Raises:
+        ValueError: photos of different sizes, or none readable.
+    """
+    call = _Call(check_weights(weights), config or ParserConfig(), checked_seed(seed), priors or Priors(), False)
+    if not images:
+        raise ValueError("shared_focal() got no images")
+    with pipeline_threads(None):
+        return _first_pass(list(images), call, skip_unreadable=True)[1]
+
+
+def _first_pass(items: list, call: _Call, skip_unreadable: bool = False) -> tuple[list[tuple], SharedFocal]:
     """Each photo calibrated alone and scored on the common focal grid: what is kept of each photo's inputs (its
-    pixels only where they are the caller's tensor or a stand-in) and the joint focal length."""
-    kept, support, valid, sizes = [], [], [], []
-    settings = call.config.shared
+    pixels only where they are the caller's tensor or a stand-in) and the joint camera. With ``skip_unreadable``
+    a photo that cannot be read or calibrated is left out (and nothing is kept of any)."""
+    kept, found, sizes = [], {"support": [], "valid": [], "point": [], "point_std": [], "k1": []}, []
+    estimates = call.priors.principal_point == ESTIMATE or call.priors.k1 == ESTIMATE
     with Lookahead(lambda i: _with_segments(_inputs(items[i], call), call)) as ahead:
         for i, item in enumerate(items):
-            given = ahead.get(i, i + 1 if i < len(items) - 1 else None)
+            try:
+                given = ahead.get(i, i + 1 if i < len(items) - 1 else None)
+            except (NGPError, ValueError, TypeError, OSError):
+                if not skip_unreadable:
+                    raise
+                continue
             sizes.append(tuple(given[0].shape[-2:]))
-            height, width = _one_size(sizes)
-            if not call.priors.known_focal:
-                alone = _calibrate_inputs(item, given, call)
-                K, R, ok = (t if alone.batched else t[None] for t in (alone.K, alone.R, alone.valid))
-                grid = focal_grid(height, width, settings, call.config.sampling)
-                support.append(focal_support(K, R, given[1].to(K), given[2], grid, settings))
-                valid.append(ok.cpu())
+            height, width = _one_size(sizes, call.priors.principal_point == ESTIMATE)
+            if not call.priors.known_focal or estimates:
+                _evidence(found, _calibrate_inputs(item, given, call), given, call, height, width)
             keep_pixels = isinstance(item, Tensor) or given[0].stride() == (0, 0, 0, 0)  # the caller's, or a stand-in
-            kept.append((given[0] if keep_pixels else None, *given[1:]))
-    photos = sum(len(given[1]) for given in kept)
+            kept.append((given[0] if keep_pixels else None, *given[1:]) if not skip_unreadable else (None, given[1]))
+    if not kept:
+        raise ValueError("no photo could be read, so no focal length can be shared")
+    return kept, _joint_camera(found, call, sum(len(given[1]) for given in kept), height, width)
+
+
+def _evidence(found: dict, alone: Calibration, given: tuple, call: _Call, height: int, width: int) -> None:
+    """What one photo's own calibration says of the camera: its support on the focal grid, its principal point
+    and distortion (where estimated), appended to ``found``."""
+    K, R, ok = (t if alone.batched else t[None] for t in (alone.K, alone.R, alone.valid))
+    settings = call.config.shared
+    if not call.priors.known_focal:
+        grid = focal_grid(height, width, settings, call.config.sampling)
+        found["support"].append(focal_support(K, R, given[1].to(K), given[2], grid, settings))
+        found["valid"].append(ok.cpu())
+    if call.priors.principal_point == ESTIMATE:
+        std = alone.principal_point_std
+        found["point"].append(K[:, :2, 2].cpu())
+        found["point_std"].append((std if alone.batched else std[None]).cpu())
+    if call.priors.k1 == ESTIMATE:
+        found["k1"].append((alone.k1 if alone.batched else alone.k1[None]).cpu())
+
+
+def _joint_camera(found: dict, call: _Call, photos: int, height: int, width: int) -> SharedFocal:
+    """The shared camera of the photos' evidence (:mod:`ngp_kornia.pipeline.shared_camera`)."""
     if call.priors.known_focal:  # nothing to estimate: the known focal length is every photo's
-        return kept, SharedFocal(call.priors.focal_pixels(height), 0.0, photos)
-    return kept, joint_focal(torch.cat(support), grid, torch.cat(valid), settings.bootstrap)
+        shared = SharedFocal(call.priors.focal_pixels(height), 0.0, photos)
+    else:
+        grid = focal_grid(height, width, call.config.shared, call.config.sampling)
+        shared = joint_focal(torch.cat(found["support"]), grid, torch.cat(found["valid"]), call.config.shared.bootstrap)
+    if found["point"]:
+        centre = torch.tensor([(width - 1) / 2.0, (height - 1) / 2.0])
+        prior = call.config.trust.principal_point_std * height
+        point, std = joint_principal_point(torch.cat(found["point"]), torch.cat(found["point_std"]), centre, prior)
+        shared = shared._replace(principal_point=point, principal_point_std=std)
+    if found["k1"]:
+        shared = shared._replace(k1=joint_k1(torch.cat(found["k1"])))
+    return shared
 
 
 def _pixels_again(item, kept: tuple, call: _Call) -> tuple:
@@ -335,11 +404,12 @@ def _with_segments(inputs: tuple, call: _Call) -> tuple:
     return batch, segments, mask, orientation, priors
 
 
-def _one_size(sizes: list[tuple[int, int]]) -> tuple[int, int]:
-    """The photos' ``(height, width)``, one for all (a turned photo's transpose counts as the same)."""
+def _one_size(sizes: list[tuple[int, int]], upright: bool = False) -> tuple[int, int]:
+    """The photos' ``(height, width)``, one for all (a turned photo's transpose counts as the same, unless
+    ``upright``: a shared principal point turns with the photo)."""
     first = sizes[0]
     for size in sizes[1:]:
-        if size not in (first, first[::-1]):
+        if size not in ((first,) if upright else (first, first[::-1])):
             raise ValueError(
                 f"shared_intrinsics=True needs photos of one camera, so of one size; got {first[1]}x{first[0]} and "
                 f"{size[1]}x{size[0]} pixels: calibrate photos of different sizes apart"

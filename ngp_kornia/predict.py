@@ -24,6 +24,7 @@ import secrets
 import signal
 import warnings
 from collections.abc import Iterator
+from dataclasses import replace
 from pathlib import Path
 from typing import IO, NamedTuple
 
@@ -39,7 +40,7 @@ except ImportError as err:
         f"folder prediction needs Lightning ({err}); install it with: pip install 'ngp-kornia[train]'"
     ) from err
 
-from ngp_kornia.api import file_priors, load_parser, with_orientation
+from ngp_kornia.api import file_priors, load_parser, shared_focal, with_orientation
 from ngp_kornia.data.folder import IMAGE_EXTENSIONS, ImageFolder
 from ngp_kornia.errors import OutputError
 from ngp_kornia.io import read_rgb_oriented
@@ -47,6 +48,7 @@ from ngp_kornia.pipeline import Calibration, NeuralGeometricParser, ParserConfig
 from ngp_kornia.pipeline.priors import Priors, checked_seed
 from ngp_kornia.pipeline.segments import detect_segments, line_workers
 from ngp_kornia.pipeline.settings import SegmentSettings
+from ngp_kornia.pipeline.shared_camera import SharedFocal, with_shared_focal
 from ngp_kornia.threads import Lookahead, pipeline_threads, usable_cores
 
 __all__ = [
@@ -55,6 +57,7 @@ __all__ = [
     "FolderPredictor",
     "JsonlWriter",
     "cap_devices",
+    "folder_cameras",
     "merge_parts",
     "predict_folder",
     "usable_cores",
@@ -145,6 +148,8 @@ class FolderPredictor(L.LightningModule):
         seed: the sampling seed of every image.
         priors: what is known of every image's camera.
         exif: take each file's EXIF focal length where ``priors`` gives none (:func:`ngp_kornia.api.file_priors`).
+        cameras: per sub-folder (its path relative to ``root``, ``"."`` for ``root``), the focal length its photos
+            share (``--same-camera``); None: each photo its own.
     """
 
     def __init__(
@@ -154,11 +159,13 @@ class FolderPredictor(L.LightningModule):
         seed: int = 0,
         priors: Priors | None = None,
         exif: bool = False,
+        cameras: dict[str, SharedFocal] | None = None,
     ) -> None:
         super().__init__()
         self.parser = parser
         self.root = None if root is None else Path(root)
         self.seed, self.priors, self.exif = checked_seed(seed), priors or Priors(), exif
+        self.cameras = cameras
 
     def calibrate(
         self, image: Tensor, name: str | None = None, segments: Tensor | None = None, mask: Tensor | None = None
@@ -173,7 +180,11 @@ class FolderPredictor(L.LightningModule):
         # (the float image is uint8 / 255): the same lines, hence the same answer, as calibrate() on the file
         if segments is not None:
             segments, mask = segments.to(self.device), mask.to(self.device)
-        return self.parser(image[None].to(self.device), segments, mask, seed=self.seed, priors=priors)[0]
+        shared = None if self.cameras is None or name is None else self.cameras.get(Path(name).parent.as_posix())
+        if shared is not None:  # the focal length of the photo's folder, estimated from all of them
+            priors = replace(priors, focal=shared.focal, fov_v=None)
+        result = self.parser(image[None].to(self.device), segments, mask, seed=self.seed, priors=priors)[0]
+        return result if shared is None else with_shared_focal(result, shared)
 
     def predict_step(self, batch: list[FolderItem], batch_idx: int) -> list[tuple[int, dict]]:
         rows = []
@@ -380,6 +391,7 @@ def predict_folder(
     progress_bar: bool = False,
     priors: Priors | None = None,
     exif: bool = False,
+    same_camera: bool = False,  # each folder's photos share a focal length: folder_cameras()
 ) -> dict | None:
     """Calibrate every image of a folder into a JSON Lines file, one row per image in sorted path order.
 
@@ -398,8 +410,7 @@ def predict_folder(
         batch_size: images per loader batch (each image is still calibrated on its own).
         seed: seed of the candidate sampling, as for :func:`ngp_kornia.calibrate`.
         num_workers: loader worker processes per device, to read images while the parser runs.
-        config, priors, exif: the pipeline's settings, what is known of every image's camera (or, with ``exif``,
-            read from its file), as for :func:`ngp_kornia.calibrate`.
+        config, priors, exif: settings, priors (or, with ``exif``, read from the file), as for ``calibrate()``.
         progress_bar: show Lightning's progress bar.
 
     Returns:
@@ -415,8 +426,8 @@ def predict_folder(
     images = _check_folder(Path(folder), recursive)
     _check_out(Path(out), images)
     devices = min(cap_devices(devices), len(images))  # Lightning's predict sampler refuses a process without an image
-    parser = load_parser(weights, config)
-    module = FolderPredictor(parser, images.root, seed, priors, exif)
+    cameras = folder_cameras(images, weights, seed, config, priors, exif) if same_camera else None
+    module = FolderPredictor(parser := load_parser(weights, config), images.root, seed, priors, exif, cameras)
     files = FolderImages(images, parser.config.segments, devices if num_workers == 0 else None)  # reads ahead
     loader = DataLoader(files, batch_size=batch_size, num_workers=num_workers, collate_fn=collate_items)
     writer = JsonlWriter(out, devices)
@@ -427,6 +438,24 @@ def predict_folder(
     if writer.multi and not writer.interrupted:  # the forked processes wrote and merged; this one only waited
         writer.images, writer.errors = count_rows(writer.out)
     return {"images": writer.images, "errors": writer.errors, "interrupted": writer.interrupted}
+
+
+def folder_cameras(images: ImageFolder, weights, seed: int, config, priors, exif: bool) -> dict[str, SharedFocal]:
+    """The focal length shared by the photos of each folder (:func:`ngp_kornia.api.shared_focal`), by the folder's
+    path relative to the root (``"."`` for the root): estimated in this process before the run, whose every
+    photo then takes its folder's as known (``shared_photos`` in its row).
+
+    Raises:
+        ValueError: with ``exif`` (a focal length per photo, where one is shared), or a folder of photos of
+            different sizes.
+    """
+    if exif:
+        raise ValueError("--same-camera estimates one focal length per folder; --exif gives each photo its own: "
+                         "use one of them")
+    groups: dict[str, list[Path]] = {}
+    for path in images.paths:
+        groups.setdefault(path.relative_to(images.root).parent.as_posix(), []).append(path)
+    return {name: shared_focal(paths, weights, seed, config, priors) for name, paths in groups.items()}
 
 
 def _check_counts(devices: int, batch_size: int) -> None:

@@ -29,6 +29,7 @@ __all__ = [
     "Method",
     "MethodRun",
     "calibrate_method",
+    "calibration_method",
     "call_arguments",
     "estimate_from_calibration",
     "failed_estimate",
@@ -214,6 +215,15 @@ def calibrate_method(
         images: the whole set, for ``shared_intrinsics=true``: its first call calibrates them all as one camera
             (that call's time is the set's; the others only look the answer up).
     """
+    calibration = calibration_method(spec, seed, images)
+    return lambda image: estimate_from_calibration(calibration(image))
+
+
+def calibration_method(
+    spec: str | None = None, seed: int | None = None, images: Sequence[LabelledImage] | None = None
+) -> Callable[[LabelledImage], Calibration]:
+    """The :class:`~ngp_kornia.Calibration` that :func:`calibrate_method` (same arguments) reads its estimate from:
+    what the worst-case sheets draw (:mod:`~ngp_kornia.evaluation.sheets`)."""
     from ngp_kornia.api import calibrate
 
     weights, config = weights_and_config(spec)
@@ -225,27 +235,27 @@ def calibrate_method(
     if extra.pop("shared_intrinsics", False):
         return _shared_method(images, options)
 
-    def run(image: LabelledImage) -> Estimate:
+    def run(image: LabelledImage) -> Calibration:
         prior = {}
         if noise is not None:
             prior = {"gravity": gravity_prior(image, seed, noise), "gravity_std": stated or max(noise, 0.1)}
-        return estimate_from_calibration(calibrate(str(image.image_path), **options, **prior))
+        return calibrate(str(image.image_path), **options, **prior)
 
     return run
 
 
-def _shared_method(images: Sequence[LabelledImage] | None, options: dict) -> Method:
-    """The method of ``shared_intrinsics=true``: the whole set calibrated as one camera at the first call."""
+def _shared_method(images: Sequence[LabelledImage] | None, options: dict) -> Callable[[LabelledImage], Calibration]:
+    """The calibrations of ``shared_intrinsics=true``: the whole set calibrated as one camera at the first call."""
     from ngp_kornia.api import calibrate
 
     if not images:
         raise ValueError("shared_intrinsics=true needs the set's images (calibrate_method(..., images=...))")
-    answers: dict[str, Estimate] = {}
+    answers: dict[str, Calibration] = {}
 
-    def run(image: LabelledImage) -> Estimate:
+    def run(image: LabelledImage) -> Calibration:
         if not answers:
             results = calibrate([str(im.image_path) for im in images], **options)
-            answers.update({im.name: estimate_from_calibration(r) for im, r in zip(images, results, strict=True)})
+            answers.update({im.name: r for im, r in zip(images, results, strict=True)})
         return answers[image.name]
 
     return run

@@ -51,6 +51,7 @@ __all__ = [
     "run_suite",
     "suite_rows",
     "suite_table",
+    "write_sheets",
 ]
 
 #: sampling seeds of the development suite
@@ -253,6 +254,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--limit", type=int, default=None, help="only the first N images of each set (quick checks)")
     p.add_argument("--json", type=Path, default=None, help="also write every figure and per-image error here")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    p.add_argument("--sheets", type=Path, default=None, help="write worst-case sheets (PNG) of the first seed here")
+    p.add_argument("--sheet-count", type=int, default=8, help="images on each worst-case sheet")
     return p
 
 
@@ -284,9 +287,27 @@ def main(argv: Sequence[str] | None = None) -> int:
     for rec in (r for r in records if r["truth"] == first_truth[r["set"]]):
         for msg in rec["exceptions"][:3]:
             print(f"  [{rec['weights']}, {rec['set']}, seed {rec['seed']}] {msg}")
+    if args.sheets is not None:
+        write_sheets(args.sheets, records, sets, seeds[0], args.sheet_count)
     if args.json is not None:
         write_json(args.json, argv, started, load, seeds, specs, sets, rows, records)
     return 0
+
+
+def write_sheets(folder: Path, records: list[dict], sets: Sequence[SuiteSet], seed: int, count: int) -> None:
+    """One worst-case sheet per set and weight spec, of ``seed``'s run (:mod:`~ngp_kornia.evaluation.sheets`),
+    scored against the set's first ground truth."""
+    from ngp_kornia.evaluation.methods import calibration_method
+    from ngp_kornia.evaluation.sheets import sheet_name, worst_sheet
+
+    for suite_set in sets:
+        truth = next(iter(suite_set.truths))
+        for rec in records:
+            if rec["set"] == suite_set.name and rec["truth"] == truth and rec["seed"] == seed:
+                calibration = calibration_method(rec["weights"], seed, suite_set.images)
+                path = folder / sheet_name(suite_set.name, rec["weights"])
+                worst_sheet(suite_set.truths[truth], rec["result"]["per_image"], calibration, path, count)
+                print(f"wrote {path}")
 
 
 def write_json(path: Path, argv, started, load: dict, seeds, specs, sets, rows, records) -> None:

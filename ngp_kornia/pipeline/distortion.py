@@ -18,8 +18,9 @@ follow once the focal length is known, ``k1 = lam (f / s)^2`` (:func:`k1_from_un
    (:func:`distortion_costs`): the mean squared sine of those angles, truncated at ``tolerance_deg`` (two pieces
    of different lines that happen to meet count the same for every coefficient), weighed by the pair's length.
 3. **The answer.** The coefficient of the least summed cost, refined by a parabola through its neighbours; an image
-   with fewer than ``min_pairs`` pairs, or whose least cost is not below the cost without distortion by more than
-   ``min_gain`` (relative), keeps 0 (no evidence, no distortion).
+   with fewer than ``min_pairs`` pairs, whose least cost lies at an end of the search, or whose least cost is not
+   below the cost without distortion by more than ``min_gain`` of the cost of the pairs straight at either (pairs
+   crooked at both say nothing), keeps 0 (no evidence, no distortion).
 """
 
 from __future__ import annotations
@@ -137,22 +138,29 @@ def estimate_distortion(
     first, second, weight = chained_pairs(q, mask, settings)
     cap = math.sin(math.radians(settings.tolerance_deg)) ** 2
 
-    def cost(lams: Tensor) -> Tensor:  # (B, G) summed truncated costs at (G,) or (B, G) coefficients
-        return (distortion_costs(q, first, second, lams).clamp_max(cap) * weight[:, None]).sum(-1)
+    def pair_costs(lams: Tensor) -> Tensor:  # (B, G, P) truncated costs at (G,) or (B, G) coefficients
+        return distortion_costs(q, first, second, lams).clamp_max(cap)
 
     # coarse (COARSE steps apart, 0 among them), then ``step`` apart around the coarse best
     coarse_step = COARSE * settings.step
     below, above = round(-settings.search_low / coarse_step), round(settings.search_high / coarse_step)
     coarse = torch.arange(-below, above + 1, dtype=torch.float64, device=q.device) * coarse_step
-    coarse_cost = cost(coarse)
-    none = coarse_cost[:, below]
-    fine = coarse[coarse_cost.argmin(-1)][:, None] + torch.arange(-COARSE, COARSE + 1).to(q) * settings.step
-    fine_cost = cost(fine)
+    per_pair = pair_costs(coarse)
+    coarse_cost = (per_pair * weight[:, None]).sum(-1)
+    at = coarse_cost.argmin(-1)
+    fine = coarse[at][:, None] + torch.arange(-COARSE, COARSE + 1).to(q) * settings.step
+    fine_cost = (pair_costs(fine) * weight[:, None]).sum(-1)
     lam = _parabola_minimum(fine, fine_cost, settings.step)
-    # a coefficient only where it explains clearly more than none: a flat cost (pairs near the centre, along radii,
-    # or a lens without distortion) has its minimum anywhere
-    gain = (none - fine_cost.amin(-1)) / none.clamp_min(1e-300)
-    enough = ((weight > 0).sum(-1) >= settings.min_pairs) & (gain > settings.min_gain)
+    # a coefficient only where it straightens clearly more than none does, counting the pairs that are straight at
+    # either (those crooked at both are two lines met by chance): a flat cost (pairs near the centre, along radii,
+    # or a lens without distortion) has its minimum anywhere, and one at the search's ends is no minimum
+    rows = torch.arange(len(q), device=q.device)
+    none, best = per_pair[:, below], per_pair[rows, at]
+    junk = ((none >= cap) & (best >= cap)).to(none) * cap * weight
+    informative = (none * weight - junk).sum(-1)
+    gain = (coarse_cost[:, below] - fine_cost.amin(-1)) / informative.clamp_min(1e-300)
+    inside = (at > 0) & (at < len(coarse) - 1)
+    enough = ((weight > 0).sum(-1) >= settings.min_pairs) & (gain > settings.min_gain) & inside
     return torch.where(enough, lam, torch.zeros_like(lam)).to(segments.dtype)
 
 

@@ -20,6 +20,9 @@ lengths and the scores are summed:
    resamples of the photos (a fixed seed: the same photos give the same answer).
 
 Each photo's rotation is then found again with the shared focal length as a known one (``ngp_kornia.calibrate``).
+A principal point or distortion asked for as ``"estimate"`` is shared too: the principal point combines every
+photo's own estimate (:func:`joint_principal_point`, each photo's evidence added once to the prior), the distortion
+is the median of theirs (:func:`joint_k1`); the second pass then takes them as known.
 """
 
 from __future__ import annotations
@@ -42,7 +45,16 @@ from ngp_kornia.pipeline.polish import refit_rotation
 from ngp_kornia.pipeline.result import Calibration
 from ngp_kornia.pipeline.settings import SamplingSettings, SharedSettings
 
-__all__ = ["SharedFocal", "focal_grid", "focal_support", "joint_focal", "nearest_rotation", "with_shared_focal"]
+__all__ = [
+    "SharedFocal",
+    "focal_grid",
+    "focal_support",
+    "joint_focal",
+    "joint_k1",
+    "joint_principal_point",
+    "nearest_rotation",
+    "with_shared_focal",
+]
 
 
 class SharedFocal(NamedTuple):
@@ -52,11 +64,17 @@ class SharedFocal(NamedTuple):
         focal: the focal length, pixels.
         std: its standard deviation over resamples of the photos, pixels (0 for a single photo).
         photos: how many photos gave evidence (those with a valid frame).
+        principal_point: ``(cx, cy)``, the jointly estimated principal point, pixels; None where not estimated.
+        principal_point_std: its standard deviation per axis, pixels.
+        k1: the jointly estimated distortion (:mod:`ngp_kornia.geometry.lens`); None where not estimated.
     """
 
     focal: float
     std: float
     photos: int
+    principal_point: tuple[float, float] | None = None
+    principal_point_std: tuple[float, float] | None = None
+    k1: float | None = None
 
 
 def focal_grid(height: int, width: int, settings: SharedSettings, sampling: SamplingSettings) -> Tensor:
@@ -180,4 +198,40 @@ def with_shared_focal(result: Calibration, shared: SharedFocal) -> Calibration:
     f, height = result.focal, result.image_size[..., 0].to(result.focal)
     fov_std = torch.rad2deg(shared.std * height / (f.square() + height.square() / 4.0))
     photos = torch.full_like(result.focal, shared.photos, dtype=torch.long)
-    return replace(result, fov_v_std=fov_std, shared_photos=photos)
+    result = replace(result, fov_v_std=fov_std, shared_photos=photos)
+    if shared.principal_point_std is None:
+        return result
+    std = result.K.new_tensor(shared.principal_point_std).expand_as(result.K[..., 0, :2])
+    return replace(result, principal_point_std=std)
+
+
+def joint_principal_point(
+    points: Tensor, stds: Tensor, centre: Tensor, prior_std: float
+) -> tuple[tuple[float, float], tuple[float, float]]:
+    """One camera's principal point from each photo's own estimate ``points`` (P, 2) with ``stds`` (P, 2)
+    (:func:`~ngp_kornia.pipeline.principal_point.estimate_principal_point`, each under the prior
+    ``N(centre, prior_std^2)`` per axis): the prior counted once and every photo's evidence, its posterior's
+    precision less the prior's, added. Returns the point and its standard deviation, pixels.
+
+    Example:
+        >>> point, std = joint_principal_point(torch.tensor([[330.0, 240.0], [330.0, 240.0]]),
+        ...                                    torch.full((2, 2), 6.0), torch.tensor([320.0, 240.0]), 12.0)
+        >>> [round(v, 2) for v in point], [round(v, 2) for v in std]  # two photos' evidence: nearer, narrower
+        ([331.43, 240.0], [4.54, 4.54])
+    """
+    points, stds, centre = points.double(), stds.double(), centre.double()
+    if prior_std <= 0:
+        return tuple(centre.tolist()), (0.0, 0.0)
+    prior = 1.0 / prior_std**2
+    evidence = (1.0 / stds.clamp_min(1e-6).square() - prior).clamp_min(0.0)  # (P, 2) each photo's own precision
+    means = (points / stds.clamp_min(1e-6).square() - centre * prior) / evidence.clamp_min(1e-300)
+    precision = prior + evidence.sum(0)
+    point = (centre * prior + (evidence * torch.where(evidence > 0, means, 0.0)).sum(0)) / precision
+    return tuple(point.tolist()), tuple(precision.rsqrt().tolist())
+
+
+def joint_k1(values: Tensor) -> float:
+    """One camera's distortion from each photo's own estimate (P,): the median of those that found one (an
+    estimate of 0 is a photo without evidence), 0 when none did."""
+    found = values[values != 0]
+    return float(found.median()) if len(found) else 0.0

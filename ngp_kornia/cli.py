@@ -109,6 +109,7 @@ def _add_rectify(sub) -> None:
     rect.add_argument("--weights", default="default", help=WEIGHTS_HELP)
     rect.add_argument("--seed", type=int, default=0, help="seed of the candidate sampling")
     rect.add_argument("--force", action="store_true", help=FORCE_HELP)
+    add_camera_arguments(rect)
     add_setting_options(rect)
 
 
@@ -340,7 +341,7 @@ def _rectify(args: argparse.Namespace) -> int:
     try:
         check_output(path, args.force, [args.image])
         rgb = read_image_file(args.image)
-        result = calibrate(rgb, weights=args.weights, seed=args.seed, config=_config(args))
+        result = calibrate(rgb, weights=args.weights, seed=args.seed, config=_config(args), **camera_arguments(args))
         K, R = result.K[None].double(), result.R[None].double()
         if args.mode == "level":
             homography = level_homography(K, R)
@@ -350,7 +351,8 @@ def _rectify(args: argparse.Namespace) -> int:
             homography = frontal_homography(K, R, axis=0 if args.axis == "x" else 2)
         image = torch.from_numpy(rgb).permute(2, 0, 1)[None].double().div(255.0)
         crop = args.crop or ("valid" if args.mode == "frontal" else "keep")
-        warped, _ = rectify(image, homography, crop=crop)  # a too oblique view with keep: the error names --crop
+        lens = {} if result.k1 is None else {"k1": result.k1[None].double(), "K": K}  # undistorted on the way
+        warped, _ = rectify(image, homography, crop=crop, **lens)  # too oblique for keep: the error names --crop
         out = warped[0].permute(1, 2, 0).mul(255.0).round().clamp(0, 255).to(torch.uint8).numpy()
         _write_image(path, out)
     except USER_ERRORS as err:

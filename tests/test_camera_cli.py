@@ -84,3 +84,18 @@ def test_overlay_draws_the_true_horizon_of_a_truth_file(folder, tmp_path, capsys
     assert main(["calibrate", str(image), "--weights", "none", "--overlay", str(true), "--force",
                  "--truth", str(tmp_path / "missing.csv")]) != 0
     assert "missing.csv" in capsys.readouterr().err
+
+
+def test_rectify_undistorts_a_bent_photo(tmp_path, capsys):
+    from ngp_kornia.training.synth.render import render_scene
+
+    bent = render_scene(5, (640, 480), RenderConfig(kinds={"street": 1.0}, k1_range=(-0.25, -0.25)))
+    path = tmp_path / "bent.png"
+    cv2.imwrite(str(path), cv2.cvtColor(bent.image, cv2.COLOR_RGB2BGR))
+    plain, straight = tmp_path / "plain.png", tmp_path / "straight.png"
+    common = ["--weights", "none", "--mode", "level", "--crop", "valid"]
+    assert main(["rectify", str(path), *common, "-o", str(plain)]) == 0
+    assert main(["rectify", str(path), *common, "--k1", "estimate", "-o", str(straight)]) == 0
+    # the undistorted view is another image (barrel distortion undone: the valid centre is smaller than the input)
+    a, b = cv2.imread(str(plain)), cv2.imread(str(straight))
+    assert b.shape[0] < a.shape[0] or np.abs(cv2.resize(b, a.shape[1::-1]).astype(int) - a).mean() > 5

@@ -14,15 +14,34 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ngp_kornia.errors import WeightsError
+from ngp_kornia.errors import NGPError, WeightsError
 from ngp_kornia.io import as_batch, exif_focal, read_rgb_oriented
 from ngp_kornia.nets.weights import load_network, network_name, shipped_weights
 from ngp_kornia.pipeline import Calibration, NeuralGeometricParser, ParserConfig
-from ngp_kornia.pipeline.priors import Priors, checked_seed
+from ngp_kornia.pipeline.priors import ESTIMATE, Priors, checked_seed
 from ngp_kornia.pipeline.segments import detect_segments
+from ngp_kornia.pipeline.shared_camera import (
+    SharedFocal,
+    focal_grid,
+    focal_support,
+    joint_focal,
+    joint_k1,
+    joint_principal_point,
+    with_shared_focal,
+)
 from ngp_kornia.threads import Lookahead, pipeline_threads, resolve_num_threads
 
-__all__ = ["DEFAULT_WEIGHTS", "WEIGHTS", "calibrate", "check_weights", "file_priors", "load_parser", "with_orientation"]
+__all__ = [
+    "DEFAULT_WEIGHTS",
+    "WEIGHTS",
+    "calibrate",
+    "calibrate_shared",
+    "check_weights",
+    "file_priors",
+    "load_parser",
+    "shared_focal",
+    "with_orientation",
+]
 
 #: weight sets ``calibrate`` accepts by name; paths to weights files (``.pt``) work too.
 WEIGHTS = ("default", "none", "zsnet", "fsnet", "full")
@@ -103,6 +122,12 @@ def calibrate(
     fov_v: float | None = None,
     exif: bool = False,
     num_threads: int | None = None,
+    *,
+    gravity: tuple[float, float] | None = None,
+    gravity_std: float | None = None,
+    principal_point: tuple[float, float] | str | None = None,
+    k1: float | str | None = None,
+    shared_intrinsics: bool = False,
 ) -> Calibration | list[Calibration]:
     """Calibrate a camera from one photo (or a batch, or a list of photos) of a man-made scene.
 
@@ -123,16 +148,18 @@ def calibrate(
             (``FocalLengthIn35mmFilm``, or ``FocalLength`` with the sensor resolution); no prior when it has none.
         num_threads: torch threads of the calling thread during the call (:mod:`ngp_kornia.threads`): None takes
             ``$NGP_NUM_THREADS`` or else 1; 0 keeps the caller's setting. The caller's count is restored after.
+        gravity, gravity_std, principal_point, k1: a known ``(pitch, roll)`` and its standard deviation, degrees;
+            the principal point ``(cx, cy)`` and radial distortion, known or ``"estimate"`` (:class:`Priors`).
+        shared_intrinsics: the photos (of one size) are one camera's (:mod:`ngp_kornia.pipeline.shared_camera`).
 
     Returns:
-        a :class:`Calibration` in the input's pixels (its fields, conventions and the trust fields ``confidence``,
-        ``pitch_std``, ``roll_std``, ``fov_v_std`` are documented there), batched for batched tensor input; for a
-        list, a list of results, one per item, each exactly what that item gives alone (same seed).
+        a :class:`Calibration` in the input's pixels (documented there), batched for batched tensor input; for a list,
+        a list of results, one per item, each what that item gives alone (same seed) unless ``shared_intrinsics``.
 
     Raises:
-        ImageReadError: unreadable, truncated, corrupt, too small (< 32 px), too large or NaN input; the message
-            says what to fix.
+        ImageReadError: unreadable, truncated, corrupt, too small (< 32 px), too large or NaN input.
         InputError: a seed, prior or thread count that is not one (a bool as a focal length, say).
+        ValueError: ``shared_intrinsics`` with photos of different sizes, or with ``exif``.
         WeightsError: a missing, corrupt or mismatched weights file.
         TypeError: an input type or dtype that is not supported.
 
@@ -143,10 +170,19 @@ def calibrate(
         >>> [c.image_size.tolist() for c in calibrate([torch.rand(3, 64, 64), torch.rand(3, 48, 80)])]
         [[64, 64], [48, 80]]
     """
-    call = _Call(check_weights(weights), config or ParserConfig(), checked_seed(seed), Priors(focal, fov_v), exif)
-    if not isinstance(exif, bool):
-        raise TypeError(f"exif must be True or False, got {exif!r}")
+    priors = Priors(focal, fov_v, gravity, gravity_std, principal_point, k1)
+    call = _Call(check_weights(weights), config or ParserConfig(), checked_seed(seed), priors, exif)
+    return _calibrate_call(image, call, num_threads, shared_intrinsics)
+
+
+def _calibrate_call(image, call: _Call, num_threads: int | None, shared_intrinsics: bool):
+    """The rest of :func:`calibrate` once its weights, settings and priors are checked."""
+    for name, flag in (("exif", call.exif), ("shared_intrinsics", shared_intrinsics)):
+        if not isinstance(flag, bool):
+            raise TypeError(f"{name} must be True or False, got {flag!r}")
     resolve_num_threads(num_threads)  # a bad count is refused before any image is read
+    if shared_intrinsics:
+        return calibrate_shared(image, call, num_threads)
     if isinstance(image, (list, tuple)):
         return _calibrate_list(image, call, num_threads)
     with pipeline_threads(num_threads):  # one thread unless asked otherwise; the caller's count is restored
@@ -239,3 +275,144 @@ def _calibrate_list(images, call: _Call, num_threads: int | None) -> list[Calibr
         return [
             _calibrate_inputs(item, ahead.get(i, i + 1 if i < last else None), call) for i, item in enumerate(images)
         ]
+
+
+def calibrate_shared(image, call: _Call, num_threads: int | None) -> Calibration | list[Calibration]:
+    """:func:`calibrate` with ``shared_intrinsics=True``: every photo calibrated alone, one focal length from the
+    line support of all of them on a common grid (:mod:`ngp_kornia.pipeline.shared_camera`), then every photo again
+    with that focal length as a known one. ``image`` and the result are as in :func:`calibrate`. Between the passes
+    only each photo's segments are kept (the pixels of a file are read again), so a long list fits in memory.
+
+    Raises:
+        ValueError: an empty list, photos of different sizes (not one camera), or ``exif`` (a focal length per
+            photo, where one is shared).
+    """
+    if call.exif:
+        raise ValueError("shared_intrinsics=True estimates one focal length for all the photos; exif=True gives each "
+                         "its own: use one of them (or give the known focal length as focal=)")
+    items = list(image) if isinstance(image, (list, tuple)) else [image]
+    if not items:
+        raise ValueError("calibrate() got an empty list; give at least one image (path, array or tensor)")
+    with pipeline_threads(num_threads):
+        kept, shared = _first_pass(items, call)
+        priors = replace(call.priors, focal=shared.focal, fov_v=None)
+        if shared.principal_point is not None:
+            priors = replace(priors, principal_point=shared.principal_point)
+        if shared.k1 is not None:
+            priors = replace(priors, k1=shared.k1)
+        results = []
+        with Lookahead(lambda i: _pixels_again(items[i], kept[i], call)) as ahead:
+            for i, item in enumerate(items):
+                batch, segments, mask, orientation, _ = ahead.get(i, i + 1 if i < len(items) - 1 else None)
+                alone = _calibrate_inputs(item, (batch, segments, mask, orientation, priors), call)
+                results.append(with_shared_focal(alone, shared))
+    return results if isinstance(image, (list, tuple)) else results[0]
+
+
+def shared_focal(
+    images: Sequence[str | Path],
+    weights: str | Path | Sequence[str | Path] = "default",
+    seed: int = 0,
+    config: ParserConfig | None = None,
+    priors: Priors | None = None,
+) -> SharedFocal:
+    """The focal length that ``calibrate(images, shared_intrinsics=True)`` gives every photo, without calibrating
+    them again with it (``ngp predict --same-camera`` does that as it writes its rows). Files that cannot be read
+    or calibrated are left out (they give no evidence).
+
+    Raises:
+        ValueError: photos of different sizes, or none readable.
+    """
+    call = _Call(check_weights(weights), config or ParserConfig(), checked_seed(seed), priors or Priors(), False)
+    if not images:
+        raise ValueError("shared_focal() got no images")
+    with pipeline_threads(None):
+        return _first_pass(list(images), call, skip_unreadable=True)[1]
+
+
+def _first_pass(items: list, call: _Call, skip_unreadable: bool = False) -> tuple[list[tuple], SharedFocal]:
+    """Each photo calibrated alone and scored on the common focal grid: what is kept of each photo's inputs (its
+    pixels only where they are the caller's tensor or a stand-in) and the joint camera. With ``skip_unreadable``
+    a photo that cannot be read or calibrated is left out (and nothing is kept of any)."""
+    kept, found, sizes = [], {"support": [], "valid": [], "point": [], "point_std": [], "k1": []}, []
+    estimates = call.priors.principal_point == ESTIMATE or call.priors.k1 == ESTIMATE
+    with Lookahead(lambda i: _with_segments(_inputs(items[i], call), call)) as ahead:
+        for i, item in enumerate(items):
+            try:
+                given = ahead.get(i, i + 1 if i < len(items) - 1 else None)
+            except (NGPError, ValueError, TypeError, OSError):
+                if not skip_unreadable:
+                    raise
+                continue
+            sizes.append(tuple(given[0].shape[-2:]))
+            height, width = _one_size(sizes, call.priors.principal_point == ESTIMATE)
+            if not call.priors.known_focal or estimates:
+                _evidence(found, _calibrate_inputs(item, given, call), given, call, height, width)
+            keep_pixels = isinstance(item, Tensor) or given[0].stride() == (0, 0, 0, 0)  # the caller's, or a stand-in
+            kept.append((given[0] if keep_pixels else None, *given[1:]) if not skip_unreadable else (None, given[1]))
+    if not kept:
+        raise ValueError("no photo could be read, so no focal length can be shared")
+    return kept, _joint_camera(found, call, sum(len(given[1]) for given in kept), height, width)
+
+
+def _evidence(found: dict, alone: Calibration, given: tuple, call: _Call, height: int, width: int) -> None:
+    """What one photo's own calibration says of the camera: its support on the focal grid, its principal point
+    and distortion (where estimated), appended to ``found``."""
+    K, R, ok = (t if alone.batched else t[None] for t in (alone.K, alone.R, alone.valid))
+    settings = call.config.shared
+    if not call.priors.known_focal:
+        grid = focal_grid(height, width, settings, call.config.sampling)
+        found["support"].append(focal_support(K, R, given[1].to(K), given[2], grid, settings))
+        found["valid"].append(ok.cpu())
+    if call.priors.principal_point == ESTIMATE:
+        std = alone.principal_point_std
+        found["point"].append(K[:, :2, 2].cpu())
+        found["point_std"].append((std if alone.batched else std[None]).cpu())
+    if call.priors.k1 == ESTIMATE:
+        found["k1"].append((alone.k1 if alone.batched else alone.k1[None]).cpu())
+
+
+def _joint_camera(found: dict, call: _Call, photos: int, height: int, width: int) -> SharedFocal:
+    """The shared camera of the photos' evidence (:mod:`ngp_kornia.pipeline.shared_camera`)."""
+    if call.priors.known_focal:  # nothing to estimate: the known focal length is every photo's
+        shared = SharedFocal(call.priors.focal_pixels(height), 0.0, photos)
+    else:
+        grid = focal_grid(height, width, call.config.shared, call.config.sampling)
+        shared = joint_focal(torch.cat(found["support"]), grid, torch.cat(found["valid"]), call.config.shared.bootstrap)
+    if found["point"]:
+        centre = torch.tensor([(width - 1) / 2.0, (height - 1) / 2.0])
+        prior = call.config.trust.principal_point_std * height
+        point, std = joint_principal_point(torch.cat(found["point"]), torch.cat(found["point_std"]), centre, prior)
+        shared = shared._replace(principal_point=point, principal_point_std=std)
+    if found["k1"]:
+        shared = shared._replace(k1=joint_k1(torch.cat(found["k1"])))
+    return shared
+
+
+def _pixels_again(item, kept: tuple, call: _Call) -> tuple:
+    """The second pass's inputs of a photo: its kept inputs, with the pixels of a file or array read again."""
+    if kept[0] is not None:
+        return kept
+    rgb, _ = read_rgb_oriented(item)
+    return (_pixels(rgb), *kept[1:])
+
+
+def _with_segments(inputs: tuple, call: _Call) -> tuple:
+    """The inputs of :func:`_inputs`, with a tensor's segments detected here (the shared focal length reads them)."""
+    batch, segments, mask, orientation, priors = inputs
+    if segments is None:
+        segments, mask = detect_segments(batch, call.config.segments)
+    return batch, segments, mask, orientation, priors
+
+
+def _one_size(sizes: list[tuple[int, int]], upright: bool = False) -> tuple[int, int]:
+    """The photos' ``(height, width)``, one for all (a turned photo's transpose counts as the same, unless
+    ``upright``: a shared principal point turns with the photo)."""
+    first = sizes[0]
+    for size in sizes[1:]:
+        if size not in ((first,) if upright else (first, first[::-1])):
+            raise ValueError(
+                f"shared_intrinsics=True needs photos of one camera, so of one size; got {first[1]}x{first[0]} and "
+                f"{size[1]}x{size[0]} pixels: calibrate photos of different sizes apart"
+            )
+    return first

@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from ngp_kornia.cli_camera import add_camera_arguments, camera_arguments, load_truth
 from ngp_kornia.cli_options import add_setting_options, config_from_args
 from ngp_kornia.cli_render import add_render_command, render_command
 from ngp_kornia.errors import ConfigError, NGPError, OutputError
@@ -77,7 +78,7 @@ def _parser() -> argparse.ArgumentParser:
         "--overlay", help="write an overlay PNG here (for several images: a folder, one <name>_overlay.png each)"
     )
     cal.add_argument("--force", action="store_true", help=FORCE_HELP)
-    _add_prior_arguments(cal)
+    _add_prior_arguments(cal, truth=True)
     pred = sub.add_parser("predict", help="calibrate every image of a folder into a JSON Lines file")
     pred.add_argument("folder", help="folder of images")
     pred.add_argument("--out", required=True, help="the .jsonl file to write: one JSON object per image")
@@ -117,15 +118,17 @@ def _add_rectify(sub) -> None:
     rect.add_argument("--weights", default="default", help=WEIGHTS_HELP)
     rect.add_argument("--seed", type=int, default=0, help="seed of the candidate sampling")
     rect.add_argument("--force", action="store_true", help=FORCE_HELP)
+    add_camera_arguments(rect)
     add_setting_options(rect)
 
 
-def _add_prior_arguments(command: argparse.ArgumentParser) -> None:
+def _add_prior_arguments(command: argparse.ArgumentParser, truth: bool = False) -> None:
     command.add_argument("--focal", type=float, default=None, help="known focal length, pixels of the input image")
     command.add_argument("--fov", type=float, default=None, help="known vertical field of view, degrees")
     command.add_argument(
         "--exif", action="store_true", help="use the focal length in each file's EXIF, where it has one"
     )
+    add_camera_arguments(command, truth)
     add_setting_options(command)
 
 
@@ -140,7 +143,7 @@ def _prior(args: argparse.Namespace, image: str, rgb: np.ndarray) -> dict:
     from ngp_kornia.pipeline.priors import Priors
 
     priors = file_priors(image, *rgb.shape[:2], Priors(args.focal, args.fov), args.exif)
-    return {"focal": priors.focal, "fov_v": priors.fov_v}
+    return {"focal": priors.focal, "fov_v": priors.fov_v, **camera_arguments(args)}
 
 
 #: images read and calibrated together by ``ngp calibrate`` (one ``calibrate()`` call on a list)
@@ -182,13 +185,13 @@ def _write_image(path: Path, rgb: np.ndarray) -> None:
         raise OutputError(f"could not write {path}")
 
 
-def _write_overlay(path: Path, rgb: np.ndarray, calibration, config: ParserConfig | None = None) -> None:
+def _write_overlay(path: Path, rgb: np.ndarray, calibration, config: ParserConfig | None = None, truth=None) -> None:
     from ngp_kornia.pipeline.segments import detect_segments
     from ngp_kornia.viz import draw_calibration
 
     settings = None if config is None else config.segments
     segments = detect_segments(rgb, settings)[0][0].numpy()  # the lines the calibration saw (same settings)
-    _write_image(path, draw_calibration(rgb, calibration, segments))
+    _write_image(path, draw_calibration(rgb, calibration, segments, truth=truth))
 
 
 def _calibrate_loaded(loaded: list, args: argparse.Namespace) -> list:
@@ -198,6 +201,8 @@ def _calibrate_loaded(loaded: list, args: argparse.Namespace) -> list:
 
     priors = [_prior(args, image, rgb) for image, rgb, _ in loaded]
     options = {"weights": args.weights, "seed": args.seed, "config": _config(args)}
+    if args.same_camera and loaded:  # every photo of the command in one call (one chunk, see _calibrate)
+        return calibrate([rgb for _, rgb, _ in loaded], **options, **priors[0], shared_intrinsics=True)
     if all(p == priors[0] for p in priors[1:]):
         return calibrate([rgb for _, rgb, _ in loaded], **options, **priors[0]) if loaded else []
     return [calibrate(rgb, **options, **p) for (_, rgb, _), p in zip(loaded, priors, strict=True)]
@@ -212,10 +217,11 @@ def _calibrate(args: argparse.Namespace) -> int:
         raise OutputError(f"--overlay {args.overlay} is a file; for several images give a folder")
     if args.overlay and not many:
         check_output(Path(args.overlay), args.force, args.images)
-    failed = 0
-    for start in range(0, len(args.images), _CHUNK):  # a few images at a time, so results come as they are done
+    failed, truth = 0, load_truth(args.truth)
+    chunk = len(args.images) if args.same_camera else _CHUNK  # one camera: its photos are calibrated together
+    for start in range(0, len(args.images), chunk):  # a few images at a time, so results come as they are done
         loaded = []
-        for image in args.images[start : start + _CHUNK]:
+        for image in args.images[start : start + chunk]:
             try:
                 if args.overlay and many:
                     check_output(_overlay_path(args.overlay, image, True), args.force, args.images)
@@ -225,7 +231,9 @@ def _calibrate(args: argparse.Namespace) -> int:
                 print(f"ngp: error: {_one_line(err)}", file=sys.stderr, flush=True)
         try:
             results = _calibrate_loaded(loaded, args)
-        except _user_errors():  # one image of the chunk failed: find it, keep the others
+        except _user_errors():  # one image of the chunk failed: find it, keep the others (one camera: all or none)
+            if args.same_camera:
+                raise
             results = [_calibrate_or_none(image, rgb, args) for image, rgb, _ in loaded]
         for (image, rgb, orientation), result in zip(loaded, results, strict=True):
             if result is None:
@@ -235,7 +243,8 @@ def _calibrate(args: argparse.Namespace) -> int:
             print(json.dumps({"image": image, **result.to_dict()}), flush=True)
             try:
                 if args.overlay:
-                    _write_overlay(_overlay_path(args.overlay, image, many), rgb, result, _config(args))
+                    given = truth.get(Path(image).resolve())
+                    _write_overlay(_overlay_path(args.overlay, image, many), rgb, result, _config(args), given)
             except _user_errors() as err:
                 failed += 1
                 print(f"ngp: error: {_one_line(err)}", file=sys.stderr, flush=True)
@@ -280,8 +289,9 @@ def _predict(args: argparse.Namespace) -> int:
             batch_size=args.batch_size,
             seed=args.seed,
             config=_config(args),
-            priors=Priors(args.focal, args.fov),
+            priors=Priors(args.focal, args.fov, **camera_arguments(args)),
             exif=args.exif,
+            same_camera=args.same_camera,
             progress_bar=sys.stdout.isatty(),
         )
     except _user_errors() as err:
@@ -317,7 +327,7 @@ def _rectify(args: argparse.Namespace) -> int:
     try:
         check_output(path, args.force, [args.image])
         rgb = read_image_file(args.image)
-        result = calibrate(rgb, weights=args.weights, seed=args.seed, config=_config(args))
+        result = calibrate(rgb, weights=args.weights, seed=args.seed, config=_config(args), **camera_arguments(args))
         K, R = result.K[None].double(), result.R[None].double()
         if args.mode == "level":
             homography = level_homography(K, R)
@@ -327,7 +337,8 @@ def _rectify(args: argparse.Namespace) -> int:
             homography = frontal_homography(K, R, axis=0 if args.axis == "x" else 2)
         image = torch.from_numpy(rgb).permute(2, 0, 1)[None].double().div(255.0)
         crop = args.crop or ("valid" if args.mode == "frontal" else "keep")
-        warped, _ = rectify(image, homography, crop=crop)  # a too oblique view with keep: the error names --crop
+        lens = {} if result.k1 is None else {"k1": result.k1[None].double(), "K": K}  # undistorted on the way
+        warped, _ = rectify(image, homography, crop=crop, **lens)  # too oblique for keep: the error names --crop
         out = warped[0].permute(1, 2, 0).mul(255.0).round().clamp(0, 255).to(torch.uint8).numpy()
         _write_image(path, out)
     except _user_errors() as err:

@@ -30,13 +30,13 @@ import threading
 import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import replace
 from pathlib import Path
-from typing import IO, NamedTuple
+from typing import IO
 
-import torch
 from torch import Tensor
 from torch.multiprocessing.spawn import ProcessException
-from torch.utils.data import DataLoader, Dataset
+from torch.utils.data import DataLoader
 
 try:  # an optional dependency: calibrate() and the rest of the core run without it
     import lightning as L
@@ -46,101 +46,28 @@ except ImportError as err:
         f"folder prediction needs Lightning ({err}); install it with: pip install 'ngp-kornia[train]'"
     ) from err
 
-from ngp_kornia.api import file_priors, load_parser, with_orientation
+from ngp_kornia.api import file_priors, load_parser, shared_focal, with_orientation
 from ngp_kornia.data.folder import ImageFolder
 from ngp_kornia.errors import OutputError
-from ngp_kornia.io import read_rgb_oriented
+from ngp_kornia.folder_items import FolderImages, FolderItem, collate_items, error_reason
 from ngp_kornia.pipeline import Calibration, NeuralGeometricParser, ParserConfig
 from ngp_kornia.pipeline.priors import Priors, checked_seed
-from ngp_kornia.pipeline.segments import detect_segments, line_workers
-from ngp_kornia.pipeline.settings import SegmentSettings
+from ngp_kornia.pipeline.segments import line_workers
+from ngp_kornia.pipeline.shared_camera import SharedFocal, with_shared_focal
 from ngp_kornia.preflight import check_folder
 from ngp_kornia.rowfiles import count_rows, merge_parts, open_locked, remove_stale_files
-from ngp_kornia.threads import Lookahead, pipeline_threads, usable_cores
+from ngp_kornia.threads import pipeline_threads, usable_cores
 
 __all__ = [
-    "FolderImages",
-    "FolderItem",
     "FolderPredictor",
     "JsonlWriter",
     "cap_devices",
+    "folder_cameras",
     "merge_parts",
     "predict_folder",
     "remove_stale_files",
     "usable_cores",
 ]
-
-
-class FolderItem(NamedTuple):
-    """One file of the folder: its dataset index, its path relative to the folder, and the (3, H, W) float image
-    in [0, 1] with its line segments (1, N, 2, 2) and mask (1, N), or the reason it could not be read."""
-
-    index: int
-    name: str
-    image: Tensor | None
-    error: str | None
-    orientation: int | None = None
-    segments: Tensor | None = None
-    mask: Tensor | None = None
-
-
-class FolderImages(Dataset):
-    """The files of an :class:`ImageFolder` as :class:`FolderItem` records, each read and its lines detected as
-    :func:`ngp_kornia.calibrate` does for a file; an unreadable file gives an item with its error instead of raising,
-    so a run writes a row for every file.
-
-    Args:
-        folder: the files.
-        settings: the line-detection settings (:class:`SegmentSettings`; the defaults when None).
-        stride: the step between the indices one process asks for in turn (its DDP world size): the file it will
-            ask for next is read on a second thread (:class:`~ngp_kornia.threads.Lookahead`) while the parser works
-            on the current one; None reads each file only when asked (loader worker processes read ahead anyway).
-    """
-
-    def __init__(self, folder: ImageFolder, settings: SegmentSettings | None = None, stride: int | None = 1) -> None:
-        self.folder = folder
-        self.settings = settings or SegmentSettings()
-        self.stride = stride
-        self._ahead = Lookahead(self._read)
-
-    def __len__(self) -> int:
-        return len(self.folder)
-
-    def __getitem__(self, index: int) -> FolderItem:
-        if self.stride is None:
-            return self._read(index)
-        upcoming = index + self.stride
-        return self._ahead.get(index, upcoming if upcoming < len(self) else None)
-
-    def _read(self, index: int) -> FolderItem:
-        path = self.folder.paths[index]
-        name = path.relative_to(self.folder.root).as_posix()
-        try:
-            rgb, orientation = read_rgb_oriented(path)
-            segments, mask = detect_segments(rgb, self.settings)
-        except Exception as err:  # whatever goes wrong with one file is that file's error row
-            return FolderItem(index, name, None, _reason(err, path))
-        image = torch.from_numpy(rgb).permute(2, 0, 1).float().div(255.0)
-        return FolderItem(index, name, image, None, orientation, segments, mask)
-
-    def close(self) -> None:
-        """Stop reading ahead."""
-        self._ahead.close()
-
-
-def _reason(err: BaseException, path) -> str:
-    """One line for an error row: the message, naming the file."""
-    text = " ".join(str(err).split()) or type(err).__name__
-    if isinstance(err, OSError) and err.strerror:
-        text = f"cannot read the file: {err.strerror}"
-    elif not isinstance(err, ValueError):
-        text = f"{type(err).__name__}: {text}"
-    return text if str(path) in text else f"{path}: {text}"
-
-
-def collate_items(items: list[FolderItem]) -> list[FolderItem]:
-    """Keep a batch as a list: the images of a folder may all differ in size."""
-    return items
 
 
 class FolderPredictor(L.LightningModule):
@@ -155,6 +82,8 @@ class FolderPredictor(L.LightningModule):
         seed: the sampling seed of every image.
         priors: what is known of every image's camera.
         exif: take each file's EXIF focal length where ``priors`` gives none (:func:`ngp_kornia.api.file_priors`).
+        cameras: per sub-folder (its path relative to ``root``, ``"."`` for ``root``), the focal length its photos
+            share (``--same-camera``); None: each photo its own.
     """
 
     def __init__(
@@ -164,11 +93,13 @@ class FolderPredictor(L.LightningModule):
         seed: int = 0,
         priors: Priors | None = None,
         exif: bool = False,
+        cameras: dict[str, SharedFocal] | None = None,
     ) -> None:
         super().__init__()
         self.parser = parser
         self.root = None if root is None else Path(root)
         self.seed, self.priors, self.exif = checked_seed(seed), priors or Priors(), exif
+        self.cameras = cameras
 
     def calibrate(
         self, image: Tensor, name: str | None = None, segments: Tensor | None = None, mask: Tensor | None = None
@@ -183,7 +114,11 @@ class FolderPredictor(L.LightningModule):
         # (the float image is uint8 / 255): the same lines, hence the same answer, as calibrate() on the file
         if segments is not None:
             segments, mask = segments.to(self.device), mask.to(self.device)
-        return self.parser(image[None].to(self.device), segments, mask, seed=self.seed, priors=priors)[0]
+        shared = None if self.cameras is None or name is None else self.cameras.get(Path(name).parent.as_posix())
+        if shared is not None:  # the focal length of the photo's folder, estimated from all of them
+            priors = replace(priors, focal=shared.focal, fov_v=None)
+        result = self.parser(image[None].to(self.device), segments, mask, seed=self.seed, priors=priors)[0]
+        return result if shared is None else with_shared_focal(result, shared)
 
     def predict_step(self, batch: list[FolderItem], batch_idx: int) -> list[tuple[int, dict]]:
         rows = []
@@ -197,7 +132,7 @@ class FolderPredictor(L.LightningModule):
                     result = with_orientation(result, item.orientation)
                 rows.append((item.index, {"image": item.name, **result.to_dict()}))
             except Exception as err:  # one image's failure is its row, never the end of the run
-                rows.append((item.index, {"image": item.name, "error": _reason(err, item.name)}))
+                rows.append((item.index, {"image": item.name, "error": error_reason(err, item.name)}))
         return rows
 
 
@@ -409,6 +344,7 @@ def predict_folder(
     progress_bar: bool = False,
     priors: Priors | None = None,
     exif: bool = False,
+    same_camera: bool = False,  # each folder's photos share a focal length: folder_cameras()
 ) -> dict | None:
     """Calibrate every image of a folder into a JSON Lines file, one row per image in sorted path order.
 
@@ -428,8 +364,7 @@ def predict_folder(
         batch_size: images per loader batch (each image is still calibrated on its own).
         seed: seed of the candidate sampling, as for :func:`ngp_kornia.calibrate`.
         num_workers: loader worker processes per device, to read images while the parser runs.
-        config, priors, exif: the pipeline's settings, what is known of every image's camera (or, with ``exif``,
-            read from its file), as for :func:`ngp_kornia.calibrate`.
+        config, priors, exif: settings, priors (or, with ``exif``, read from the file), as for ``calibrate()``.
         progress_bar: show Lightning's progress bar.
 
     Returns:
@@ -446,8 +381,8 @@ def predict_folder(
     images = _check_folder(Path(folder), recursive)
     _check_out(Path(out), images)
     devices = min(cap_devices(devices), len(images))  # Lightning's predict sampler refuses a process without an image
-    parser = load_parser(weights, config)
-    module = FolderPredictor(parser, images.root, seed, priors, exif)
+    cameras = folder_cameras(images, weights, seed, config, priors, exif) if same_camera else None
+    module = FolderPredictor(parser := load_parser(weights, config), images.root, seed, priors, exif, cameras)
     files = FolderImages(images, parser.config.segments, devices if num_workers == 0 else None)  # reads ahead
     loader = DataLoader(files, batch_size=batch_size, num_workers=num_workers, collate_fn=collate_items)
     writer = JsonlWriter(out, devices)
@@ -456,6 +391,24 @@ def predict_folder(
     finally:
         files.close()
     return {"images": writer.images, "errors": writer.errors, "interrupted": writer.interrupted}
+
+
+def folder_cameras(images: ImageFolder, weights, seed: int, config, priors, exif: bool) -> dict[str, SharedFocal]:
+    """The focal length shared by the photos of each folder (:func:`ngp_kornia.api.shared_focal`), by the folder's
+    path relative to the root (``"."`` for the root): estimated in this process before the run, whose every
+    photo then takes its folder's as known (``shared_photos`` in its row).
+
+    Raises:
+        ValueError: with ``exif`` (a focal length per photo, where one is shared), or a folder of photos of
+            different sizes.
+    """
+    if exif:
+        raise ValueError("--same-camera estimates one focal length per folder; --exif gives each photo its own: "
+                         "use one of them")
+    groups: dict[str, list[Path]] = {}
+    for path in images.paths:
+        groups.setdefault(path.relative_to(images.root).parent.as_posix(), []).append(path)
+    return {name: shared_focal(paths, weights, seed, config, priors) for name, paths in groups.items()}
 
 
 def _check_counts(devices: int, batch_size: int) -> None:

@@ -1,5 +1,6 @@
-"""Overlays: the horizon, the zenith direction and the Manhattan frame drawn on the image, and virtual objects
-(a box, the world axes) placed in the estimated Manhattan frame (Fig. 1c-d of the paper)."""
+"""Overlays: the horizon, the zenith direction, the vanishing points and the Manhattan frame drawn on the image (with
+the true horizon beside the estimate when the ground truth is known), and virtual objects (a box, the world axes)
+placed in the estimated Manhattan frame (Fig. 1c-d of the paper)."""
 
 from __future__ import annotations
 
@@ -10,11 +11,23 @@ import torch
 from ngp_kornia.geometry import horizon_border_points, segment_vp_angle
 from ngp_kornia.pipeline.result import Calibration
 
-__all__ = ["BOX_EDGES", "LEGEND", "draw_axes", "draw_calibration", "draw_frame_box", "frame_box_points"]
+__all__ = [
+    "BOX_EDGES",
+    "LEGEND",
+    "TRUTH_COLOUR",
+    "draw_axes",
+    "draw_calibration",
+    "draw_frame_box",
+    "draw_vanishing_points",
+    "frame_box_points",
+    "truth_horizon",
+]
 
 # RGB colours of the three Manhattan axes (x, vertical, z) and of the horizon
 AXIS_COLOURS = ((230, 60, 60), (60, 200, 60), (70, 110, 255))
 HORIZON_COLOUR = (255, 220, 0)
+#: the true horizon's colour (a dashed line beside the estimate)
+TRUTH_COLOUR = (255, 80, 255)
 
 #: the twelve edges of a box as ``(corner, corner, world axis)``; bit ``a`` of a corner's index says on which side
 #: of the box along world axis ``a`` it lies (for axis 1, bit set = the top face)
@@ -27,20 +40,30 @@ _BOX_HEIGHT = 0.2  # default size: the box looks about this fraction of the imag
 
 
 def draw_calibration(
-    image: np.ndarray, calibration: Calibration, segments: np.ndarray | None = None, tolerance_deg: float = 2.0
+    image: np.ndarray,
+    calibration: Calibration,
+    segments: np.ndarray | None = None,
+    tolerance_deg: float = 2.0,
+    truth: object = None,
+    vps: bool = True,
 ) -> np.ndarray:
     """Draw a calibration on an HxWx3 uint8 RGB image (returns a copy).
 
     Segments that point at one of the three VPs within ``tolerance_deg`` are drawn in that axis' colour (x red,
-    vertical green, z blue); the horizon is a yellow line, the up (zenith) direction an arrow at the image centre, the
-    estimate (and, when the calibration carries them, its confidence and standard deviations) is written in the
-    top-left corner and a key of the colours (:data:`LEGEND`) in the bottom-left, both on a dark box.
+    vertical green, z blue); the horizon is a yellow line, the up (zenith) direction an arrow at the image centre,
+    the VPs rings in their axis' colours (arrows at the border towards those off the image,
+    :func:`draw_vanishing_points`), the true horizon (given ``truth``) a dashed magenta line, the estimate (and,
+    when the calibration carries them, its confidence and standard deviations) is written in the top-left corner
+    and a key of the colours (:data:`LEGEND`) in the bottom-left, both on a dark box.
 
     Args:
         image: (H, W, 3) uint8 RGB.
         calibration: an unbatched :class:`Calibration` for that image.
         segments: optional (N, 2, 2) segments in the image's pixels.
         tolerance_deg: angle for assigning segments to VPs.
+        truth: the true horizon, a line ``(a, b, c)`` in the image's pixels, or a ground-truth record holding one
+            under ``"horizon"`` (a manifest row, a render's record, a labelled image): see :func:`truth_horizon`.
+        vps: draw the vanishing points.
 
     Returns:
         (H, W, 3) uint8 RGB.
@@ -51,9 +74,14 @@ def draw_calibration(
     thick = _thickness(out)
     if segments is not None and len(segments):
         _draw_segments(out, segments, calibration, tolerance_deg, thick)
+    line = None if truth is None else truth_horizon(truth)
+    if line is not None:
+        _dashed_line(out, line, w, TRUTH_COLOUR, 2 * thick)
     (x0, y0), (x1, y1) = horizon_border_points(calibration.horizon[None].double(), w)[0].tolist()
     cv2.line(out, _pt(x0, y0), _pt(x1, y1), HORIZON_COLOUR, 2 * thick, cv2.LINE_AA)
     _draw_zenith_arrow(out, calibration, thick)
+    if vps:
+        draw_vanishing_points(out, calibration, thick)
     text = (
         f"f={float(calibration.focal):.0f}px  vFoV={float(calibration.fov_v):.1f}  "
         f"pitch={float(calibration.pitch):.1f}  roll={float(calibration.roll):.1f}"
@@ -61,8 +89,76 @@ def draw_calibration(
     scale = max(0.4, max(h, w) / 1400)
     lines = [text] + ([_trust_text(calibration)] if calibration.confidence is not None else [])
     _draw_label(out, lines, scale, thick)
-    _draw_legend(out, scale, thick, with_segments=segments is not None and len(segments) > 0)
+    drawn_segments = segments is not None and len(segments) > 0
+    entries = LEGEND if drawn_segments else LEGEND[:4] if vps else (LEGEND[3],)  # axes, horizon, other lines
+    _draw_legend(out, scale, thick, (*entries, *((("true horizon", TRUTH_COLOUR),) if line is not None else ())))
     return out
+
+
+def truth_horizon(truth: object) -> np.ndarray:
+    """The true horizon ``(a, b, c)`` (3,) float64 of a line or of a ground-truth record: a sequence, array or
+    tensor of three numbers, or an object or mapping with a ``horizon`` of them (a render's ``ground_truth.json``
+    record, a manifest's sample, an evaluation :class:`~ngp_kornia.evaluation.datasets.LabelledImage`).
+
+    Raises:
+        ValueError: no horizon of three finite numbers in it.
+    """
+    value = truth.get("horizon") if isinstance(truth, dict) else getattr(truth, "horizon", truth)
+    try:
+        line = np.asarray(value.detach().cpu() if isinstance(value, torch.Tensor) else value, dtype=np.float64)
+    except (TypeError, ValueError):
+        line = np.zeros(0)
+    if line.shape != (3,) or not np.isfinite(line).all() or not np.any(line[:2]):
+        raise ValueError(f"the true horizon must be a line (a, b, c) of three finite numbers, got {value!r}")
+    return line
+
+
+def _dashed_line(out: np.ndarray, line: np.ndarray, width: int, colour, thick: int) -> None:
+    """A dashed line across the image (dashes about 2% of the width)."""
+    (x0, y0), (x1, y1) = horizon_border_points(torch.from_numpy(line)[None], width)[0].tolist()
+    length = float(np.hypot(x1 - x0, y1 - y0))
+    count = max(2, int(length / max(8.0, 0.02 * width)))
+    for i in range(0, count, 2):
+        a, b = i / count, min(1.0, (i + 1) / count)
+        cv2.line(out, _pt(x0 + a * (x1 - x0), y0 + a * (y1 - y0)), _pt(x0 + b * (x1 - x0), y0 + b * (y1 - y0)),
+                 colour, thick, cv2.LINE_AA)
+
+
+def draw_vanishing_points(out: np.ndarray, calibration: Calibration, thick: int = 1) -> np.ndarray:
+    """Draw the three VPs on ``out`` (H, W, 3) uint8 RGB, in place: a ring in the axis' colour where a VP lies in
+    the image, else an arrow at the border pointing towards it (both ways for one at infinity, whose direction has
+    no sign). Returns ``out``."""
+    h, w = out.shape[:2]
+    centre = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
+    radius, margin = max(4, 5 * thick), 4 * thick + 8
+    for axis, vp in enumerate(calibration.vps.detach().cpu().double().numpy()):
+        colour = AXIS_COLOURS[axis]
+        if abs(vp[2]) > 1e-9 * np.abs(vp).max():
+            point = vp[:2] / vp[2]
+            if (point >= margin).all() and point[0] <= w - 1 - margin and point[1] <= h - 1 - margin:
+                cv2.circle(out, _pt(*point), radius, colour, 2 * thick, cv2.LINE_AA)
+                cv2.drawMarker(out, _pt(*point), colour, cv2.MARKER_CROSS, radius, thick, cv2.LINE_AA)
+                continue
+            directions = [point - centre]
+        else:
+            directions = [vp[:2], -vp[:2]]
+        for d in directions:
+            _border_arrow(out, centre, d, colour, thick, margin)
+    return out
+
+
+def _border_arrow(out: np.ndarray, centre: np.ndarray, direction: np.ndarray, colour, thick: int, margin: int) -> None:
+    """An arrow just inside the image's border, pointing from the centre along ``direction``."""
+    h, w = out.shape[:2]
+    norm = float(np.linalg.norm(direction))
+    if norm == 0:
+        return
+    d = direction / norm
+    half = np.array([(w - 1) / 2.0 - margin, (h - 1) / 2.0 - margin])
+    reach = float(np.min(np.where(np.abs(d) > 1e-12, half / np.maximum(np.abs(d), 1e-12), np.inf)))
+    tip = centre + d * reach
+    cv2.arrowedLine(out, _pt(*(tip - d * 0.08 * max(h, w))), _pt(*tip), colour, 2 * thick, cv2.LINE_AA,
+                    tipLength=0.35)
 
 
 #: the legend of :func:`draw_calibration`: (name, RGB colour)
@@ -98,9 +194,8 @@ def _draw_label(out: np.ndarray, lines: list[str], scale: float, thick: int) -> 
         cv2.putText(out, line, (pad + 2, pad + 2 + th + i * row), _FONT, scale, (255, 255, 255), thick, cv2.LINE_AA)
 
 
-def _draw_legend(out: np.ndarray, scale: float, thick: int, with_segments: bool) -> None:
-    """A small key of the colours in the bottom-left corner: a line sample and a name per entry."""
-    entries = LEGEND if with_segments else (LEGEND[3],)
+def _draw_legend(out: np.ndarray, scale: float, thick: int, entries: tuple) -> None:
+    """A small key of the colours in the bottom-left corner: a line sample and a name per ``(name, colour)``."""
     scale *= 0.85
     (_, th), base = cv2.getTextSize("Mg", _FONT, scale, thick)
     pad, row, swatch = max(3, int(6 * scale)), th + base + max(2, int(4 * scale)), int(3 * th)

@@ -266,7 +266,11 @@ def test_overlay_draws_the_segments_the_calibration_saw(tmp_path, monkeypatch, c
     assert len(detect_segments_gray(cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY), SegmentSettings(max_segments=4096))) > 512
     drawn = []
     draw = ngp_kornia.viz.draw_calibration
-    monkeypatch.setattr(ngp_kornia.viz, "draw_calibration", lambda im, c, seg: drawn.append(seg) or draw(im, c, seg))
+    def spy(image, calibration, segments, **options):
+        drawn.append(segments)
+        return draw(image, calibration, segments, **options)
+
+    monkeypatch.setattr(ngp_kornia.viz, "draw_calibration", spy)
     assert main(["calibrate", str(path), "--overlay", str(tmp_path / "overlay.png")]) == 0
     expected, mask = detect_segments(rgb)
     assert len(drawn) == 1 and drawn[0].shape == (SegmentSettings().max_segments, 2, 2)

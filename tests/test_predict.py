@@ -171,13 +171,14 @@ def test_unrelated_part_files_and_the_old_results_survive_until_the_end(tmp_path
 
 
 def test_any_failure_of_one_image_is_its_row(tmp_path, monkeypatch):
+    from ngp_kornia import folder_items
     from ngp_kornia import predict as predict_module
     from tests.image_files import png_declaring
 
     folder = tmp_path / "photos"
     _write_scenes(folder, [0, 1, 2])
     (folder / "bomb.png").write_bytes(png_declaring(30000, 30000))
-    read = predict_module.read_rgb_oriented
+    read = folder_items.read_rgb_oriented
 
     def flaky_read(path):
         if path.name == "scene01.png":
@@ -193,7 +194,7 @@ def test_any_failure_of_one_image_is_its_row(tmp_path, monkeypatch):
             raise RuntimeError("something unexpected inside the parser")
         return original(self, image, *rest)
 
-    monkeypatch.setattr(predict_module, "read_rgb_oriented", flaky_read)
+    monkeypatch.setattr(folder_items, "read_rgb_oriented", flaky_read)
     monkeypatch.setattr(predict_module.FolderPredictor, "calibrate", flaky_calibrate)
     counts = predict_folder(folder, tmp_path / "r.jsonl")
     rows = {r["image"]: r for r in _rows(tmp_path / "r.jsonl")}

@@ -15,7 +15,7 @@ def drawn():
     cal = calibrate(scene.image, weights="none")
     white = np.full_like(scene.image, 255)  # the hardest background for white text
     segments = np.array([[[100.0, 100.0], [100.0, 300.0]], [[300.0, 200.0], [400.0, 210.0]]])
-    return draw_calibration(white, cal, segments), draw_calibration(white, cal)
+    return draw_calibration(white, cal, segments), draw_calibration(white, cal, vps=False)
 
 
 def _has(region: np.ndarray, colour) -> bool:
@@ -35,7 +35,7 @@ def test_legend_shows_every_colour_in_the_bottom_left(drawn):
     assert np.median(key) < 80
     for _, colour in LEGEND:
         assert _has(key, colour), colour
-    # without segments only the horizon is drawn, so only the horizon is explained
+    # without segments or VPs only the horizon is drawn, so only the horizon is explained
     small = without[-110:, :130]
     assert _has(small, LEGEND[3][1]) and not _has(small, LEGEND[0][1])
 

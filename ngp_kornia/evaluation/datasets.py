@@ -47,6 +47,8 @@ class LabelledImage:
         roll: degrees.
         fov_v: vertical field of view, degrees.
         kind: the scene kind of a rendered image (street / indoor / atlanta); ``None`` for photos.
+        k1: the radial distortion a rendered image was drawn with (the division model of
+            :mod:`ngp_kornia.geometry.lens`; 0 for a pinhole render); ``None`` for photos.
     """
 
     name: str
@@ -60,6 +62,7 @@ class LabelledImage:
     roll: float | None = None
     fov_v: float | None = None
     kind: str | None = None
+    k1: float | None = None
 
 
 def load_yud(
@@ -148,6 +151,7 @@ def _render_record(root: Path, rec: dict) -> LabelledImage:
         roll=float(rec["roll"]),
         fov_v=float(rec["fov_v"]),
         kind=rec.get("kind"),
+        k1=float(rec.get("k1", 0.0)),
     )
 
 

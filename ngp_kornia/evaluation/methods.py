@@ -8,6 +8,7 @@ from __future__ import annotations
 import math
 import sys
 import time
+import zlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import TextIO
@@ -23,12 +24,16 @@ from ngp_kornia.pipeline import Calibration, ParserConfig
 from ngp_kornia.pipeline.settings import locate_setting
 
 __all__ = [
+    "CALL_ARGUMENTS",
     "Estimate",
     "Method",
     "MethodRun",
     "calibrate_method",
+    "calibration_method",
+    "call_arguments",
     "estimate_from_calibration",
     "failed_estimate",
+    "gravity_prior",
     "level_centre",
     "lu_vp_detect_method",
     "parse_weights_spec",
@@ -70,7 +75,8 @@ def failed_estimate() -> Estimate:
 
 def estimate_from_calibration(result: Calibration) -> Estimate:
     """The fields of one image's :class:`ngp_kornia.Calibration` that the evaluation uses, as float64 on the CPU;
-    ``focal``, ``valid`` and ``score`` go to :attr:`Estimate.extra`."""
+    ``focal``, ``valid``, ``score``, the principal point ``cx``, ``cy`` and ``k1`` (0 for a pinhole) go to
+    :attr:`Estimate.extra`."""
 
     def f64(t: Tensor) -> Tensor:
         return t.detach().cpu().double()
@@ -81,7 +87,14 @@ def estimate_from_calibration(result: Calibration) -> Estimate:
         pitch=float(result.pitch),
         roll=float(result.roll),
         fov_v=float(result.fov_v),
-        extra={"focal": float(result.focal), "valid": bool(result.valid), "score": float(result.score)},
+        extra={
+            "focal": float(result.focal),
+            "valid": bool(result.valid),
+            "score": float(result.score),
+            "cx": float(result.K[0, 2]),
+            "cy": float(result.K[1, 2]),
+            "k1": 0.0 if result.k1 is None else float(result.k1),
+        },
     )
 
 
@@ -89,7 +102,8 @@ def parse_weights_spec(spec: str | None) -> tuple[str | list[str], dict[str, str
     """``NAME[:key=value,...]`` -> (weights for ``calibrate``, ParserConfig overrides as text or bool).
 
     NAME is a weight set (none, zsnet, fsnet, full, default) or .pt paths joined by ``+``; the overrides set
-    :class:`ngp_kornia.ParserConfig` fields, e.g. ``full:top_k=1`` or ``fsnet:use_manhattan=false``.
+    :class:`ngp_kornia.ParserConfig` fields, e.g. ``full:top_k=1`` or ``fsnet:use_manhattan=false``, or name
+    ``calibrate()``'s call arguments (:data:`CALL_ARGUMENTS`, read by :func:`calibrate_method`).
 
     Example:
         >>> parse_weights_spec("full:top_k=4,use_manhattan=false")
@@ -124,6 +138,8 @@ def weights_and_config(spec: str | None) -> tuple[str | list[str], ParserConfig]
     """
     weights, overrides = parse_weights_spec(spec)
     overrides.pop("seed", None)
+    for name in CALL_ARGUMENTS:
+        overrides.pop(name, None)
     values = {}
     for key, value in overrides.items():
         try:
@@ -144,21 +160,103 @@ def _converted(value: str | bool, default: object, key: str, spec: str | None) -
         raise ValueError(f"{key}={value!r} in the weights spec {spec!r} is not a {kind.__name__}") from None
 
 
-def calibrate_method(spec: str | None = None, seed: int | None = None) -> Method:
+#: the spec keys that are ``calibrate()``'s call arguments rather than settings: ``principal_point=estimate``,
+#: ``k1=estimate``, ``shared_intrinsics=true`` (the whole set as one camera), ``gravity_noise=DEG`` (a gravity prior
+#: from the image's true pitch and roll plus Gaussian noise of that standard deviation, drawn from the seed and the
+#: image's name) and ``gravity_std=DEG`` (the prior's stated standard deviation; ``gravity_noise`` by default)
+CALL_ARGUMENTS = ("principal_point", "k1", "shared_intrinsics", "gravity_noise", "gravity_std")
+
+
+def call_arguments(spec: str | None) -> dict:
+    """The call arguments of a spec (:data:`CALL_ARGUMENTS`), their values converted.
+
+    Example:
+        >>> call_arguments("default:k1=estimate,gravity_noise=1,top_k=4")
+        {'k1': 'estimate', 'gravity_noise': 1.0}
+    """
+    overrides = parse_weights_spec(spec)[1]
+    out: dict = {}
+    for name in CALL_ARGUMENTS:
+        if name not in overrides:
+            continue
+        value = overrides[name]
+        try:
+            out[name] = value if name in ("principal_point", "k1") and value == "estimate" else (
+                value if isinstance(value, bool) else float(value)
+            )
+        except ValueError:
+            raise ValueError(f"{name}={value!r} in the weights spec {spec!r} is not a number or 'estimate'") from None
+    return out
+
+
+def gravity_prior(image: LabelledImage, seed: int, noise: float) -> tuple[float, float]:
+    """The image's true ``(pitch, roll)`` plus Gaussian noise of ``noise`` degrees, drawn from ``seed`` and the
+    image's name (the same for every run of one seed).
+
+    Raises:
+        ValueError: the image has no true pitch and roll.
+    """
+    if image.pitch is None or image.roll is None:
+        raise ValueError(f"{image.name}: a gravity prior from the ground truth needs its pitch and roll")
+    rng = np.random.default_rng([seed, zlib.crc32(image.name.encode())])
+    dp, dr = rng.normal(0.0, noise, 2) if noise > 0 else (0.0, 0.0)
+    return float(image.pitch + dp), float(image.roll + dr)
+
+
+def calibrate_method(
+    spec: str | None = None, seed: int | None = None, images: Sequence[LabelledImage] | None = None
+) -> Method:
     """:func:`ngp_kornia.calibrate` on the image file under a weights spec, as a method.
 
     Args:
-        spec: weights spec (:func:`parse_weights_spec`); ``None`` is the package default.
+        spec: weights spec (:func:`parse_weights_spec`, with the :data:`CALL_ARGUMENTS`); ``None`` is the package
+            default.
         seed: sampling seed; ``None`` keeps the spec's (``seed=...``, 0 unless given).
+        images: the whole set, for ``shared_intrinsics=true``: its first call calibrates them all as one camera
+            (that call's time is the set's; the others only look the answer up).
     """
+    calibration = calibration_method(spec, seed, images)
+    return lambda image: estimate_from_calibration(calibration(image))
+
+
+def calibration_method(
+    spec: str | None = None, seed: int | None = None, images: Sequence[LabelledImage] | None = None
+) -> Callable[[LabelledImage], Calibration]:
+    """The :class:`~ngp_kornia.Calibration` that :func:`calibrate_method` (same arguments) reads its estimate from:
+    what the worst-case sheets draw (:mod:`~ngp_kornia.evaluation.sheets`)."""
     from ngp_kornia.api import calibrate
 
     weights, config = weights_and_config(spec)
     if seed is None:
         seed = int(parse_weights_spec(spec)[1].get("seed", 0))
+    extra = call_arguments(spec)
+    noise, stated = extra.pop("gravity_noise", None), extra.pop("gravity_std", None)
+    options = {"weights": weights, "seed": seed, "config": config, **extra}
+    if extra.pop("shared_intrinsics", False):
+        return _shared_method(images, options)
 
-    def run(image: LabelledImage) -> Estimate:
-        return estimate_from_calibration(calibrate(str(image.image_path), weights=weights, seed=seed, config=config))
+    def run(image: LabelledImage) -> Calibration:
+        prior = {}
+        if noise is not None:
+            prior = {"gravity": gravity_prior(image, seed, noise), "gravity_std": stated or max(noise, 0.1)}
+        return calibrate(str(image.image_path), **options, **prior)
+
+    return run
+
+
+def _shared_method(images: Sequence[LabelledImage] | None, options: dict) -> Callable[[LabelledImage], Calibration]:
+    """The calibrations of ``shared_intrinsics=true``: the whole set calibrated as one camera at the first call."""
+    from ngp_kornia.api import calibrate
+
+    if not images:
+        raise ValueError("shared_intrinsics=true needs the set's images (calibrate_method(..., images=...))")
+    answers: dict[str, Calibration] = {}
+
+    def run(image: LabelledImage) -> Calibration:
+        if not answers:
+            results = calibrate([str(im.image_path) for im in images], **options)
+            answers.update({im.name: r for im, r in zip(images, results, strict=True)})
+        return answers[image.name]
 
     return run
 

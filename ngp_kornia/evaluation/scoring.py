@@ -69,6 +69,32 @@ def _error_table(images: Sequence[LabelledImage], estimates: Sequence[Estimate])
         values = torch.full((n,), math.nan, dtype=torch.float64)
         values[idx] = fn(pred, gt, heights, widths).double()
         out[key] = values
+    out.update(_camera_errors(images, estimates))
+    return out
+
+
+def _truth(image: LabelledImage, metric: str) -> object:
+    """The ground truth a metric needs (None where the image lacks it)."""
+    return image.K if metric == "principal_point" else getattr(image, metric)
+
+
+def _camera_errors(images: Sequence[LabelledImage], estimates: Sequence[Estimate]) -> dict[str, Tensor]:
+    """The principal point's error (pixels) and ``k1``'s (absolute) where the truth and the estimate have them."""
+    out = {}
+    rows = {
+        "principal_point": [
+            math.hypot(e.extra["cx"] - float(im.K[0, 2]), e.extra["cy"] - float(im.K[1, 2]))
+            if im.K is not None and "cx" in e.extra else math.nan
+            for im, e in zip(images, estimates, strict=True)
+        ],
+        "k1": [
+            abs(e.extra["k1"] - im.k1) if im.k1 is not None and "k1" in e.extra else math.nan
+            for im, e in zip(images, estimates, strict=True)
+        ],
+    }
+    for key, values in rows.items():
+        if any(math.isfinite(v) for v in values):
+            out[key] = _f64(values)
     return out
 
 
@@ -82,8 +108,8 @@ def evaluate(images: Sequence[LabelledImage], estimates: Sequence[Estimate]) -> 
     Returns:
         ``{"summary": {metric: {"mean", "median", "count"}}, "horizon_auc": float (NaN when no image has a
         horizon), "horizon_auc_by_kind": {kind: {"count", "horizon_auc"}}, "failures": int, "per_image": [...]}``
-        with metrics ``up``, ``pitch``, ``roll``, ``horizon`` (image heights) and ``fov_v`` where the ground truth
-        and the method give them.
+        with metrics ``up``, ``pitch``, ``roll``, ``horizon`` (image heights), ``fov_v``, ``principal_point``
+        (pixels) and ``k1`` (absolute) where the ground truth and the method give them.
 
     Raises:
         ValueError: ``images`` and ``estimates`` differ in length.
@@ -92,7 +118,7 @@ def evaluate(images: Sequence[LabelledImage], estimates: Sequence[Estimate]) -> 
         raise ValueError(f"{len(images)} images but {len(estimates)} estimates; give one estimate per image")
     ok = torch.tensor([math.isfinite(e.pitch) for e in estimates], dtype=torch.bool)
     errors = _error_table(images, estimates)
-    known = {k: torch.tensor([getattr(im, k) is not None for im in images], dtype=torch.bool) for k in errors}
+    known = {k: torch.tensor([_truth(im, k) is not None for im in images], dtype=torch.bool) for k in errors}
     errors = {k: torch.where(ok, v, torch.full_like(v, math.nan)) for k, v in errors.items()}
     summary = {k: summarize(v[ok & known[k]]) for k, v in errors.items()}
     has_horizon = known.get("horizon", torch.zeros(len(images), dtype=torch.bool))
@@ -106,7 +132,7 @@ def evaluate(images: Sequence[LabelledImage], estimates: Sequence[Estimate]) -> 
     per_image = []
     for i, im in enumerate(images):
         row = {"name": im.name, **({"kind": im.kind} if im.kind is not None else {})}
-        row.update({k: float(v[i]) for k, v in errors.items() if getattr(im, k) is not None})
+        row.update({k: float(v[i]) for k, v in errors.items() if _truth(im, k) is not None})
         per_image.append({**row, **estimates[i].extra})
     return {
         "summary": summary,

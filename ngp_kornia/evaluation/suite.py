@@ -51,6 +51,7 @@ __all__ = [
     "run_suite",
     "suite_rows",
     "suite_table",
+    "write_sheets",
 ]
 
 #: sampling seeds of the development suite
@@ -128,7 +129,7 @@ def run_suite(
         for seed in seeds:
             if progress is not None:
                 print(f"{suite_set.name}, seed {seed}", file=progress)
-            methods = {spec: calibrate_method(spec, seed) for spec in specs}
+            methods = {spec: calibrate_method(spec, seed, suite_set.images) for spec in specs}
             for spec, run in run_interleaved(methods, suite_set.images, progress).items():
                 for truth, images in suite_set.truths.items():
                     records.append(
@@ -154,7 +155,8 @@ def _variant_rows(title: str, set_name: str, result: dict, first: bool) -> dict[
     summary = result["summary"]
     if summary.get("horizon", {}).get("count"):
         rows[f"{title}: median horizon error (% of height)"] = 100 * summary["horizon"]["median"]
-    for key, what in (("up", "up error (deg)"), ("fov_v", "FoV_v error (deg)")):
+    cameras = (("principal_point", "principal point error (px)"), ("k1", "k1 error"))
+    for key, what in (("up", "up error (deg)"), ("fov_v", "FoV_v error (deg)"), *cameras):
         if first and summary.get(key, {}).get("count"):
             rows[f"{set_name}: {what} mean"] = summary[key]["mean"]
             rows[f"{set_name}: {what} median"] = summary[key]["median"]
@@ -252,6 +254,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--limit", type=int, default=None, help="only the first N images of each set (quick checks)")
     p.add_argument("--json", type=Path, default=None, help="also write every figure and per-image error here")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    p.add_argument("--sheets", type=Path, default=None, help="write worst-case sheets (PNG) of the first seed here")
+    p.add_argument("--sheet-count", type=int, default=8, help="images on each worst-case sheet")
     return p
 
 
@@ -283,9 +287,27 @@ def main(argv: Sequence[str] | None = None) -> int:
     for rec in (r for r in records if r["truth"] == first_truth[r["set"]]):
         for msg in rec["exceptions"][:3]:
             print(f"  [{rec['weights']}, {rec['set']}, seed {rec['seed']}] {msg}")
+    if args.sheets is not None:
+        write_sheets(args.sheets, records, sets, seeds[0], args.sheet_count)
     if args.json is not None:
         write_json(args.json, argv, started, load, seeds, specs, sets, rows, records)
     return 0
+
+
+def write_sheets(folder: Path, records: list[dict], sets: Sequence[SuiteSet], seed: int, count: int) -> None:
+    """One worst-case sheet per set and weight spec, of ``seed``'s run (:mod:`~ngp_kornia.evaluation.sheets`),
+    scored against the set's first ground truth."""
+    from ngp_kornia.evaluation.methods import calibration_method
+    from ngp_kornia.evaluation.sheets import sheet_name, worst_sheet
+
+    for suite_set in sets:
+        truth = next(iter(suite_set.truths))
+        for rec in records:
+            if rec["set"] == suite_set.name and rec["truth"] == truth and rec["seed"] == seed:
+                calibration = calibration_method(rec["weights"], seed, suite_set.images)
+                path = folder / sheet_name(suite_set.name, rec["weights"])
+                worst_sheet(suite_set.truths[truth], rec["result"]["per_image"], calibration, path, count)
+                print(f"wrote {path}")
 
 
 def write_json(path: Path, argv, started, load: dict, seeds, specs, sets, rows, records) -> None:

@@ -19,8 +19,10 @@ import math
 import torch
 from kornia.core.check import KORNIA_CHECK, KORNIA_CHECK_SHAPE
 from kornia.geometry.conversions import convert_points_to_homogeneous
-from kornia.geometry.transform import warp_perspective
+from kornia.geometry.transform import remap, warp_perspective
 from torch import Tensor
+
+from ngp_kornia.geometry.lens import distort_points, undistort_points
 
 __all__ = ["frontal_homography", "level_homography", "rectify", "upright_homography"]
 
@@ -164,32 +166,52 @@ def _corners(height: int, width: int, inset: float, like: Tensor) -> Tensor:
     return torch.tensor([[lo_x, lo_y], [hi_x, lo_y], [hi_x, hi_y], [lo_x, hi_y]], dtype=like.dtype, device=like.device)
 
 
-def _keep_box(Hm: Tensor, height: int, width: int) -> tuple[Tensor, Tensor]:
+#: points per side of the border of a distorted image, whose undistorted border is curved
+BORDER_POINTS = 64
+
+
+def _border(height: int, width: int, inset: float, Hm: Tensor, lens: tuple[Tensor, Tensor] | None) -> Tensor:
+    """The image's border (B, P, 2) in order around it: its four corners, or, for a distorted image (``lens``: its
+    ``K`` (B, 3, 3) and ``k1`` (B,)), :data:`BORDER_POINTS` points per side, undistorted."""
+    corners = _corners(height, width, inset, Hm)
+    if lens is None:
+        return corners.expand(Hm.shape[0], 4, 2)
+    t = torch.arange(BORDER_POINTS, dtype=Hm.dtype, device=Hm.device)[:, None] / BORDER_POINTS
+    sides = [corners[i] + t * (corners[(i + 1) % 4] - corners[i]) for i in range(4)]
+    K, k1 = lens
+    return undistort_points(torch.cat(sides).expand(Hm.shape[0], -1, 2), K.to(Hm), k1.to(Hm))
+
+
+def _keep_box(Hm: Tensor, height: int, width: int, lens=None) -> tuple[Tensor, Tensor]:
     """Centre (B, 2) and size (B, 2) ``(w, h)`` of the bounding box of the warped image."""
-    pts, w = _project(Hm, _corners(height, width, 0.0, Hm).expand(Hm.shape[0], 4, 2))
+    pts, w = _project(Hm, _border(height, width, 0.0, Hm, lens))
     if bool((w <= 0).any()):
         raise ValueError("the homography sends part of the image to infinity; it cannot be rectified in full")
     lo, hi = pts.min(dim=1).values, pts.max(dim=1).values
     return (lo + hi) / 2, hi - lo
 
 
-def _valid_box(Hm: Tensor, height: int, width: int) -> tuple[Tensor, Tensor]:
+def _valid_box(Hm: Tensor, height: int, width: int, lens=None) -> tuple[Tensor, Tensor]:
     """Centre (B, 2) and size (B, 2) of a large rectangle with the input's aspect inside the warped image.
 
     The rectangle is centred on the mean of the warped corners and scaled up until it touches an edge of the warped
     quadrilateral (exact for that centre; the centre itself is the approximation). The quadrilateral spans the input's
-    outermost pixel centres, so bilinear sampling never reads the zero padding.
+    outermost pixel centres, so bilinear sampling never reads the zero padding. A distorted image's border is curved
+    (its sides bow in or out): it is sampled densely and the rectangle grows until it meets the first border point.
     """
-    pts, w = _project(Hm, _corners(height, width, 0.5, Hm).expand(Hm.shape[0], 4, 2))
+    pts, w = _project(Hm, _border(height, width, 0.5, Hm, lens))
     if bool((w <= 0).any()):
         raise ValueError("the homography sends part of the image to infinity; it cannot be rectified")
     centre = pts.mean(dim=1)
+    half = torch.tensor([width / 2.0, height / 2.0], dtype=Hm.dtype, device=Hm.device)
+    if lens is not None:  # the scale at which the rectangle reaches each border point; the least of them
+        scale = ((pts - centre[:, None]).abs() / half).amax(-1).min(dim=1).values
+        return centre, scale[:, None] * 2 * half
     a, b = pts, pts.roll(-1, dims=1)
     normal = torch.stack([-(b - a)[..., 1], (b - a)[..., 0]], -1)  # edge normals, inward up to a common sign
     dist = ((centre[:, None] - a) * normal).sum(-1)
     orient = torch.where(dist.sum(-1, keepdim=True) < 0, -1.0, 1.0).to(dist)
     dist, normal = dist * orient, normal * orient[..., None]
-    half = torch.tensor([width / 2.0, height / 2.0], dtype=Hm.dtype, device=Hm.device)
     reach = (normal.abs() * half).sum(-1)  # how far a corner of the unit-scale rectangle goes along each normal
     scale = (dist / reach.clamp_min(_tiny(reach))).min(dim=1).values
     if bool((scale <= 0).any()):
@@ -198,7 +220,7 @@ def _valid_box(Hm: Tensor, height: int, width: int) -> tuple[Tensor, Tensor]:
 
 
 def rectify(
-    images: Tensor, H: Tensor, size: tuple[int, int] | None = None, crop: str = "keep"
+    images: Tensor, H: Tensor, size: tuple[int, int] | None = None, crop: str = "keep", k1=None, K=None
 ) -> tuple[Tensor, Tensor]:
     r"""Warp images with a rectifying homography, choosing the output frame.
 
@@ -212,15 +234,19 @@ def rectify(
     on its own box. With ``size`` the chosen frame is scaled uniformly to fit into ``size`` and centred; without it
     the output may not exceed ``4x`` the input area, to stay sane for extreme homographies.
 
+    With ``k1`` (the division model's distortion, :mod:`ngp_kornia.geometry.lens`) the images are undistorted on the
+    way: ``H`` maps the undistorted image's pixels (a calibration with ``k1``'s), and the frame fits its curved border.
+
     Args:
         images: (B, C, H, W) floating-point images.
         H: (B, 3, 3) homographies from input pixels to rectified pixels (e.g. :func:`upright_homography`).
         size: output ``(height, width)``; derived from the frame when None.
         crop: ``"keep"`` or ``"valid"``.
+        k1, K: (B,) radial distortion of the images (None: pinhole images) and (B, 3, 3) their intrinsics.
 
     Returns:
         The warped images (B, C, h, w) and the (B, 3, 3) homography actually applied (``H`` followed by the
-        output's scale and translation), from input pixels to output pixels.
+        output's scale and translation), from input (with ``k1``: undistorted input) pixels to output pixels.
 
     Raises:
         ValueError: a bad ``crop`` or ``size``; a homography sending part of the image to infinity; an output above
@@ -239,26 +265,45 @@ def rectify(
         raise ValueError(f"crop must be 'keep' or 'valid', got {crop!r}")
     if size is not None and (len(size) != 2 or min(int(s) for s in size) < 1):
         raise ValueError(f"size must be (height, width) with positive entries, got {size!r}")
+    if k1 is not None and (K is None or K.shape != H.shape or k1.shape != H.shape[:1]):
+        raise ValueError("rectify() with k1 (B,) needs the images' intrinsics K (B, 3, 3) too")
     height, width = images.shape[-2:]
     Hm = H.to(images)
     Hm = Hm / Hm[:, 2:, 2:].where(Hm[:, 2:, 2:].abs() > _tiny(Hm), torch.ones_like(Hm[:, 2:, 2:]))
-    frame, out_h, out_w = _output_frame(Hm, height, width, crop, size)
+    lens = None if k1 is None else (K, k1)
+    frame, out_h, out_w = _output_frame(Hm, height, width, crop, size, lens)
     applied = frame @ Hm
-    warped = warp_perspective(images, applied, (out_h, out_w), align_corners=True)
-    return warped, applied
+    if lens is None:
+        return warp_perspective(images, applied, (out_h, out_w), align_corners=True), applied
+    return _undistorting_warp(images, applied, (out_h, out_w), K.to(images), k1.to(images)), applied
+
+
+def _undistorting_warp(images: Tensor, applied: Tensor, size: tuple[int, int], K: Tensor, k1: Tensor) -> Tensor:
+    """The images sampled at every output pixel taken back through ``applied`` and distorted (bilinear, zeros
+    outside)."""
+    B, (out_h, out_w) = images.shape[0], size
+    ys, xs = torch.meshgrid(
+        torch.arange(out_h, dtype=images.dtype, device=images.device),
+        torch.arange(out_w, dtype=images.dtype, device=images.device),
+        indexing="ij",
+    )
+    grid = torch.stack([xs, ys], -1).reshape(1, -1, 2).expand(B, -1, 2)
+    back, _ = _project(torch.linalg.inv(applied), grid)
+    source = distort_points(back, K, k1).reshape(B, out_h, out_w, 2)
+    return remap(images, source[..., 0], source[..., 1], align_corners=True)
 
 
 def _output_frame(
-    Hm: Tensor, height: int, width: int, crop: str, size: tuple[int, int] | None
+    Hm: Tensor, height: int, width: int, crop: str, size: tuple[int, int] | None, lens=None
 ) -> tuple[Tensor, int, int]:
     """The output frame of :func:`rectify`: the (B, 3, 3) scale and translation from rectified pixels to output
     pixels, and the output's height and width."""
     if crop == "keep":
-        centre, box = _keep_box(Hm, height, width)
+        centre, box = _keep_box(Hm, height, width, lens)
         extent = box.detach().max(dim=0).values
         out_w, out_h = (max(1, math.ceil(float(v) - 1e-6)) for v in extent)
     else:
-        centre, box = _valid_box(Hm, height, width)
+        centre, box = _valid_box(Hm, height, width, lens)
         extent = box.detach().min(dim=0).values
         out_w, out_h = (max(1, math.floor(float(v) + 1e-6)) for v in extent)
     if size is None and out_w * out_h > MAX_AREA_RATIO * height * width:

@@ -36,6 +36,7 @@ horizon is kept, the calibration is returned unchanged.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import replace
 from typing import NamedTuple
 
@@ -141,23 +142,32 @@ def search_horizon(
     mask: Tensor,
     settings: HorizonSettings | None = None,
     known_focal: bool = False,
+    keep_ups: Callable[[Tensor], Tensor] | None = None,
     weights: Tensor | None = None,
 ) -> Refinement:
     """The search of :func:`refine_horizon` (same arguments) without the choice: the best hypothesis and what is
-    known about it and about the frame's own horizon. ``weights`` (B, N), when given, multiply the segments'
-    lengths in the line support (the line evidence's structure weights)."""
+    known about it and about the frame's own horizon. ``keep_ups`` maps (B, H, 3) up vectors to (B, H) bool, the
+    hypotheses allowed (a gravity prior's range, :func:`~ngp_kornia.pipeline.gravity.allowed_ups`); the frame's own
+    is always allowed. ``weights`` (B, N), when given, multiply the segments' lengths in the line support (the line
+    evidence's structure weights)."""
     settings = settings or HorizonSettings()
     if torch.is_grad_enabled():
-        return _search_horizon(cal, segments, mask, settings, known_focal, weights)
+        return _search_horizon(cal, segments, mask, settings, known_focal, keep_ups, weights)
     # without autograd, inference mode spares every operation its autograd bookkeeping (about a tenth of the
     # search's time, the same arithmetic); the answers are cloned out of it as ordinary tensors
     with torch.inference_mode():
-        found = _search_horizon(cal, segments, mask, settings, known_focal, weights)
+        found = _search_horizon(cal, segments, mask, settings, known_focal, keep_ups, weights)
     return Refinement(*(t.clone() for t in found))
 
 
 def _search_horizon(
-    cal: Calibration, segments: Tensor, mask: Tensor, settings: HorizonSettings, known_focal: bool, weights
+    cal: Calibration,
+    segments: Tensor,
+    mask: Tensor,
+    settings: HorizonSettings,
+    known_focal: bool,
+    keep_ups=None,
+    weights: Tensor | None = None,
 ) -> Refinement:
     seg = segments.to(cal.K.dtype)
     # the frame's focal length first; with a known focal length only that one
@@ -167,7 +177,7 @@ def _search_horizon(
         lengths = lengths * weights.to(lengths)
     s = settings
     grid = _pitch_grid(cal.up, cam, lengths, mask, s.pitch_range, s.pitch_step, s.zenith_tol, s.frame_roll)
-    search = _Search(s.num_peaks, s.kernel_deg, s.tie_zenith)
+    search = _Search(s.num_peaks, s.kernel_deg, s.tie_zenith, keep_ups)
     coarse = _coarse_search(cal.K, cam, lengths, mask, grid, scales, search, cam_s)
     total = total_length(lengths)
     up, horizontal, support, peaks = _fine_search(cam, lengths, total, grid, coarse, s.pitch_step, s.fine_step, search)
@@ -201,6 +211,18 @@ class _Search(NamedTuple):
     num_peaks: int
     kernel_deg: float
     tie_zenith: bool
+    keep_ups: Callable[[Tensor], Tensor] | None = None
+
+
+def _kept(support: Tensor, ups: Tensor, search: _Search, first: bool) -> Tensor:
+    """The (B, ..., H) supports with the hypotheses (up vectors (B, ..., H, 3), broadcast) that ``search.keep_ups``
+    refuses set to -1 (never chosen); with ``first``, the first (the frame's own hypothesis) is always kept."""
+    if search.keep_ups is None:
+        return support
+    keep = search.keep_ups(ups)
+    if first:
+        keep[..., 0] = True
+    return torch.where(keep, support, torch.full_like(support, -1.0))
 
 
 class _Grid(NamedTuple):
@@ -268,6 +290,8 @@ def _coarse_search(K, cam, lengths, mask, grid: _Grid, scales: list[float], sear
         None if search.tie_zenith else grid.zen.repeat(S, 1, 1),
     )
     support = sup.view(S, B, Hn).transpose(0, 1).reshape(B, S * Hn)
+    if search.keep_ups is not None:  # the same up vectors at every scale, scale-major
+        support = _kept(support.view(B, S, Hn), grid.ups[:, None], search, True).view(B, S * Hn)
     dirs = d.view(S, B, Hn, -1, 3).transpose(0, 1).reshape(B, S * Hn, -1, 3)
     peaks = v.view(S, B, Hn, -1).transpose(0, 1).reshape(B, S * Hn, -1)
     best = support.argmax(-1)
@@ -298,7 +322,7 @@ def _fine_search(cam, lengths, total, grid: _Grid, coarse: _Coarse, pitch_step, 
             fine_up, cam_best, lengths, total, search.num_peaks, search.kernel_deg, 360, 3.0, fine_zen
         )
         cand_up = torch.cat([cand_up, fine_up], 1)
-        cand_support = torch.cat([cand_support, fine_support], 1)
+        cand_support = torch.cat([cand_support, _kept(fine_support, fine_up, search, False)], 1)
         cand_dirs = torch.cat([cand_dirs, fine_dirs], 1)
         cand_peaks = torch.cat([cand_peaks, fine_peaks], 1)
     pick = cand_support.argmax(-1)

@@ -14,6 +14,9 @@ FSNet, gradients flow from the outputs to FSNet's parameters and to the image's 
 
 from __future__ import annotations
 
+from dataclasses import replace
+from functools import partial
+
 import torch
 from torch import Tensor, nn
 
@@ -30,6 +33,7 @@ from ngp_kornia.geometry import (
 from ngp_kornia.nets.fsnet_inputs import FSNetImageInputs, frame_scores
 from ngp_kornia.nets.zsnet import zenith_estimate, zenith_weights_from_scores
 from ngp_kornia.pipeline.answer import calibration_from_camera, topk_calibration
+from ngp_kornia.pipeline.camera_model import calibrate_camera_model
 from ngp_kornia.pipeline.candidates import (
     Generators,
     horizontal_line_mask,
@@ -39,6 +43,7 @@ from ngp_kornia.pipeline.candidates import (
     split_by_pseudo_horizon,
 )
 from ngp_kornia.pipeline.evidence import apply_evidence
+from ngp_kornia.pipeline.gravity import allowed_ups, gravity_frame_scores, gravity_zenith_weights
 from ngp_kornia.pipeline.horizon import choose_horizon, search_horizon
 from ngp_kornia.pipeline.polish import polish_frame
 from ngp_kornia.pipeline.priors import Priors, checked_seed
@@ -139,7 +144,12 @@ class NeuralGeometricParser(nn.Module):
             weights = weights if self.config.evidence.weigh else None
         if stages is not None:
             stages["mask"] = mask
-        result = self._calibrate(images, segments, mask, seed, priors, stages, weights)
+
+        def run(images_, segments_, mask_, priors_, principal_point_std):  # a centred, distortion-free camera
+            return self._calibrate(images_, segments_, mask_, seed, priors_, stages, principal_point_std, weights)
+
+        # the principal point and the distortion, given or estimated, around the stages (camera_model.py)
+        result = calibrate_camera_model(run, images, segments, mask, priors, self.config, self.fsnet is not None)
         return (result, ParserTrace(**stages)) if return_trace else result
 
     def _calibrate(
@@ -150,10 +160,14 @@ class NeuralGeometricParser(nn.Module):
         seed: int,
         priors: Priors,
         stages: dict | None,
+        principal_point_std: float | None = None,
         weights: Tensor | None = None,
     ) -> Calibration:
         """The stages after the line evidence; ``weights`` (B, N), when given, multiply the segments' lengths."""
         cfg = self.config
+        trust = cfg.trust
+        if principal_point_std is not None and principal_point_std != trust.principal_point_std:
+            trust = replace(trust, principal_point_std=principal_point_std)
         height, width = images.shape[-2:]
         # one generator per image, each seeded alike: an image's answer does not depend on its batch or position
         generators = [torch.Generator().manual_seed(seed) for _ in range(len(images))]
@@ -174,13 +188,18 @@ class NeuralGeometricParser(nn.Module):
             result = self._polished(result, segments, mask, priors.known_focal, height, width)
         # the horizon search serves the refinement and the confidence (how well the lines support a rival horizon);
         # with a known focal length only the horizon moves, never the focal length
-        found = search_horizon(result, segments, mask, cfg.horizon, priors.known_focal, weights)
+        keep = None if priors.gravity is None else partial(allowed_ups, priors=priors)  # within a gravity prior
+        found = search_horizon(result, segments, mask, cfg.horizon, priors.known_focal, keep, weights)
         if cfg.horizon.refine:
             result = choose_horizon(result, found, cfg.horizon.margin)
-        return attach_trust(
-            result, frames, scores, segments, mask, cfg.scoring, cfg.trust, priors.known_focal,
+        result = attach_trust(
+            result, frames, scores, segments, mask, cfg.scoring, trust, priors.known_focal,
             shared=SharedInputs(*pseudo[1:], top_k_weights), refinement=found, residual_vps=search_vps,
         )  # fmt: skip
+        if priors.gravity is None:
+            return result
+        given = result.focal.new_tensor([*priors.gravity, priors.gravity_std]).expand(len(result.focal), 3)
+        return replace(result, gravity=given)
 
     def _polished(
         self, result: Calibration, segments: Tensor, mask: Tensor, known_focal: bool, height: int, width: int
@@ -215,7 +234,7 @@ class NeuralGeometricParser(nn.Module):
         lines_z, lines_z_ok, zenith, zenith_ok = sample_zenith_candidates(
             lines, lengths, mask, cfg.num_zenith_lines, cfg.num_zenith, cfg.vertical_threshold, generator
         )
-        weights = self.zenith_weights(lines_z, lines_z_ok, zenith, zenith_ok)
+        weights = gravity_zenith_weights(self.zenith_weights(lines_z, lines_z_ok, zenith, zenith_ok), zenith, priors)
         z_est = zenith_estimate(zenith, weights)
         horizontal = horizontal_line_mask(seg, mask, z_est, cfg.vertical_tol, cfg.junction_radius)
         right = split_by_pseudo_horizon(lines, z_est)
@@ -226,7 +245,8 @@ class NeuralGeometricParser(nn.Module):
         )
         # zero for the invalid frames, which it does not score
         kernel = self.config.scoring.kernel_angle
-        scores = frame_manhattan_scores(lines, frames.vps, lengths, mask, kernel, frames.valid)
+        scores = gravity_frame_scores(frame_manhattan_scores(lines, frames.vps, lengths, mask, kernel, frames.valid),
+                                      frames.R, priors)  # a gravity prior's agreement (gravity.py)
         if stages is not None:
             stages.update(lines=lines, zenith_lines=lines_z, zenith_lines_ok=lines_z_ok, zenith_candidates=zenith)
             stages.update(zenith_ok=zenith_ok, zenith_weights=weights, zenith_estimate=z_est, horizontal=horizontal)

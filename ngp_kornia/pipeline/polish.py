@@ -33,11 +33,20 @@ from ngp_kornia.pipeline.line_kernel import (
 )
 from ngp_kornia.pipeline.settings import PolishSettings
 
-__all__ = ["polish_frame"]
+__all__ = ["polish_frame", "refit_rotation"]
 
 
-def _gauss_newton(cam, lengths: Tensor, mask: Tensor, R: Tensor, inlier_deg: float, iterations: int) -> Tensor:
-    """Rotations (M, 3, 3) refitted on their VPs' inlier segments (rows of ``cam``)."""
+def refit_rotation(cam, lengths: Tensor, mask: Tensor, R: Tensor, inlier_deg: float, iterations: int) -> Tensor:
+    """Rotations (M, 3, 3) refitted on their VPs' inlier segments by Gauss-Newton (the module docstring's step).
+
+    Args:
+        cam: (M, N) segments in camera coordinates (:class:`~ngp_kornia.pipeline.line_kernel.CameraSegments`).
+        lengths: (M, N) segment lengths; mask: (M, N) bool; R: (M, 3, 3) initial rotations (columns: VP
+            directions); inlier_deg: inlier angle, degrees; iterations: steps, each with the inliers chosen again.
+
+    Returns:
+        (M, 3, 3) rotations; a row with fewer than 6 inliers keeps its rotation.
+    """
     tol = math.sin(math.radians(inlier_deg)) ** 2
     n = cam.normals  # (M, N, 3)
     for _ in range(iterations):
@@ -84,7 +93,7 @@ def polish_frame(
     stretch = torch.cat([1.0 / inv, 1.0 / inv, torch.ones_like(inv)], -1)
     cam_s = scaled_camera_segments(cam, inv, stretch)  # (S * B) rows, scale-major
     lengths_s, mask_s = lengths.repeat(S, 1), mask.repeat(S, 1)
-    R_s = _gauss_newton(cam_s, lengths_s, mask_s, R.repeat(S, 1, 1), inlier_deg, iterations)
+    R_s = refit_rotation(cam_s, lengths_s, mask_s, R.repeat(S, 1, 1), inlier_deg, iterations)
     total = lengths.sum(-1).clamp_min(1e-12)
     support = (closeness_kernel(cam_s, R_s.transpose(1, 2)[:, None], kernel_deg, mask_s)[:, 0] * lengths_s).sum(-1)
     support = (support.view(S, B) / total).T  # (B, S)

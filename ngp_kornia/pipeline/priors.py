@@ -1,6 +1,12 @@
 """What a caller already knows of the camera, given per call: :class:`Priors`, and the checks of the other per-call
 arguments (the sampling seed).
 
+Beside the focal length, a caller may know the direction of gravity (a phone's IMU: pitch and roll with their
+uncertainty), the principal point and the lens's radial distortion; the last two may also be asked for: the string
+``"estimate"`` estimates them from the image (:mod:`~ngp_kornia.pipeline.principal_point`,
+:mod:`~ngp_kornia.pipeline.distortion`) where None keeps the distortion-free pinhole with its principal point at
+the image centre.
+
 Priors are inputs, not settings: one parser serves a folder of photos, each with its own priors. Reading a prior
 from a file (its EXIF focal length) is done where files are read, in :mod:`ngp_kornia.api`.
 """
@@ -13,10 +19,14 @@ from dataclasses import dataclass
 
 from ngp_kornia.errors import InputError
 
-__all__ = ["MAX_SEED", "Priors", "checked_seed"]
+__all__ = ["DEFAULT_GRAVITY_STD", "ESTIMATE", "MAX_SEED", "Priors", "checked_seed"]
 
 #: seeds are 64-bit: torch.Generator.manual_seed takes [0, 2**64 - 1]
 MAX_SEED = 2**64 - 1
+#: the value of ``principal_point`` and ``k1`` that asks for an estimate
+ESTIMATE = "estimate"
+#: the gravity prior's standard deviation when none is given, degrees (a phone's IMU at rest)
+DEFAULT_GRAVITY_STD = 1.0
 
 
 def checked_seed(seed: object) -> int:
@@ -50,6 +60,48 @@ def _positive(value: object, name: str, what: str, high: float = math.inf) -> fl
     return number
 
 
+def _finite(value: object) -> float:
+    """``float(value)`` for a real number (numpy scalars and one-element tensors too), NaN for anything else."""
+    if isinstance(value, (bool, str)):
+        return math.nan
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return math.nan
+
+
+def _gravity(value: object) -> tuple[float, float] | None:
+    if value is None:
+        return None
+    pair = tuple(value) if isinstance(value, (tuple, list)) else ()
+    numbers_ = tuple(_finite(v) for v in pair)
+    if len(numbers_) != 2 or not all(math.isfinite(v) for v in numbers_) or not abs(numbers_[0]) < 90:
+        raise InputError(
+            f"gravity must be (pitch, roll) in degrees, pitch in (-90, 90), or None; got {value!r}"
+        )
+    return numbers_
+
+
+def _principal_point(value: object) -> tuple[float, float] | str | None:
+    if value is None or value == ESTIMATE:
+        return value
+    pair = tuple(value) if isinstance(value, (tuple, list)) else ()
+    numbers_ = tuple(_finite(v) for v in pair)
+    if len(numbers_) != 2 or not all(math.isfinite(v) for v in numbers_):
+        raise InputError(f"principal_point must be (cx, cy) in pixels, 'estimate' or None; got {value!r}")
+    return numbers_
+
+
+def _k1(value: object) -> float | str | None:
+    if value is None or value == ESTIMATE:
+        return value
+    number = _finite(value)
+    if not -1.0 <= number <= 1.0:
+        raise InputError(f"k1 must be a number in [-1, 1] (the division model's coefficient), 'estimate' or None; "
+                         f"got {value!r}")
+    return number
+
+
 @dataclass(frozen=True)
 class Priors:
     """What is known of the camera before calibration (checked on construction).
@@ -58,6 +110,14 @@ class Priors:
         focal: the focal length in pixels of the input image; every frame candidate then uses it.
         fov_v: the vertical field of view in degrees (the same prior in other units); ignored when ``focal`` is
             given.
+        gravity: ``(pitch, roll)`` in degrees, the camera's up direction as an IMU measures it (the conventions of
+            :class:`~ngp_kornia.pipeline.result.Calibration`); the frame and horizon searches keep to it
+            (:mod:`~ngp_kornia.pipeline.gravity`).
+        gravity_std: its standard deviation per angle, degrees (:data:`DEFAULT_GRAVITY_STD` when omitted); only
+            with ``gravity``.
+        principal_point: ``(cx, cy)`` in pixels of the input image, ``"estimate"``, or None for the image centre.
+        k1: the division model's radial distortion (:mod:`ngp_kornia.geometry.lens`), ``"estimate"``, or None
+            for a distortion-free pinhole.
 
     Example:
         >>> Priors(fov_v=90.0).focal_in_units(480, 640)
@@ -70,10 +130,35 @@ class Priors:
 
     focal: float | None = None
     fov_v: float | None = None
+    gravity: tuple[float, float] | None = None
+    gravity_std: float | None = None
+    principal_point: tuple[float, float] | str | None = None
+    k1: float | str | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "focal", _positive(self.focal, "focal", "a positive number of pixels"))
         object.__setattr__(self, "fov_v", _positive(self.fov_v, "fov_v", "an angle in (0, 180) degrees", 180.0))
+        object.__setattr__(self, "gravity", _gravity(self.gravity))
+        std = _positive(self.gravity_std, "gravity_std", "a positive number of degrees", 90.0)
+        if std is not None and self.gravity is None:
+            raise InputError("gravity_std was given without gravity; give gravity=(pitch, roll) too, or neither")
+        object.__setattr__(self, "gravity_std", DEFAULT_GRAVITY_STD if std is None and self.gravity else std)
+        object.__setattr__(self, "principal_point", _principal_point(self.principal_point))
+        object.__setattr__(self, "k1", _k1(self.k1))
+
+    def to_dict(self) -> dict:
+        """The priors given, as plain JSON-able values (the entries that are not None).
+
+        Example:
+            >>> Priors(focal=500.0, gravity=(2.0, -1.0)).to_dict()
+            {'focal': 500.0, 'gravity': [2.0, -1.0], 'gravity_std': 1.0}
+        """
+        out = {}
+        for name in ("focal", "fov_v", "gravity", "gravity_std", "principal_point", "k1"):
+            value = getattr(self, name)
+            if value is not None:
+                out[name] = list(value) if isinstance(value, tuple) else value
+        return out
 
     @property
     def known_focal(self) -> bool:

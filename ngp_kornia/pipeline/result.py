@@ -22,7 +22,8 @@ class Calibration:
     degrees. See :mod:`ngp_kornia.geometry.camera`.
 
     Attributes:
-        K: (B, 3, 3) intrinsics (principal point at the image centre).
+        K: (B, 3, 3) intrinsics (principal point at the image centre unless it was given or estimated); with
+            ``k1`` those of the undistorted image (the pinhole camera once the distortion is removed).
         R: (B, 3, 3) world-to-camera rotation of the Manhattan frame; world z is the horizontal scene axis closest
             to the optical axis, so yaw lies in [-45, 45].
         focal: (B,) focal length in pixels.
@@ -49,6 +50,14 @@ class Calibration:
         pitch_std: (B,) standard deviation of the pitch, degrees (None when not computed).
         roll_std: (B,) standard deviation of the roll, degrees.
         fov_v_std: (B,) standard deviation of the vertical field of view, degrees (0 with a known focal length).
+        principal_point_std: (B, 2) standard deviation of the principal point ``(c_x, c_y)`` in pixels where it
+            was estimated (0 where given); None where it is the image centre.
+        k1: (B,) radial distortion of the division model ``x_u = x_d / (1 + k1 |x_d|^2)``, ``x`` the ray
+            coordinates ``(p - c) / f`` of a pixel ``p`` (``k1 < 0``: barrel); None for a distortion-free pinhole.
+            With it, every other field is that of the undistorted image (:mod:`ngp_kornia.geometry.lens`).
+        shared_photos: (B,) long: how many photos the intrinsics were estimated from jointly
+            (``shared_intrinsics=True``); None when each photo was calibrated alone.
+        gravity: (B, 3) the gravity prior the calibration used: ``(pitch, roll, std)`` in degrees; None without.
     """
 
     K: Tensor
@@ -71,6 +80,10 @@ class Calibration:
     pitch_std: Tensor | None = None
     roll_std: Tensor | None = None
     fov_v_std: Tensor | None = None
+    principal_point_std: Tensor | None = None
+    k1: Tensor | None = None
+    shared_photos: Tensor | None = None
+    gravity: Tensor | None = None
 
     def __post_init__(self) -> None:
         if self.exif_orientation is None:  # made without it: nothing was turned
@@ -111,7 +124,10 @@ class Calibration:
         """Plain JSON-able values: a dict for one image, a list of dicts for a batch.
 
         Besides the fields: ``height``, ``width``, the principal point ``cx``, ``cy`` (our pixels) and
-        ``distortion``, OpenCV's ``(k1, k2, p1, p2, k3)``, all zero (the model is a distortion-free pinhole).
+        ``distortion``, OpenCV's ``(k1, k2, p1, p2, k3)``: all zero for a distortion-free pinhole, else the
+        polynomial closest to the division model's ``k1`` over the image (:func:`~ngp_kornia.geometry.lens.
+        opencv_radial`); with ``shared_photos``, ``shared`` names the intrinsics the photos share (``focal``, and
+        ``principal_point`` and ``k1`` where modelled); ``gravity`` becomes ``{"pitch", "roll", "std"}``.
         """
         if self.batched:
             return [self[i].to_dict() for i in range(len(self))]
@@ -122,7 +138,12 @@ class Calibration:
             value = getattr(self, f.name).detach().cpu()
             out[f.name] = value.tolist() if value.dim() else value.item()
         out["height"], out["width"] = (int(v) for v in out.pop("image_size"))
-        out.update(cameras.pinhole_keys(self.K))  # cx, cy and the (zero) distortion of the pinhole model
+        out.update(cameras.pinhole_keys(self.K, self.k1, self.image_size))  # cx, cy and OpenCV's distortion
+        if self.shared_photos is not None:
+            modelled = {"principal_point": self.principal_point_std, "k1": self.k1}
+            out["shared"] = ["focal"] + [name for name, value in modelled.items() if value is not None]
+        if self.gravity is not None:
+            out["gravity"] = dict(zip(("pitch", "roll", "std"), out["gravity"], strict=True))
         return out
 
     def __repr__(self) -> str:
@@ -154,7 +175,8 @@ class Calibration:
         return cameras.kornia_camera(self.K, self.R, self.image_size)
 
     def to_opencv(self):
-        """OpenCV's ``(K, dist)``: float64 numpy arrays, (3, 3) and (5,) zeros (batched: (B, 3, 3) and (B, 5)).
+        """OpenCV's ``(K, dist)``: float64 numpy arrays, (3, 3) and (5,) (batched: (B, 3, 3) and (B, 5)); ``dist``
+        is zero for a distortion-free pinhole, else OpenCV's polynomial closest to ``k1`` over the image.
 
         OpenCV shares our pixel convention (origin at the top-left pixel's centre), so ``K`` is used unchanged, e.g.
         ``cv2.projectPoints(X, cv2.Rodrigues(R)[0], np.zeros(3), K, dist)``.
@@ -166,9 +188,9 @@ class Calibration:
             >>> K.shape, K.dtype, dist.tolist()
             ((3, 3), dtype('float64'), [0.0, 0.0, 0.0, 0.0, 0.0])
         """
-        return cameras.opencv_camera(self.K)
+        return cameras.opencv_camera(self.K, self.k1, self.image_size)
 
-    def to_colmap(self, model: str = "SIMPLE_PINHOLE", camera_id: int = 1) -> dict | list[dict]:
+    def to_colmap(self, model: str | None = None, camera_id: int = 1) -> dict | list[dict]:
         """COLMAP's camera: ``{"camera_id", "model", "width", "height", "params", "line"}``.
 
         COLMAP's pixel origin is the top-left *corner* of the image, ours the *centre* of the top-left pixel, so
@@ -176,7 +198,9 @@ class Calibration:
         is ``(W / 2, H / 2)`` there). ``line`` is the ``cameras.txt`` line ``CAMERA_ID MODEL WIDTH HEIGHT PARAMS[]``.
 
         Args:
-            model: ``"SIMPLE_PINHOLE"`` (params ``f, cx, cy``) or ``"PINHOLE"`` (``fx, fy, cx, cy``).
+            model: ``"SIMPLE_PINHOLE"`` (params ``f, cx, cy``), ``"PINHOLE"`` (``fx, fy, cx, cy``),
+                ``"SIMPLE_RADIAL"`` (``f, cx, cy, k``) or ``"RADIAL"`` (``f, cx, cy, k1, k2``), the radial terms
+                closest to ``k1``; None: ``SIMPLE_PINHOLE``, or ``RADIAL`` for a calibration with ``k1``.
             camera_id: the id of the camera (a batch numbers its cameras from it).
 
         Returns:
@@ -191,7 +215,7 @@ class Calibration:
         """
         if self.batched:
             return [self[i].to_colmap(model, camera_id + i) for i in range(len(self))]
-        return cameras.colmap_camera(self.K, self.image_size, model, camera_id)
+        return cameras.colmap_camera(self.K, self.image_size, model, camera_id, self.k1)
 
 
 def _index(value: Tensor | None, index: int) -> Tensor | None:

@@ -31,6 +31,7 @@ from ngp_kornia.errors import ConfigError
 
 __all__ = [
     "DETECTORS",
+    "DistortionSettings",
     "EvidenceSettings",
     "HorizonSettings",
     "ParserConfig",
@@ -38,6 +39,7 @@ __all__ = [
     "SamplingSettings",
     "ScoringSettings",
     "SegmentSettings",
+    "SharedSettings",
     "TrustSettings",
     "check_settings",
     "locate_setting",
@@ -246,6 +248,65 @@ class TrustSettings:
         check_settings(self)
 
 
+@dataclass(frozen=True)
+class SharedSettings:
+    """One camera across many photos, ``calibrate(photos, shared_intrinsics=True)``
+    (:mod:`ngp_kornia.pipeline.shared_camera`).
+
+    Attributes:
+        focal_step: relative step of the common grid of focal lengths every photo's frame is scored at.
+        window: each photo is scored at the focal lengths within this fraction of its own answer.
+        kernel_deg: width of the closeness kernel of each photo's line support, degrees.
+        inlier_deg: inlier angle of the rotation refitted at each focal length, degrees.
+        iterations: Gauss-Newton steps of that refit.
+        bootstrap: resamples of the photos behind the shared focal length's standard deviation.
+    """
+
+    focal_step: float = _number(0.01, 0.001, 0.2)
+    window: float = _number(0.3, 0.0, 10.0, open_low=True)
+    kernel_deg: float = _number(1.0, 0.0, 45.0, open_low=True)
+    inlier_deg: float = _number(1.5, 0.0, 45.0, open_low=True)
+    iterations: int = _number(3, 1, 20)
+    bootstrap: int = _number(200, 0, 10000)
+
+    def __post_init__(self) -> None:
+        check_settings(self)
+
+
+@dataclass(frozen=True)
+class DistortionSettings:
+    """Radial distortion from the curvature of chained segments, ``calibrate(..., k1="estimate")``
+    (:mod:`ngp_kornia.pipeline.distortion`); the coefficients here are in units of half the image's long side.
+
+    Attributes:
+        gap: two segments chain when an endpoint of one is this close to an endpoint of the other (units of half
+            the long side).
+        angle_deg: and their directions differ by less than this, degrees.
+        max_pairs: at most this many chained pairs per image, the longest.
+        min_pairs: fewer pairs keep a distortion-free camera (no evidence).
+        min_gain: so does a best coefficient whose cost is not below the distortion-free one's by this fraction of
+            the cost of the pairs that are straight at either; the calibrations with and without it decide the rest.
+        tolerance_deg: a pair whose pieces' endpoints are off the other piece's line by more than this angle (root
+            mean square, degrees) counts as two lines that met by chance.
+        search_low: the least coefficient searched (barrel distortion is negative).
+        search_high: the largest coefficient searched.
+        step: the search's step.
+    """
+
+    gap: float = _number(0.05, 0.0, 1.0, open_low=True)
+    angle_deg: float = _number(15.0, 0.0, 45.0, open_low=True)
+    max_pairs: int = _number(1000, 1, 100000)
+    min_pairs: int = _number(8, 1, 100000)
+    min_gain: float = _number(0.05, 0.0, 1.0)
+    tolerance_deg: float = _number(1.0, 0.0, 45.0, open_low=True)
+    search_low: float = _number(-0.6, -2.0, 0.0)
+    search_high: float = _number(0.3, 0.0, 2.0)
+    step: float = _number(0.005, 0.0001, 0.5)
+
+    def __post_init__(self) -> None:
+        check_settings(self)
+
+
 #: the stages of :class:`ParserConfig`, in pipeline order
 _STAGES = {
     "segments": SegmentSettings,
@@ -255,6 +316,8 @@ _STAGES = {
     "polish": PolishSettings,
     "horizon": HorizonSettings,
     "trust": TrustSettings,
+    "shared": SharedSettings,
+    "distortion": DistortionSettings,
 }
 
 
@@ -270,6 +333,8 @@ class ParserConfig:
         polish: the optional frame refit (:class:`PolishSettings`).
         horizon: the horizon search (:class:`HorizonSettings`).
         trust: confidence and standard deviations (:class:`TrustSettings`).
+        shared: one camera across many photos (:class:`SharedSettings`).
+        distortion: radial distortion from the segments' curvature (:class:`DistortionSettings`).
     """
 
     segments: SegmentSettings = field(default_factory=SegmentSettings)
@@ -279,6 +344,8 @@ class ParserConfig:
     polish: PolishSettings = field(default_factory=PolishSettings)
     horizon: HorizonSettings = field(default_factory=HorizonSettings)
     trust: TrustSettings = field(default_factory=TrustSettings)
+    shared: SharedSettings = field(default_factory=SharedSettings)
+    distortion: DistortionSettings = field(default_factory=DistortionSettings)
 
     def __post_init__(self) -> None:
         for name, kind in _STAGES.items():

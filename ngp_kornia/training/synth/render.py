@@ -216,6 +216,8 @@ def render_scene(seed: int, size: tuple[int, int] = (640, 480), config: RenderCo
     gt = camera_ground_truth(fov_v, pitch, roll, yaw, (W, H), offset)
 
     k1 = float(np.clip(lens_rng.normal(), -3, 3) * cfg.radial_distortion) if cfg.radial_distortion > 0 else 0.0
+    if tuple(cfg.k1_range) != (0.0, 0.0):
+        k1 = _uniform(lens_rng, cfg.k1_range)
     source = _undistorted_coordinates(gt["K"].numpy(), k1, W, H) if k1 != 0.0 else None
     margin = 0 if source is None else _margin(source, W, H)
     K = gt["K"].numpy() + np.array([[0, 0, margin], [0, 0, margin], [0, 0, 0]])

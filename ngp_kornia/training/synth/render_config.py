@@ -76,6 +76,8 @@ class RenderConfig:
             ``x`` the ray's coordinates ``(p - c) / f`` about the principal point: the pinhole image, drawn with a
             margin, is warped so that straight lines bend (``k1 < 0`` barrel). The ground truth stays the pinhole
             camera's (``K``, ``R``); the label also carries ``k1``.
+        k1_range: camera imperfection, ``(min, max)`` of a uniformly drawn ``k1`` of the same model instead of the
+            Gaussian one (``(0, 0)``: off); ``(-0.3, 0)`` is barrel distortion up to a strong wide-angle lens.
 
     The hard cases and the camera imperfections are off by default and drawn from random streams of their own, after
     the scene: with all of them off a render is the same, bit for bit, as before they existed (:data:`HARD_DEFAULTS`,
@@ -111,6 +113,7 @@ class RenderConfig:
     fronto_jitter: float = 3.0
     principal_point_std: float = 0.0
     radial_distortion: float = 0.0
+    k1_range: tuple[float, float] = (0.0, 0.0)
     foliage: float = 0.0
 
     def __post_init__(self) -> None:
@@ -139,6 +142,10 @@ class RenderConfig:
         if not (isinstance(self.radial_distortion, int | float) and 0.0 <= self.radial_distortion <= 0.1):
             raise ValueError(f"radial_distortion must be a standard deviation of k1 in [0, 0.1], "
                              f"got {self.radial_distortion!r}")
+        _check_range("k1_range", self.k1_range, -0.5, 0.5)
+        self.k1_range = (float(self.k1_range[0]), float(self.k1_range[1]))
+        if self.radial_distortion > 0 and tuple(self.k1_range) != (0.0, 0.0):
+            raise ValueError("give radial_distortion (a Gaussian k1) or k1_range (a uniform one), not both")
         if not (isinstance(self.foliage, int | float) and 0.0 <= self.foliage <= 1.0):
             raise ValueError(f"foliage must be a relative change of brightness in [0, 1], got {self.foliage!r}")
         if not 0.0 <= self.fronto_prob <= 1.0:
@@ -152,7 +159,7 @@ class RenderConfig:
 
 HARD_DEFAULTS = {"stairs": 0.0, "billboards": 0.0, "fronto_prob": 0.0, "fronto_jitter": 3.0}
 """The hard-case options of :class:`RenderConfig` and their defaults (off)."""
-IMPERFECTION_DEFAULTS = {"principal_point_std": 0.0, "radial_distortion": 0.0}
+IMPERFECTION_DEFAULTS = {"principal_point_std": 0.0, "radial_distortion": 0.0, "k1_range": (0.0, 0.0)}
 """The camera-imperfection options of :class:`RenderConfig` and their defaults (off: an ideal pinhole)."""
 TEXTURE_DEFAULTS = {"foliage": 0.0}
 """The texture options of :class:`RenderConfig` and their defaults (off: flat polygons)."""

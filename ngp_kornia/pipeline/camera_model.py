@@ -1,0 +1,170 @@
+"""The camera model around the frame search: a principal point off the image centre and radial distortion, known or
+estimated, while every stage inside assumes a distortion-free camera centred on its image.
+
+The stages work in the pseudo camera, whose principal point is the image centre. A photo with another principal
+point ``c`` or with distortion is brought to that model first: its segments are undistorted about ``c``
+(:func:`~ngp_kornia.geometry.lens.undistort_points`, with the coefficient in pseudo units) and moved by the centre
+minus ``c``, so that its principal point lands on the centre; the calibration found there is moved back (``K``, the
+zenith, VPs and horizon; rotations and angles do not move). FSNet, which reads the pixels, gets the image warped the
+same way. An estimate runs the stages twice: once as a centred pinhole for the frame whose vanishing points the
+principal point is fitted to (:mod:`~ngp_kornia.pipeline.principal_point`), once with the estimate. The distortion
+is estimated before any frame (:mod:`~ngp_kornia.pipeline.distortion`), as it needs none; where it finds one,
+the stages run on the photo with and without it, and the distortion is kept where its answer is the more
+confident (the confidence reads how well the lines fit the frame). On 500 renders with ``k1`` in [-0.3, 0] and
+the same 500 scenes without distortion, horizon AUC: the estimate alone (a stricter gain, 0.2) 93.4 and 94.9,
+with the choice 93.9 and 95.3 (95.3 without the option).
+
+With neither a principal point nor a distortion asked for, the stages run once on the inputs as they are.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import replace
+
+import torch
+from kornia.geometry.transform import remap
+from torch import Tensor
+
+from ngp_kornia.geometry import distort_points, image_center, undistort_points
+from ngp_kornia.pipeline.distortion import estimate_distortion, k1_from_units, units_from_k1
+from ngp_kornia.pipeline.principal_point import estimate_principal_point
+from ngp_kornia.pipeline.priors import ESTIMATE, Priors
+from ngp_kornia.pipeline.result import Calibration
+from ngp_kornia.pipeline.settings import ParserConfig
+
+__all__ = ["Stages", "calibrate_camera_model", "moved_calibration"]
+
+#: the stages as a function of (images, segments, mask, priors, principal-point std as a fraction of the height)
+Stages = Callable[[Tensor, Tensor, Tensor, Priors, float], Calibration]
+
+
+def moved_calibration(cal: Calibration, offset: Tensor) -> Calibration:
+    """A batched calibration with its pixels moved by ``offset`` (B, 2): ``K``, zenith, VPs and horizon.
+
+    Points move as ``p + offset``; lines ``l`` as ``T^-T l`` (their third coordinate less ``a dx + b dy``).
+    """
+    T = torch.eye(3, dtype=cal.K.dtype, device=cal.K.device).repeat(len(offset), 1, 1)
+    T[:, :2, 2] = offset.to(cal.K)
+    zenith = (T @ cal.zenith[..., None])[..., 0]
+    vps = cal.vps @ T.transpose(1, 2)
+    a, b, c = cal.horizon.unbind(-1)
+    horizon = torch.stack([a, b, c - a * offset[:, 0].to(a) - b * offset[:, 1].to(a)], -1)
+    return replace(
+        cal,
+        K=T @ cal.K,
+        zenith=zenith / torch.linalg.vector_norm(zenith, dim=-1, keepdim=True),
+        vps=vps / torch.linalg.vector_norm(vps, dim=-1, keepdim=True),
+        horizon=horizon,
+    )
+
+
+def _pseudo_K(centre: Tensor, height: int, width: int) -> Tensor:
+    """Intrinsics (B, 3, 3) whose focal length is half the long side: rays in pseudo-camera units about ``centre``."""
+    K = torch.eye(3, dtype=centre.dtype, device=centre.device).repeat(len(centre), 1, 1)
+    K[:, 0, 0] = K[:, 1, 1] = max(height, width) / 2.0
+    K[:, :2, 2] = centre
+    return K
+
+
+def _moved_segments(segments: Tensor, point: Tensor, lam: Tensor | None, height: int, width: int) -> Tensor:
+    """The segments undistorted about ``point`` (B, 2) by ``lam`` (B,) pseudo units, then moved so that ``point``
+    lands on the image centre."""
+    B, N = segments.shape[:2]
+    flat = segments.reshape(B, 2 * N, 2)
+    if lam is not None:
+        flat = undistort_points(flat, _pseudo_K(point.to(flat), height, width), lam.to(flat))
+    shift = image_center(height, width, like=flat) - point.to(flat)
+    return (flat + shift[:, None]).reshape(segments.shape)
+
+
+def _moved_images(images: Tensor, point: Tensor, lam: Tensor | None) -> Tensor:
+    """The images warped as :func:`_moved_segments` moves the segments (bilinear, zeros outside)."""
+    B, _, height, width = images.shape
+    ys, xs = torch.meshgrid(
+        torch.arange(height, dtype=images.dtype, device=images.device),
+        torch.arange(width, dtype=images.dtype, device=images.device),
+        indexing="ij",
+    )
+    grid = torch.stack([xs, ys], -1).reshape(1, -1, 2).expand(B, -1, 2)
+    shift = image_center(height, width, like=grid) - point.to(grid)
+    source = grid - shift[:, None]
+    if lam is not None:
+        source = distort_points(source, _pseudo_K(point.to(grid), height, width), lam.to(grid))
+    source = source.reshape(B, height, width, 2)
+    return remap(images, source[..., 0], source[..., 1], align_corners=True)
+
+
+def _run_at(stages: Stages, images, segments, mask, priors, point, lam, pp_std: float, pixels: bool) -> Calibration:
+    """The stages on the photo brought to a centred pinhole (module docstring), their answer moved back."""
+    height, width = images.shape[-2:]
+    centre = image_center(height, width, like=segments).expand(len(segments), 2)
+    if lam is None and bool((point.to(centre) == centre).all()):
+        return stages(images, segments, mask, priors, pp_std)
+    moved = _moved_segments(segments, point, lam, height, width)
+    if pixels:
+        images = _moved_images(images, point, lam)
+    return moved_calibration(stages(images, moved, mask, priors, pp_std), point.to(centre) - centre)
+
+
+def calibrate_camera_model(
+    stages: Stages, images: Tensor, segments: Tensor, mask: Tensor, priors: Priors, config: ParserConfig, pixels: bool
+) -> Calibration:
+    """The stages with the principal point and distortion of ``priors`` (module docstring).
+
+    Args:
+        stages: the parser's stages for a centred, distortion-free camera.
+        images: (B, 3, H, W); segments: (B, N, 2, 2) pixels; mask: (B, N) bool.
+        priors: what is known of the camera; ``principal_point`` and ``k1`` are handled here.
+        config: the settings (``trust.principal_point_std``, the prior of an estimate; ``distortion``).
+        pixels: the stages read the pixels (FSNet), so they are warped too.
+
+    Returns:
+        the calibration, with ``principal_point_std`` where a principal point was given (0) or estimated, and
+        ``k1`` where a distortion was given or estimated.
+    """
+    height, width = images.shape[-2:]
+    B = len(segments)
+    centre = image_center(height, width, like=segments.double()).expand(B, 2)
+    given = isinstance(priors.principal_point, tuple)
+    point = segments.new_tensor(priors.principal_point, dtype=torch.float64).expand(B, 2) if given else centre
+    trust_std = 0.0 if given else config.trust.principal_point_std
+    lam = _distortion(stages, images, segments, mask, priors, config, point, pixels)
+    if priors.principal_point == ESTIMATE:
+        frame = _run_at(stages, images, segments, mask, priors, centre, lam, trust_std, pixels)
+        undistorted = _moved_segments(segments, centre, lam, height, width)  # about the centre: not moved
+        found = estimate_principal_point(frame.K, frame.R, undistorted, mask, config.trust.principal_point_std * height)
+        point, std = found.point.double(), found.std
+        trust_std = float(std.mean()) / height
+    result = _run_at(stages, images, segments, mask, priors, point, lam, trust_std, pixels)
+    if priors.principal_point == ESTIMATE:
+        result = replace(result, principal_point_std=std.to(result.K))
+    elif given:
+        result = replace(result, principal_point_std=torch.zeros_like(result.K[:, :2, 2]))
+    if priors.k1 == ESTIMATE:
+        result = replace(result, k1=k1_from_units(lam.to(result.focal), result.focal, height, width))
+    elif priors.k1 is not None:  # given: reported as given (undistorted at the first run's focal length)
+        result = replace(result, k1=torch.full_like(result.focal, priors.k1))
+    return result
+
+
+def _distortion(stages, images, segments, mask, priors, config, point, pixels) -> Tensor | None:
+    """The distortion ``lam`` (B,) in pseudo units: estimated, or the given ``k1`` at the known focal length (else
+    at the focal length of a first, distortion-free run); None without one."""
+    height, width = images.shape[-2:]
+    if priors.k1 is None:
+        return None
+    if priors.k1 == ESTIMATE:
+        lam = estimate_distortion(segments, mask, point, height, width, config.distortion).double()
+        if not bool((lam != 0).any()):
+            return lam
+        # the lines say which camera they fit: the undistorted photo is kept where its answer is the more confident
+        trust_std = config.trust.principal_point_std
+        bent = _run_at(stages, images, segments, mask, priors, point, lam, trust_std, pixels).confidence
+        straight = _run_at(stages, images, segments, mask, priors, point, None, trust_std, pixels).confidence
+        return torch.where(bent > straight, lam, torch.zeros_like(lam))
+    focal = priors.focal_pixels(height)
+    if focal is None:
+        focal = _run_at(stages, images, segments, mask, priors, point, None, 0.0, pixels).focal
+    focal = torch.as_tensor(focal, dtype=torch.float64, device=segments.device).expand(len(segments))
+    return units_from_k1(torch.full_like(focal, priors.k1), focal.double(), height, width)

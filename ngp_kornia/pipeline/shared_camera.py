@@ -1,0 +1,237 @@
+"""One camera across many photos: a focal length estimated jointly from the line evidence of every photo.
+
+Photos taken with one camera (and one zoom setting) share their focal length, so every photo's lines speak to the
+same number. Averaging the per-photo answers would count a photo whose frame search went astray as much as a clear
+one, and would keep each photo's own noise; instead every photo's evidence is scored on a common grid of focal
+lengths and the scores are summed:
+
+1. **A common grid.** Focal lengths ``focal_step`` apart (relative, log-spaced) over the frame search's
+   ``focal_range``, in pixels of the photos (one size, or its transpose: one camera).
+2. **Each photo's support at each focal length** within ``window`` of its own answer. The photo's frame (from its
+   own calibration) is moved to the grid's focal length keeping its three vanishing points where they are in the
+   image as far as a rotation can
+   (the nearest rotation to the directions ``K_g^-1 v``), refitted on the segments that point at its VPs
+   (:func:`~ngp_kornia.pipeline.polish.refit_rotation`), and scored by its line support: the share of the segments'
+   length its three VPs explain (the closeness kernel of :mod:`~ngp_kornia.pipeline.line_kernel`). A photo whose
+   lines fix the focal length (three finite VPs with lines) has a peaked profile; one that does not (a single
+   horizontal VP) a flat one, which moves the sum little.
+3. **The joint answer.** The grid point of the largest summed support, refined by a parabola through it and its
+   neighbours (in log focal length); its standard deviation is that of the same answer over ``bootstrap``
+   resamples of the photos (a fixed seed: the same photos give the same answer).
+
+Each photo's rotation is then found again with the shared focal length as a known one (``ngp_kornia.calibrate``).
+A principal point or distortion asked for as ``"estimate"`` is shared too: the principal point combines every
+photo's own estimate (:func:`joint_principal_point`, each photo's evidence added once to the prior), the distortion
+is the median of theirs (:func:`joint_k1`); the second pass then takes them as known.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from typing import NamedTuple
+
+import torch
+from torch import Tensor
+
+from ngp_kornia.geometry import intrinsics_matrix
+from ngp_kornia.pipeline.line_kernel import (
+    camera_segments,
+    closeness_kernel,
+    masked_lengths,
+    scaled_camera_segments,
+)
+from ngp_kornia.pipeline.polish import refit_rotation
+from ngp_kornia.pipeline.result import Calibration
+from ngp_kornia.pipeline.settings import SamplingSettings, SharedSettings
+
+__all__ = [
+    "SharedFocal",
+    "focal_grid",
+    "focal_support",
+    "joint_focal",
+    "joint_k1",
+    "joint_principal_point",
+    "nearest_rotation",
+    "with_shared_focal",
+]
+
+
+class SharedFocal(NamedTuple):
+    """The focal length of one camera estimated from many photos (:func:`joint_focal`).
+
+    Attributes:
+        focal: the focal length, pixels.
+        std: its standard deviation over resamples of the photos, pixels (0 for a single photo).
+        photos: how many photos gave evidence (those with a valid frame).
+        principal_point: ``(cx, cy)``, the jointly estimated principal point, pixels; None where not estimated.
+        principal_point_std: its standard deviation per axis, pixels.
+        k1: the jointly estimated distortion (:mod:`ngp_kornia.geometry.lens`); None where not estimated.
+    """
+
+    focal: float
+    std: float
+    photos: int
+    principal_point: tuple[float, float] | None = None
+    principal_point_std: tuple[float, float] | None = None
+    k1: float | None = None
+
+
+def focal_grid(height: int, width: int, settings: SharedSettings, sampling: SamplingSettings) -> Tensor:
+    """The common grid (G,) float64 of focal lengths in pixels: ``settings.focal_step`` apart (relative) over
+    ``sampling.focal_range`` (units of half the long side), the same for every photo of one size.
+
+    Example:
+        >>> grid = focal_grid(480, 640, SharedSettings(), SamplingSettings())
+        >>> round(float(grid[0]), 1), round(float(grid[-1]), 1), round(float(grid[1] / grid[0]), 3)
+        (256.0, 1280.0, 1.01)
+    """
+    half = max(height, width) / 2.0
+    low, high = (v * half for v in sampling.focal_range)
+    count = max(2, int(math.ceil(math.log(high / low) / math.log1p(settings.focal_step))) + 1)
+    return torch.logspace(math.log10(low), math.log10(high), count, dtype=torch.float64)
+
+
+def nearest_rotation(directions: Tensor) -> Tensor:
+    """The rotations (..., 3, 3) nearest, in the Frobenius norm, to matrices (..., 3, 3) whose columns are unit
+    directions (Procrustes: ``U V^T`` of their SVD, with the sign that makes the determinant +1)."""
+    U, _, Vh = torch.linalg.svd(directions)
+    sign = torch.linalg.det(U @ Vh).sign()
+    flip = torch.ones_like(U[..., 0, :])
+    flip[..., 2] = sign
+    return (U * flip[..., None, :]) @ Vh
+
+
+def focal_support(
+    K: Tensor, R: Tensor, segments: Tensor, mask: Tensor, focals: Tensor, settings: SharedSettings | None = None
+) -> Tensor:
+    """Each photo's line support at each focal length of the grid (step 2 of the module docstring).
+
+    Only the grid points within ``settings.window`` (relative) of a photo's own focal length are scored; the others
+    take the least support scored, so a photo says nothing about focal lengths far from its own answer.
+
+    Args:
+        K: (B, 3, 3) the photos' intrinsics (their principal points are kept); R: (B, 3, 3) their rotations.
+        segments: (B, N, 2, 2) segments in the photos' pixels; mask: (B, N) bool.
+        focals: (G,) focal lengths, pixels (:func:`focal_grid`).
+        settings: window, kernel, inlier angle and iterations; None for the defaults.
+
+    Returns:
+        (B, G) float64 supports in [0, 1] (0 for a photo without segments).
+    """
+    settings = settings or SharedSettings()
+    rows = []
+    for k, r, seg, keep in zip(K.double(), R.double(), segments.double(), mask, strict=True):  # one photo at a time
+        near = (focals / k[0, 0]).log().abs() <= math.log1p(settings.window)
+        if not bool(near.any()):  # its own focal length is off the grid: the nearest grid point
+            near = (focals / k[0, 0]).log().abs() == (focals / k[0, 0]).log().abs().min()
+        scored = _support_at(k, r, seg, keep, focals[near].to(k), settings)
+        row = torch.full_like(focals, float(scored.min()), dtype=torch.float64)
+        rows.append(row.masked_scatter(near, scored))
+    return torch.stack(rows) if rows else focals.new_zeros(0, len(focals), dtype=torch.float64)
+
+
+def _support_at(K: Tensor, R: Tensor, segments: Tensor, mask: Tensor, focals: Tensor, settings: SharedSettings):
+    """The (G,) line support of one photo's frame ``K`` (3, 3), ``R`` (3, 3) moved to each of the (G,) focal
+    lengths and refitted there; ``segments`` (N, 2, 2), ``mask`` (N,)."""
+    G = len(focals)
+    Kg = intrinsics_matrix(focals, K[:2, 2])  # (G, 3, 3)
+    directions = torch.linalg.solve(Kg, (K @ R).expand(G, 3, 3))  # the VPs seen with each focal length
+    start = nearest_rotation(directions / torch.linalg.vector_norm(directions, dim=-2, keepdim=True))
+    # the segments seen with focal length f are those seen with K's, scaled by K's focal length / f
+    inv = (K[0, 0] / focals)[:, None, None, None]
+    stretch = torch.cat([1.0 / inv, 1.0 / inv, torch.ones_like(inv)], -1)
+    cam = scaled_camera_segments(camera_segments(segments[None], K[None]), inv, stretch)
+    keep, lengths = mask.expand(G, -1), masked_lengths(segments[None], mask[None]).expand(G, -1)
+    fitted = refit_rotation(cam, lengths, keep, start, settings.inlier_deg, settings.iterations)
+    close = closeness_kernel(cam, fitted.transpose(1, 2)[:, None], settings.kernel_deg, keep)[:, 0]
+    return (close * lengths).sum(-1) / lengths.sum(-1).clamp_min(1e-12)
+
+
+def _peak(total: Tensor, log_focals: Tensor) -> Tensor:
+    """The log focal length of the largest of (..., G) summed supports, refined by a parabola through it and its
+    neighbours (the grid point itself at the grid's ends or where the three are not concave)."""
+    i = total.argmax(-1).clamp(1, total.shape[-1] - 2)
+    y0, y1, y2 = (total.gather(-1, (i + d)[..., None])[..., 0] for d in (-1, 0, 1))
+    curve = y0 - 2.0 * y1 + y2
+    offset = torch.where(curve < 0, 0.5 * (y0 - y2) / curve.clamp_max(-1e-300), torch.zeros_like(curve))
+    at_end = (total.argmax(-1) == 0) | (total.argmax(-1) == total.shape[-1] - 1)
+    offset = torch.where(at_end, torch.zeros_like(offset), offset.clamp(-0.5, 0.5))
+    step = log_focals[1] - log_focals[0]
+    return torch.where(at_end, log_focals[total.argmax(-1)], log_focals[i] + offset * step)
+
+
+def joint_focal(support: Tensor, focals: Tensor, valid: Tensor, bootstrap: int = 200) -> SharedFocal:
+    """The focal length of the largest summed support over the photos (step 3 of the module docstring).
+
+    Args:
+        support: (P, G) supports of :func:`focal_support`; focals: (G,) the grid, pixels; valid: (P,) bool, the
+            photos that count (those with a valid frame).
+        bootstrap: resamples of the photos for the standard deviation (a fixed seed).
+
+    Returns:
+        the :class:`SharedFocal`; without a valid photo, the grid's geometric middle with an infinite std.
+
+    Example:
+        >>> focals = torch.tensor([400.0, 500.0, 625.0], dtype=torch.float64)  # log-spaced
+        >>> support = torch.tensor([[0.2, 0.5, 0.3], [0.1, 0.4, 0.4]], dtype=torch.float64)
+        >>> round(joint_focal(support, focals, torch.tensor([True, True])).focal)  # between 500 and 625
+        529
+    """
+    log_focals = focals.double().log()
+    used = support.double()[valid]
+    if len(used) == 0:
+        return SharedFocal(float(log_focals.mean().exp()), math.inf, 0)
+    focal = float(_peak(used.sum(0), log_focals).exp())
+    std = 0.0
+    if len(used) > 1 and bootstrap > 0:
+        draws = torch.randint(len(used), (bootstrap, len(used)), generator=torch.Generator().manual_seed(0))
+        resampled = _peak(used[draws].sum(1), log_focals).exp()
+        std = float(resampled.std())
+    return SharedFocal(focal, std, len(used))
+
+
+def with_shared_focal(result: Calibration, shared: SharedFocal) -> Calibration:
+    """A photo's calibration with the shared focal length as its known one: ``shared_photos`` says how many photos
+    it came from, and ``fov_v_std`` is the field of view's share of the shared focal length's standard deviation
+    (``|d fov_v / d f| = H / (f^2 + H^2 / 4)`` radians per pixel)."""
+    f, height = result.focal, result.image_size[..., 0].to(result.focal)
+    fov_std = torch.rad2deg(shared.std * height / (f.square() + height.square() / 4.0))
+    photos = torch.full_like(result.focal, shared.photos, dtype=torch.long)
+    result = replace(result, fov_v_std=fov_std, shared_photos=photos)
+    if shared.principal_point_std is None:
+        return result
+    std = result.K.new_tensor(shared.principal_point_std).expand_as(result.K[..., 0, :2])
+    return replace(result, principal_point_std=std)
+
+
+def joint_principal_point(
+    points: Tensor, stds: Tensor, centre: Tensor, prior_std: float
+) -> tuple[tuple[float, float], tuple[float, float]]:
+    """One camera's principal point from each photo's own estimate ``points`` (P, 2) with ``stds`` (P, 2)
+    (:func:`~ngp_kornia.pipeline.principal_point.estimate_principal_point`, each under the prior
+    ``N(centre, prior_std^2)`` per axis): the prior counted once and every photo's evidence, its posterior's
+    precision less the prior's, added. Returns the point and its standard deviation, pixels.
+
+    Example:
+        >>> point, std = joint_principal_point(torch.tensor([[330.0, 240.0], [330.0, 240.0]]),
+        ...                                    torch.full((2, 2), 6.0), torch.tensor([320.0, 240.0]), 12.0)
+        >>> [round(v, 2) for v in point], [round(v, 2) for v in std]  # two photos' evidence: nearer, narrower
+        ([331.43, 240.0], [4.54, 4.54])
+    """
+    points, stds, centre = points.double(), stds.double(), centre.double()
+    if prior_std <= 0:
+        return tuple(centre.tolist()), (0.0, 0.0)
+    prior = 1.0 / prior_std**2
+    evidence = (1.0 / stds.clamp_min(1e-6).square() - prior).clamp_min(0.0)  # (P, 2) each photo's own precision
+    means = (points / stds.clamp_min(1e-6).square() - centre * prior) / evidence.clamp_min(1e-300)
+    precision = prior + evidence.sum(0)
+    point = (centre * prior + (evidence * torch.where(evidence > 0, means, 0.0)).sum(0)) / precision
+    return tuple(point.tolist()), tuple(precision.rsqrt().tolist())
+
+
+def joint_k1(values: Tensor) -> float:
+    """One camera's distortion from each photo's own estimate (P,): the median of those that found one (an
+    estimate of 0 is a photo without evidence), 0 when none did."""
+    found = values[values != 0]
+    return float(found.median()) if len(found) else 0.0

@@ -52,7 +52,7 @@ from ngp_kornia.evaluation import load_manifest, load_yud
 from ngp_kornia.evaluation import lu_vp_detect_method as make_lu
 from ngp_kornia.evaluation.methods import weights_and_config
 from ngp_kornia.io import read_rgb_oriented
-from ngp_kornia.pipeline import ParserConfig
+from ngp_kornia.pipeline import SegmentSettings
 from ngp_kornia.pipeline.segments import detect_segments_gray
 
 _BUSY = "import time\nend = time.time() + {seconds}\nwhile time.time() < end:\n    pass\n"
@@ -100,7 +100,7 @@ FLOOR = "LSD alone"
 def lsd_alone():
     """The line detector by itself on the whole working image in one strip (decoding done before the timer)."""
     grays: dict[Path, object] = {}
-    config = ParserConfig().replace(line_strips=1)
+    config = SegmentSettings(line_strips=1)
 
     def call(sample):
         if sample.image_path not in grays:

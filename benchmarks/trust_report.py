@@ -265,7 +265,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--model", type=Path, default=TRUST_FILE)
     parser.add_argument("--plots", type=Path, default=None, help="folder for the PNGs")
     parser.add_argument("--out", type=Path, default=None)
-    parser.add_argument("--principal-point-std", type=float, default=ParserConfig().principal_point_std)
+    parser.add_argument("--principal-point-std", type=float, default=ParserConfig().trust.principal_point_std)
     parser.add_argument("--renders-principal-point-std", type=float, default=0.0)
     args = parser.parse_args(argv)
 

@@ -128,6 +128,8 @@ def _record(s: Sample, cal, feats: dict) -> dict:
         "pitch_answer": float(cal.pitch),
         "height": s.height,
     }
+    if cal.upright is not None:  # the orientation and structure check's factor of the confidence
+        rec["upright"] = float(cal.upright)
     if s.name in CALIBRATED_HORIZON:
         truth = CALIBRATED_HORIZON[s.name][None]
         calibrated = horizon_error(cal.horizon[None].double(), truth, s.height, s.width)
@@ -154,22 +156,24 @@ def collect(samples: list[Sample], spec: str | None, seed: int, prior: str) -> l
 
     def recording(result, frames, scores, segments, mask, *args, **kwargs):
         with torch.no_grad():
-            extra = {k: kwargs.get(k) for k in ("refinement", "residual_vps")}
-            captured.append(trust_features(result, frames, scores, segments, mask, *args[:2], **extra))
+            scoring = args[0] if args else kwargs.get("scoring")  # attach_trust's ScoringSettings
+            extra = {k: kwargs.get(k) for k in ("shared", "refinement", "residual_vps")}
+            captured.append(trust_features(result, frames, scores, segments, mask, scoring.top_k,
+                                           scoring.kernel_angle, **extra))
         return attach(result, frames, scores, segments, mask, *args, **kwargs)
 
     parser_module.attach_trust = recording
     records = []
     try:
         for i, s in enumerate(samples):
-            cfg = config
+            given = {}
             if prior == "true":
                 if not math.isfinite(float(s.K[0, 0])):
                     raise SystemExit(f"{s.name}: --prior true needs a known focal length")
-                cfg = replace(config, focal=float(s.K[0, 0]))
+                given = {"focal": float(s.K[0, 0])}
             elif prior == "exif":
-                cfg = replace(config, exif=True)
-            cal = calibrate(str(s.image_path), weights=weights, seed=seed, config=cfg)
+                given = {"exif": True}
+            cal = calibrate(str(s.image_path), weights=weights, seed=seed, config=config, **given)
             feats = {k: float(v[0]) for k, v in captured.pop().as_dict().items()}
             records.append(_record(s, cal, feats))
             print(f"\r{i + 1}/{len(samples)} {s.name}", end="", file=sys.stderr, flush=True)

@@ -49,6 +49,8 @@ def trust_of(records: list[dict], model: TrustModel, principal_point_std: float 
         **{k: torch.tensor([r["features"][k] for r in records], dtype=torch.float64) for k in records[0]["features"]}
     )
     conf = model.confidence(feats)
+    # the orientation and structure check scales the confidence after the trust model (records that carry it)
+    upright = torch.tensor([r.get("upright", 1.0) for r in records], dtype=torch.float64)
     floor = None
     if principal_point_std > 0:
         if any("pitch_answer" not in r for r in records):
@@ -57,7 +59,7 @@ def trust_of(records: list[dict], model: TrustModel, principal_point_std: float 
         floor = principal_point_terms(principal_point_std, focal, records[0]["height"], pitch)
     stds = model.stds(feats, conf, floor)
     valid = torch.tensor([r["valid"] for r in records])
-    out = {"confidence": torch.where(valid, conf, torch.zeros_like(conf)).numpy()}
+    out = {"confidence": torch.where(valid, conf * upright, torch.zeros_like(conf)).numpy()}
     out.update({name: v.numpy() for name, v in stds.items()})
     return out
 

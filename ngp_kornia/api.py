@@ -51,6 +51,10 @@ DEFAULT_WEIGHTS = "fsnet"
 _NAMED = {"none": (), "zsnet": ("zsnet",), "fsnet": ("fsnet",), "full": ("zsnet", "fsnet")}
 
 
+#: the networks every weight set has (the line evidence, the orientation and structure check), by shipped file
+_ALWAYS = {"LineEvidenceNet": "evidence", "UprightNet": "upright"}
+
+
 @lru_cache(maxsize=8)
 def _network(path: str) -> torch.nn.Module:
     return load_network(path, network_name(path))
@@ -71,7 +75,7 @@ def check_weights(weights: object) -> list[torch.nn.Module]:
     if isinstance(weights, str) and weights == "default":
         weights = DEFAULT_WEIGHTS
     if isinstance(weights, str) and weights in _NAMED:
-        return [_network(str(shipped_weights(name))) for name in (*_NAMED[weights], "evidence")]
+        return [_network(str(shipped_weights(name))) for name in (*_NAMED[weights], *_ALWAYS.values())]
     paths = [weights] if isinstance(weights, (str, Path)) else list(weights)
     if not paths or not all(isinstance(p, Path) or str(p).endswith(".pt") for p in paths):
         raise ValueError(
@@ -87,8 +91,9 @@ def check_weights(weights: object) -> list[torch.nn.Module]:
             )
         seen[name] = path
         nets.append(net)
-    if "LineEvidenceNet" not in seen:  # every weight set has the line evidence unless a file of its own is given
-        nets.append(_network(str(shipped_weights("evidence"))))
+    for name, file in _ALWAYS.items():  # every weight set has these unless a file of its own is given
+        if name not in seen:
+            nets.append(_network(str(shipped_weights(file))))
     return nets
 
 
@@ -110,7 +115,9 @@ def load_parser(
 
 def _parser(nets: list[torch.nn.Module], config: ParserConfig | None, copy: bool) -> NeuralGeometricParser:
     nets = {type(net).__name__: deepcopy(net) if copy else net for net in nets}
-    return NeuralGeometricParser(config, nets.get("ZSNet"), nets.get("FSNet"), nets.get("LineEvidenceNet"))
+    return NeuralGeometricParser(
+        config, nets.get("ZSNet"), nets.get("FSNet"), nets.get("LineEvidenceNet"), nets.get("UprightNet")
+    )
 
 
 def calibrate(
@@ -214,17 +221,26 @@ def file_priors(image: object, height: int, width: int, priors: Priors, exif: bo
 
 def _inputs(image, call: _Call) -> tuple:
     """(batch, segments, mask, EXIF orientation, priors) of one input: tensors as they are (the parser detects their
-    lines), files and arrays read once with their lines detected on the 8-bit pixels. Without FSNet the parser reads
-    only the image's shape, so the batch is then a stand-in of that shape and no pixel is converted."""
+    lines), files and arrays read once with their lines detected on the 8-bit pixels. Where no network reads pixels
+    (FSNet, the line evidence, the orientation check; :func:`_reads_pixels`) the parser reads only the image's shape,
+    so the batch is then a stand-in of that shape and no pixel is converted."""
     if isinstance(image, Tensor):
         return as_batch(image)[0], None, None, None, call.priors
     rgb, orientation = read_rgb_oriented(image)
     segments, mask = detect_segments(rgb, call.config.segments)
-    if any(type(net).__name__ == "FSNet" for net in call.nets):
+    if _reads_pixels(call):
         batch = _pixels(rgb)
     else:
         batch = torch.zeros((), dtype=torch.float32).expand(1, 3, *rgb.shape[:2])
     return batch, segments, mask, orientation, file_priors(image, *rgb.shape[:2], call.priors, call.exif)
+
+
+def _reads_pixels(call: _Call) -> bool:
+    """Whether a network of the call reads the image's pixels."""
+    names = {type(net).__name__ for net in call.nets}
+    cfg = call.config
+    return ("FSNet" in names or ("UprightNet" in names and cfg.upright.enabled)
+            or ("LineEvidenceNet" in names and cfg.evidence.enabled))  # fmt: skip
 
 
 def _calibrate_inputs(image, inputs: tuple, call: _Call) -> Calibration:

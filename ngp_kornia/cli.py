@@ -241,6 +241,7 @@ def _calibrate(args: argparse.Namespace) -> int:
                 continue
             result = with_orientation(result, orientation)
             print(json.dumps({"image": image, **result.to_dict()}), flush=True)
+            _warn_if_turned(image, result)
             try:
                 if args.overlay:
                     given = truth.get(Path(image).resolve())
@@ -249,6 +250,16 @@ def _calibrate(args: argparse.Namespace) -> int:
                 failed += 1
                 print(f"ngp: error: {_one_line(err)}", file=sys.stderr, flush=True)
     return 1 if failed else 0
+
+
+def _warn_if_turned(image: str, result) -> None:
+    """One line on stderr where the orientation check reads the photo as turned: its answer is that of a camera
+    rolled that far, and the confidence says it is likely wrong."""
+    turned = 0 if result.turned is None else int(result.turned)
+    if turned and bool(result.valid):
+        print(f"ngp: warning: {image} looks turned by {turned} degrees counter-clockwise (upright probability "
+              f"{float(result.upright):.2f}): turn it back or give it an orientation tag, then calibrate it again",
+              file=sys.stderr, flush=True)  # fmt: skip
 
 
 def _calibrate_or_none(image: str, rgb: np.ndarray, args: argparse.Namespace):

@@ -38,8 +38,8 @@ def test_path_array_and_tensor_inputs_agree(photo):
 
 @pytest.mark.parametrize("weights", ["none", "zsnet"])
 def test_weights_without_fsnet_give_the_same_answer_from_a_file_as_from_its_pixels(photo, weights):
-    """Without FSNet a file's pixels are not converted for the parser (only its size counts): same answer as the
-    tensor of the same pixels, whose lines are detected from them."""
+    """A file gives the answer of the tensor of its pixels (whose lines are detected from them) also where no
+    network of the weight set but the orientation check reads the pixels."""
     rgb = cv2.cvtColor(cv2.imread(str(photo)), cv2.COLOR_BGR2RGB)
     tensor = torch.from_numpy(rgb).permute(2, 0, 1).float() / 255
     a, b = calibrate(photo, weights=weights), calibrate(tensor, weights=weights)

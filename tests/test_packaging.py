@@ -31,7 +31,8 @@ def test_package_data_ships_weights_configs_and_py_typed():
     data = PYPROJECT["tool"]["setuptools"]["package-data"]["ngp_kornia"]
     assert {"weights/*.pt", "configs/*.yaml", "py.typed"} <= set(data)
     assert (package / "py.typed").is_file()
-    assert sorted(p.name for p in (package / "configs").glob("*.yaml")) == ["evidence.yaml", "fsnet.yaml", "zsnet.yaml"]
+    configs = sorted(p.name for p in (package / "configs").glob("*.yaml"))
+    assert configs == ["evidence.yaml", "fsnet.yaml", "upright.yaml", "zsnet.yaml"]
 
 
 def test_extras_for_notebooks_plots_and_tensorboard():

@@ -18,6 +18,7 @@ from ngp_kornia.errors import WeightsError
 from ngp_kornia.io.files import open_file
 from ngp_kornia.nets.fsnet import FSNet
 from ngp_kornia.nets.line_evidence import LineEvidenceNet
+from ngp_kornia.nets.upright import UprightNet
 from ngp_kornia.nets.zsnet import ZSNet
 
 __all__ = [
@@ -40,7 +41,9 @@ VERSION = 1
 MAX_INFLATION = 16
 WEIGHTS_DIR = Path(__file__).resolve().parent.parent / "weights"
 #: the networks a weights file may hold, by name
-NETWORKS: dict[str, type[nn.Module]] = {"FSNet": FSNet, "LineEvidenceNet": LineEvidenceNet, "ZSNet": ZSNet}
+NETWORKS: dict[str, type[nn.Module]] = {
+    "FSNet": FSNet, "LineEvidenceNet": LineEvidenceNet, "UprightNet": UprightNet, "ZSNet": ZSNet
+}
 
 
 def save_network(net: nn.Module, path: str | Path, settings: dict, metadata: dict | None = None) -> Path:

@@ -52,6 +52,7 @@ from ngp_kornia.pipeline.segments import detect_segments
 from ngp_kornia.pipeline.settings import ParserConfig
 from ngp_kornia.pipeline.trace import ParserTrace
 from ngp_kornia.pipeline.trust import SharedInputs, attach_trust
+from ngp_kornia.pipeline.upright_check import apply_upright, upright_probabilities
 
 __all__ = ["NeuralGeometricParser", "ParserConfig", "checked_segments", "pseudo_lines"]
 
@@ -68,6 +69,9 @@ class NeuralGeometricParser(nn.Module):
         evidence: a :class:`~ngp_kornia.nets.line_evidence.LineEvidenceNet` whose structure weights drop segments
             on no man-made structure (:class:`~ngp_kornia.pipeline.settings.EvidenceSettings`); None keeps every
             segment. :func:`ngp_kornia.api.load_parser` gives every weight set the shipped one.
+        upright: a :class:`~ngp_kornia.nets.upright.UprightNet`, the orientation and structure check that scales
+            the confidence (:mod:`ngp_kornia.pipeline.upright_check`); None leaves the confidence to the lines alone.
+            :func:`ngp_kornia.api.load_parser` gives every weight set the shipped one.
 
     Example:
         >>> img = torch.rand(1, 3, 96, 128)
@@ -82,6 +86,7 @@ class NeuralGeometricParser(nn.Module):
         zsnet: nn.Module | None = None,
         fsnet: nn.Module | None = None,
         evidence: nn.Module | None = None,
+        upright: nn.Module | None = None,
     ) -> None:
         super().__init__()
         if config is not None and not isinstance(config, ParserConfig):
@@ -90,6 +95,7 @@ class NeuralGeometricParser(nn.Module):
         self.zsnet = zsnet
         self.fsnet = fsnet
         self.evidence = evidence
+        self.upright = upright
 
     def forward(
         self,
@@ -105,8 +111,9 @@ class NeuralGeometricParser(nn.Module):
 
         Args:
             images: (B, 3, H, W) float RGB in [0, 1]; float16 and bfloat16 are computed in float32 and the result
-                returned in the input's dtype. Only FSNet reads the pixels: without it, a tensor of the images'
-                shape will do when ``segments`` are given.
+                returned in the input's dtype. Only the networks read the pixels (FSNet, the line evidence, the
+                orientation check): without them, a tensor of the images' shape will do when ``segments`` are
+                given.
             segments: optional (B, N, 2, 2) precomputed segments in the images' pixels (skips LSD). Segments the
                 mask keeps must be finite (NaN or infinite ones are refused); padding may hold anything.
             mask: (B, N) bool, required with ``segments``.
@@ -128,13 +135,7 @@ class NeuralGeometricParser(nn.Module):
             low = None if segments is None else segments.float()
             out = self.forward(images.float(), low, mask, seed=seed, priors=priors, return_trace=return_trace)
             return (out[0].to(images.dtype), out[1]) if return_trace else out.to(images.dtype)
-        if segments is None:
-            segments, mask = detect_segments(images, self.config.segments)
-        else:
-            segments, mask = checked_segments(segments, mask, len(images))
-        segments = segments.to(images)
-        if segments.shape[1] == 0:  # no lines anywhere in the batch: one masked dummy keeps every shape non-empty
-            segments, mask = segments.new_zeros(len(images), 1, 2, 2), mask.new_zeros(len(images), 1)
+        segments, mask = self._segments(images, segments, mask)
         stages = {"segments": segments, "detected": mask} if return_trace else None
         weights = None
         if self.evidence is not None and self.config.evidence.enabled:
@@ -150,7 +151,20 @@ class NeuralGeometricParser(nn.Module):
 
         # the principal point and the distortion, given or estimated, around the stages (camera_model.py)
         result = calibrate_camera_model(run, images, segments, mask, priors, self.config, self.fsnet is not None)
+        if self.upright is not None and self.config.upright.enabled:
+            result = apply_upright(result, upright_probabilities(self.upright, images, self.config.upright.prior))
         return (result, ParserTrace(**stages)) if return_trace else result
+
+    def _segments(self, images: Tensor, segments: Tensor | None, mask: Tensor | None) -> tuple[Tensor, Tensor]:
+        """The segments given (checked) or detected, never an empty tensor."""
+        if segments is None:
+            segments, mask = detect_segments(images, self.config.segments)
+        else:
+            segments, mask = checked_segments(segments, mask, len(images))
+        segments = segments.to(images)
+        if segments.shape[1] == 0:  # no lines anywhere in the batch: one masked dummy keeps every shape non-empty
+            segments, mask = segments.new_zeros(len(images), 1, 2, 2), mask.new_zeros(len(images), 1)
+        return segments, mask
 
     def _calibrate(
         self,

@@ -39,7 +39,9 @@ class Calibration:
             ``i`` (row 1 is the zenith direction).
         score: (B,) score of the best frame candidate (the Manhattan score for the geometric path), in [0, 1].
         valid: (B,) bool; False when the image offered no valid frame candidate, in which case the result is a
-            level camera with a 60 degree field of view on the long side.
+            level camera with a 60 degree field of view on the long side, or when the orientation check finds no
+            man-made structure in it (:mod:`ngp_kornia.pipeline.upright_check`; the answer the lines gave, with
+            confidence 0).
         image_size: (B, 2) ``(height, width)`` in pixels.
         exif_orientation: (B,) long: the EXIF orientation tag (1-8) of the file that was applied before
             calibrating, so every field is in the pixels of the image as displayed (6 and 8: a phone photo stored
@@ -58,6 +60,12 @@ class Calibration:
         shared_photos: (B,) long: how many photos the intrinsics were estimated from jointly
             (``shared_intrinsics=True``); None when each photo was calibrated alone.
         gravity: (B, 3) the gravity prior the calibration used: ``(pitch, roll, std)`` in degrees; None without.
+        upright: (B,) probability that the image is the right way up and shows man-made structure (the
+            orientation check, :mod:`ngp_kornia.pipeline.upright_check`); the confidence already includes it. None when
+            not computed.
+        turned: (B,) long: the image's most likely counter-clockwise turn from upright in degrees (0, 90, 180,
+            270): ``np.rot90(image, -turned // 90)`` turns it back. The answer is always that of the image as
+            given, upright or not. None when not computed.
     """
 
     K: Tensor
@@ -84,6 +92,8 @@ class Calibration:
     k1: Tensor | None = None
     shared_photos: Tensor | None = None
     gravity: Tensor | None = None
+    upright: Tensor | None = None
+    turned: Tensor | None = None
 
     def __post_init__(self) -> None:
         if self.exif_orientation is None:  # made without it: nothing was turned
@@ -153,6 +163,7 @@ class Calibration:
             f"Calibration(focal={float(self.focal):.1f}px, fov_v={float(self.fov_v):.1f}, "
             f"pitch={float(self.pitch):.2f}, roll={float(self.roll):.2f}, yaw={float(self.yaw):.2f}, "
             f"valid={bool(self.valid)}"
+            + (f", turned={int(self.turned)}" if self.turned is not None and int(self.turned) else "")
             + (f", confidence={float(self.confidence):.2f})" if self.confidence is not None else ")")
         )
 

@@ -41,6 +41,7 @@ __all__ = [
     "SegmentSettings",
     "SharedSettings",
     "TrustSettings",
+    "UprightSettings",
     "check_settings",
     "locate_setting",
     "setting_fields",
@@ -110,6 +111,26 @@ class EvidenceSettings:
     enabled: bool = _flag(False)
     keep: float = _number(0.1, 0.0, 1.0)
     weigh: bool = _flag(False)
+
+    def __post_init__(self) -> None:
+        check_settings(self)
+
+
+@dataclass(frozen=True)
+class UprightSettings:
+    """The orientation and structure check (:mod:`ngp_kornia.pipeline.upright_check`).
+
+    Attributes:
+        enabled: scale the confidence by the probability that the image is upright and shows man-made structure,
+            and report its most likely turn (where the parser has the network: every weight set of
+            :func:`ngp_kornia.calibrate` has it).
+        prior: the share of photos with structure that are handed over upright, before their appearance is seen
+            (the network is trained on each turn equally often; its readings are weighed by this prior, so an
+            unsure reading leans to upright, as most photos are).
+    """
+
+    enabled: bool = _flag(True)
+    prior: float = _number(0.5, 0.01, 0.99)
 
     def __post_init__(self) -> None:
         check_settings(self)
@@ -318,6 +339,7 @@ _STAGES = {
     "trust": TrustSettings,
     "shared": SharedSettings,
     "distortion": DistortionSettings,
+    "upright": UprightSettings,
 }
 
 
@@ -335,6 +357,7 @@ class ParserConfig:
         trust: confidence and standard deviations (:class:`TrustSettings`).
         shared: one camera across many photos (:class:`SharedSettings`).
         distortion: radial distortion from the segments' curvature (:class:`DistortionSettings`).
+        upright: the orientation and structure check (:class:`UprightSettings`).
     """
 
     segments: SegmentSettings = field(default_factory=SegmentSettings)
@@ -346,6 +369,7 @@ class ParserConfig:
     trust: TrustSettings = field(default_factory=TrustSettings)
     shared: SharedSettings = field(default_factory=SharedSettings)
     distortion: DistortionSettings = field(default_factory=DistortionSettings)
+    upright: UprightSettings = field(default_factory=UprightSettings)
 
     def __post_init__(self) -> None:
         for name, kind in _STAGES.items():

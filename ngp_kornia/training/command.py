@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import textwrap
 from importlib import resources
 from pathlib import Path
 
@@ -42,8 +43,8 @@ LIGHTNING_COMMANDS = ("fit", "validate", "test", "predict")
 _OWN = ("-h", "--help", "--version")
 
 _DESCRIPTION = (
-    "Train ZSNet, FSNet and the line-evidence network with Lightning (fit, validate, test, predict), then export the "
-    "network (export) and plot its curves (plot)."
+    "Train ZSNet, FSNet, the line-evidence network and the orientation check with Lightning (fit, validate, test, "
+    "predict), then export the network (export) and plot its curves (plot)."
 )
 _EPILOG = (
     "Packaged configs, by name: {names} (e.g. --config zsnet; a path to a YAML file of your own works too). "
@@ -179,10 +180,19 @@ def _plain(value):
     return value if isinstance(value, (int, float, str, bool, type(None))) else str(value)
 
 
+class _Formatter(argparse.HelpFormatter):
+    """argparse's help, wrapped only at spaces: a command such as ``ngp-train export`` is never cut at its hyphen."""
+
+    def _fill_text(self, text: str, width: int, indent: str) -> str:
+        return textwrap.fill(" ".join(text.split()), width, initial_indent=indent, subsequent_indent=indent,
+                             break_on_hyphens=False)  # fmt: skip
+
+
 def _parser() -> argparse.ArgumentParser:
     """``ngp-train``'s own commands and help; the Lightning commands' options are LightningCLI's."""
     epilog = _EPILOG.format(names=", ".join(packaged_configs()))
-    parser = argparse.ArgumentParser(prog="ngp-train", description=_DESCRIPTION, epilog=epilog)
+    parser = argparse.ArgumentParser(prog="ngp-train", description=_DESCRIPTION, epilog=epilog,
+                                     formatter_class=_Formatter)
     parser.add_argument("--version", action="version", version=f"ngp-train {_version()}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name in LIGHTNING_COMMANDS:  # listed here, parsed by LightningCLI

@@ -1,0 +1,67 @@
+"""The orientation and structure check: how likely the image is the right way up and shows man-made structure.
+
+Every answer of the parser assumes the photo is upright (its roll within about 45 degrees): the frame's axis closest
+to the image's vertical is taken as up. A photo turned by 90 or 180 degrees without an orientation tag breaks that
+assumption, and its lines cannot show it: they fit a camera rolled by 90 or 180 degrees exactly as well. An image
+with no structure (noise, clouds, foliage) gives lines that support no camera at all. The
+:class:`~ngp_kornia.nets.upright.UprightNet` reads the image's appearance and says how likely each case is; the
+answer's confidence, the probability that it is right, is multiplied by the probability that the assumption holds
+(an answer for the wrong way up is never right), and the answer reports the most likely turn, so that the caller
+can turn the photo back and calibrate it again.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import torch
+from torch import Tensor, nn
+
+from ngp_kornia.pipeline.result import Calibration
+
+__all__ = ["apply_upright", "upright_probabilities"]
+
+
+def upright_probabilities(net: nn.Module, images: Tensor, prior: float = 0.5) -> Tensor:
+    """(B, 5) probabilities of :data:`~ngp_kornia.nets.upright.CLASSES` for (B, 3, H, W) images in [0, 1], with
+    ``prior`` the share of upright photos among those with structure.
+
+    The network is trained on the four turns equally often; Bayes' rule moves its readings to the prior: each
+    turn's probability is multiplied by its prior over the training share (1/4), the structure-free reading kept,
+    and the five renormalised.
+
+    Example:
+        >>> from ngp_kornia.nets.upright import UprightNet
+        >>> probs = upright_probabilities(UprightNet().eval(), torch.rand(1, 3, 48, 64), prior=0.25)
+        >>> bool(torch.allclose(probs.sum(-1), torch.ones(1)))
+        True
+    """
+    with torch.no_grad():
+        probs = net.probabilities(images.detach())
+        turns = probs.new_tensor([prior, *([(1.0 - prior) / 3] * 3)]) * 4.0
+        weighed = torch.cat([probs[:, :4] * turns, probs[:, 4:]], -1)
+        return weighed / weighed.sum(-1, keepdim=True)
+
+
+def apply_upright(result: Calibration, probs: Tensor) -> Calibration:
+    """The answer with ``upright`` and ``turned`` filled in and its confidence scaled by ``upright``.
+
+    ``upright`` is the probability that the image is upright and shows structure; ``turned`` the most likely
+    counter-clockwise turn of the image from upright, in degrees (0, 90, 180 or 270; 0 where no structure is the
+    likeliest reading). ``valid`` becomes False where no structure is likelier than every reading with structure:
+    the answer then rests on no line evidence worth the name; it keeps what the lines gave, with confidence 0 and
+    the standard deviations of an answer without a frame (90 degrees for pitch and roll, 180 for the field of view,
+    0 for a known focal length).
+    """
+    probs = probs.to(result.focal.dtype)
+    upright = probs[:, 0]
+    structured = probs[:, :4]
+    turned = (structured.argmax(-1) * 90).long()
+    valid = result.valid & (probs[:, 4] < structured.max(-1).values)
+    confidence = None if result.confidence is None else torch.where(valid, result.confidence * upright, 0.0)
+    stds = {}
+    for name, nothing in (("pitch_std", 90.0), ("roll_std", 90.0), ("fov_v_std", 180.0)):
+        std = getattr(result, name)
+        if std is not None:  # a known focal length keeps its 0
+            stds[name] = torch.where(valid | (std == 0), std, nothing)
+    return replace(result, valid=valid, confidence=confidence, upright=upright, turned=turned, **stds)

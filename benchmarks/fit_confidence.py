@@ -110,8 +110,9 @@ def load_samples(dataset: str, path: Path) -> list[Sample]:
 # collecting
 
 
-def _record(s: Sample, cal, feats: dict) -> dict:
-    """One record: the trust features, the answer's trust outputs, focal length and pitch, and its errors."""
+def _record(s: Sample, cal, feats: dict, lines_confidence: float | None = None) -> dict:
+    """One record: the trust features, the answer's trust outputs, focal length and pitch, and its errors;
+    ``lines_confidence`` is the confidence before the orientation check."""
     h_err = float(horizon_error(cal.horizon[None].double(), s.horizon[None], s.height, s.width)[0])
     rec = {
         "name": s.name,
@@ -128,8 +129,10 @@ def _record(s: Sample, cal, feats: dict) -> dict:
         "pitch_answer": float(cal.pitch),
         "height": s.height,
     }
-    if cal.upright is not None:  # the orientation and structure check's factor of the confidence
+    if cal.upright is not None:  # the orientation and structure check: its reading and the factor it applied
         rec["upright"] = float(cal.upright)
+        if lines_confidence:
+            rec["upright_factor"] = float(cal.confidence) / lines_confidence
     if s.name in CALIBRATED_HORIZON:
         truth = CALIBRATED_HORIZON[s.name][None]
         calibrated = horizon_error(cal.horizon[None].double(), truth, s.height, s.width)
@@ -152,6 +155,7 @@ def collect(samples: list[Sample], spec: str | None, seed: int, prior: str) -> l
     """Run calibrate() on every sample; one record per image: features, answer, trust outputs, errors."""
     weights, config = weights_and_config(spec)
     captured: list[TrustFeatures] = []
+    lines_confidence: list[torch.Tensor] = []  # before the orientation check
     attach = parser_module.attach_trust
 
     def recording(result, frames, scores, segments, mask, *args, **kwargs):
@@ -160,7 +164,9 @@ def collect(samples: list[Sample], spec: str | None, seed: int, prior: str) -> l
             extra = {k: kwargs.get(k) for k in ("shared", "refinement", "residual_vps")}
             captured.append(trust_features(result, frames, scores, segments, mask, scoring.top_k,
                                            scoring.kernel_angle, **extra))
-        return attach(result, frames, scores, segments, mask, *args, **kwargs)
+        out = attach(result, frames, scores, segments, mask, *args, **kwargs)
+        lines_confidence.append(out.confidence)
+        return out
 
     parser_module.attach_trust = recording
     records = []
@@ -175,7 +181,7 @@ def collect(samples: list[Sample], spec: str | None, seed: int, prior: str) -> l
                 given = {"exif": True}
             cal = calibrate(str(s.image_path), weights=weights, seed=seed, config=config, **given)
             feats = {k: float(v[0]) for k, v in captured.pop().as_dict().items()}
-            records.append(_record(s, cal, feats))
+            records.append(_record(s, cal, feats, float(lines_confidence.pop().reshape(-1)[0])))
             print(f"\r{i + 1}/{len(samples)} {s.name}", end="", file=sys.stderr, flush=True)
     finally:
         parser_module.attach_trust = attach

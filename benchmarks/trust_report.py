@@ -50,7 +50,7 @@ def trust_of(records: list[dict], model: TrustModel, principal_point_std: float 
     )
     conf = model.confidence(feats)
     # the orientation and structure check scales the confidence after the trust model (records that carry it)
-    upright = torch.tensor([r.get("upright", 1.0) for r in records], dtype=torch.float64)
+    upright = torch.tensor([r.get("upright_factor", r.get("upright", 1.0)) for r in records], dtype=torch.float64)
     floor = None
     if principal_point_std > 0:
         if any("pitch_answer" not in r for r in records):

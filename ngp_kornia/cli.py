@@ -241,7 +241,7 @@ def _calibrate(args: argparse.Namespace) -> int:
                 continue
             result = with_orientation(result, orientation)
             print(json.dumps({"image": image, **result.to_dict()}), flush=True)
-            _warn_if_turned(image, result)
+            _warn_if_turned(image, result, _config(args).upright.sure)
             try:
                 if args.overlay:
                     given = truth.get(Path(image).resolve())
@@ -252,11 +252,11 @@ def _calibrate(args: argparse.Namespace) -> int:
     return 1 if failed else 0
 
 
-def _warn_if_turned(image: str, result) -> None:
-    """One line on stderr where the orientation check reads the photo as turned: its answer is that of a camera
-    rolled that far, and the confidence says it is likely wrong."""
+def _warn_if_turned(image: str, result, sure: float) -> None:
+    """One line on stderr where the orientation check is sure the photo is turned (its upright probability below
+    ``1 - sure``, as where it scales the confidence): the answer is that of a camera rolled that far."""
     turned = 0 if result.turned is None else int(result.turned)
-    if turned and bool(result.valid):
+    if turned and bool(result.valid) and float(result.upright) < 1.0 - sure:
         print(f"ngp: warning: {image} looks turned by {turned} degrees counter-clockwise (upright probability "
               f"{float(result.upright):.2f}): turn it back or give it an orientation tag, then calibrate it again",
               file=sys.stderr, flush=True)  # fmt: skip

@@ -317,3 +317,16 @@ def test_ctrl_c_during_start_up_ends_with_a_message(entry, args, photo, tmp_path
     _, err = process.communicate(timeout=120)
     assert process.returncode == 130, err
     assert "Traceback" not in err and err.strip().endswith("interrupted")
+
+
+def test_a_turn_is_warned_about_only_where_the_check_acts_on_it(tmp_path, capsys):
+    from ngp_kornia.training.synth.render import render_scene
+
+    path = tmp_path / "turned.png"
+    cv2.imwrite(str(path), cv2.cvtColor(np.rot90(render_scene(2_500_000, (320, 240)).image).copy(), cv2.COLOR_RGB2BGR))
+    assert main(["calibrate", str(path), "--upright.sure", "0"]) == 0  # every reading of a turn acts
+    out = capsys.readouterr()
+    assert json.loads(out.out)["turned"] == 90
+    assert out.err.startswith(f"ngp: warning: {path} looks turned by 90 degrees") and out.err.count("\n") == 1
+    assert main(["calibrate", str(path), "--upright.sure", "1"]) == 0  # no reading is that sure: no warning
+    assert capsys.readouterr().err == ""

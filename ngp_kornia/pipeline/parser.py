@@ -152,7 +152,8 @@ class NeuralGeometricParser(nn.Module):
         # the principal point and the distortion, given or estimated, around the stages (camera_model.py)
         result = calibrate_camera_model(run, images, segments, mask, priors, self.config, self.fsnet is not None)
         if self.upright is not None and self.config.upright.enabled:
-            result = apply_upright(result, upright_probabilities(self.upright, images, self.config.upright.prior))
+            check = self.config.upright
+            result = apply_upright(result, upright_probabilities(self.upright, images, check.prior), check.sure)
         return (result, ParserTrace(**stages)) if return_trace else result
 
     def _segments(self, images: Tensor, segments: Tensor | None, mask: Tensor | None) -> tuple[Tensor, Tensor]:

@@ -121,16 +121,19 @@ class UprightSettings:
     """The orientation and structure check (:mod:`ngp_kornia.pipeline.upright_check`).
 
     Attributes:
-        enabled: scale the confidence by the probability that the image is upright and shows man-made structure,
-            and report its most likely turn (where the parser has the network: every weight set of
-            :func:`ngp_kornia.calibrate` has it).
+        enabled: report the image's most likely turn and the probability that it is upright and shows man-made
+            structure, and scale the confidence by it where the image reads as turned (where the parser has the
+            network: every weight set of :func:`ngp_kornia.calibrate` has it).
         prior: the share of photos with structure that are handed over upright, before their appearance is seen
             (the network is trained on each turn equally often; its readings are weighed by this prior, so an
             unsure reading leans to upright, as most photos are).
+        sure: the probability of a turn (after the prior) above which the confidence is scaled; below it the
+            confidence is the lines' own (0: always scaled).
     """
 
     enabled: bool = _flag(True)
     prior: float = _number(0.5, 0.01, 0.99)
+    sure: float = _number(0.98, 0.0, 1.0)
 
     def __post_init__(self) -> None:
         check_settings(self)

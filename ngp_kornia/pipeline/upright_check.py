@@ -43,22 +43,25 @@ def upright_probabilities(net: nn.Module, images: Tensor, prior: float = 0.5) ->
         return weighed / weighed.sum(-1, keepdim=True)
 
 
-def apply_upright(result: Calibration, probs: Tensor) -> Calibration:
-    """The answer with ``upright`` and ``turned`` filled in and its confidence scaled by ``upright``.
+def apply_upright(result: Calibration, probs: Tensor, sure: float = 0.0) -> Calibration:
+    """The answer with ``upright`` and ``turned`` filled in and its confidence scaled by ``upright`` where the
+    image reads as turned with a probability above ``sure``.
 
     ``upright`` is the probability that the image is upright and shows structure; ``turned`` the most likely
     counter-clockwise turn of the image from upright, in degrees (0, 90, 180 or 270; 0 where no structure is the
-    likeliest reading). ``valid`` becomes False where no structure is likelier than every reading with structure:
-    the answer then rests on no line evidence worth the name; it keeps what the lines gave, with confidence 0 and
-    the standard deviations of an answer without a frame (90 degrees for pitch and roll, 180 for the field of view,
-    0 for a known focal length).
+    likeliest reading). Below ``sure`` the confidence stays the lines' own: the network reads real photos less
+    well than renders, and an upright photo it doubts wrongly would lose a confidence that was right. ``valid``
+    becomes False where no structure is likelier than every reading with structure: the answer then rests on no
+    line evidence worth the name; it keeps what the lines gave, with confidence 0 and the standard deviations of an
+    answer without a frame (90 degrees for pitch and roll, 180 for the field of view, 0 for a known focal length).
     """
     probs = probs.to(result.focal.dtype)
     upright = probs[:, 0]
     structured = probs[:, :4]
     turned = (structured.argmax(-1) * 90).long()
     valid = result.valid & (probs[:, 4] < structured.max(-1).values)
-    confidence = None if result.confidence is None else torch.where(valid, result.confidence * upright, 0.0)
+    factor = torch.where(probs[:, 1:4].max(-1).values > sure, upright, 1.0)
+    confidence = None if result.confidence is None else torch.where(valid, result.confidence * factor, 0.0)
     stds = {}
     for name, nothing in (("pitch_std", 90.0), ("roll_std", 90.0), ("fov_v_std", 180.0)):
         std = getattr(result, name)

@@ -109,8 +109,12 @@ def test_a_file_size_limit_leaves_no_hidden_file(tmp_path, devices):
         rows = _rows(out)
         assert message.endswith(f"the {len(rows)} rows finished are in {out}") and len(rows) == 2
         assert [r["image"] for r in rows] == ["scene000.png", "scene001.png"] and all("focal" in r for r in rows)
-    else:  # the merged rows do not fit either: the old results stay
-        assert message.endswith(f"{out} is unchanged") and out.read_text() == "old results\n"
+    elif message.endswith(f"{out} is unchanged"):  # the merged rows do not fit either: the old results stay
+        assert out.read_text() == "old results\n"
+    else:  # on a busy machine one process may have finished two rows while the other had none: those fit
+        rows = _rows(out)
+        assert message.endswith(f"the {len(rows)} rows finished are in {out}") and 0 < len(rows) <= 2, message
+        assert all("focal" in r for r in rows)
     assert _hidden(tmp_path) == [] and sorted(p.name for p in tmp_path.iterdir()) == ["photos", "results.jsonl"]
 
 

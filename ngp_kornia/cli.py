@@ -253,8 +253,8 @@ def _calibrate(args: argparse.Namespace) -> int:
 
 
 def _warn_if_turned(image: str, result, sure: float) -> None:
-    """One line on stderr where the orientation check is sure the photo is turned (its upright probability below
-    ``1 - sure``, as where it scales the confidence): the answer is that of a camera rolled that far."""
+    """One line on stderr where the orientation check is sure enough that the photo is turned to scale its
+    confidence (its upright probability below ``1 - sure``): the answer is that of a camera rolled that far."""
     turned = 0 if result.turned is None else int(result.turned)
     if turned and bool(result.valid) and float(result.upright) < 1.0 - sure:
         print(f"ngp: warning: {image} looks turned by {turned} degrees counter-clockwise (upright probability "

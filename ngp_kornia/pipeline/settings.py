@@ -127,13 +127,13 @@ class UprightSettings:
         prior: the share of photos with structure that are handed over upright, before their appearance is seen
             (the network is trained on each turn equally often; its readings are weighed by this prior, so an
             unsure reading leans to upright, as most photos are).
-        sure: the probability of a turn (after the prior) above which the confidence is scaled; below it the
-            confidence is the lines' own (0: always scaled).
+        sure: the probability that the image is turned or without structure (after the prior) above which the
+            confidence is scaled; below it the confidence is the lines' own (0: always scaled).
     """
 
     enabled: bool = _flag(True)
     prior: float = _number(0.5, 0.01, 0.99)
-    sure: float = _number(0.98, 0.0, 1.0)
+    sure: float = _number(0.995, 0.0, 1.0)
 
     def __post_init__(self) -> None:
         check_settings(self)

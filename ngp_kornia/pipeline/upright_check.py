@@ -45,7 +45,7 @@ def upright_probabilities(net: nn.Module, images: Tensor, prior: float = 0.5) ->
 
 def apply_upright(result: Calibration, probs: Tensor, sure: float = 0.0) -> Calibration:
     """The answer with ``upright`` and ``turned`` filled in and its confidence scaled by ``upright`` where the
-    image reads as turned with a probability above ``sure``.
+    probability that the image is not upright with structure is above ``sure`` (``upright < 1 - sure``).
 
     ``upright`` is the probability that the image is upright and shows structure; ``turned`` the most likely
     counter-clockwise turn of the image from upright, in degrees (0, 90, 180 or 270; 0 where no structure is the
@@ -60,7 +60,7 @@ def apply_upright(result: Calibration, probs: Tensor, sure: float = 0.0) -> Cali
     structured = probs[:, :4]
     turned = (structured.argmax(-1) * 90).long()
     valid = result.valid & (probs[:, 4] < structured.max(-1).values)
-    factor = torch.where(probs[:, 1:4].max(-1).values > sure, upright, 1.0)
+    factor = torch.where(1.0 - upright > sure, upright, 1.0)
     confidence = None if result.confidence is None else torch.where(valid, result.confidence * factor, 0.0)
     stds = {}
     for name, nothing in (("pitch_std", 90.0), ("roll_std", 90.0), ("fov_v_std", 180.0)):

@@ -34,13 +34,15 @@ def test_confidence_is_scaled_by_the_upright_probability():
     assert out.upright.tolist() == pytest.approx([0.5])
 
 
-def test_confidence_stays_the_lines_own_unless_the_network_is_sure_of_a_turn():
+def test_confidence_stays_the_lines_own_unless_the_network_is_sure_it_is_not_upright():
     result = _batched(_answer())
     doubted = apply_upright(result, torch.tensor([[0.3, 0.6, 0.05, 0.03, 0.02]]), sure=0.9)
-    assert torch.equal(doubted.confidence, result.confidence)  # a turn at 0.6 is not sure enough
+    assert torch.equal(doubted.confidence, result.confidence)  # 0.7 against upright is not sure enough
     assert doubted.turned.tolist() == [90] and doubted.upright.tolist() == pytest.approx([0.3])
     sure = apply_upright(result, torch.tensor([[0.02, 0.01, 0.95, 0.01, 0.01]]), sure=0.9)
     assert torch.allclose(sure.confidence, result.confidence * 0.02)
+    spread = apply_upright(result, torch.tensor([[0.05, 0.3, 0.35, 0.3, 0.0]]), sure=0.9)
+    assert torch.allclose(spread.confidence, result.confidence * 0.05)  # no turn alone is sure; together they are
 
 
 def test_turn_is_the_likeliest_reading_with_structure():

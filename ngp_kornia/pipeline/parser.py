@@ -52,7 +52,7 @@ from ngp_kornia.pipeline.segments import detect_segments
 from ngp_kornia.pipeline.settings import ParserConfig
 from ngp_kornia.pipeline.trace import ParserTrace
 from ngp_kornia.pipeline.trust import SharedInputs, attach_trust
-from ngp_kornia.pipeline.upright_check import apply_upright, upright_probabilities
+from ngp_kornia.pipeline.upright_check import apply_upright, upright_probabilities, weigh_by_pitch
 
 __all__ = ["NeuralGeometricParser", "ParserConfig", "checked_segments", "pseudo_lines"]
 
@@ -152,9 +152,16 @@ class NeuralGeometricParser(nn.Module):
         # the principal point and the distortion, given or estimated, around the stages (camera_model.py)
         result = calibrate_camera_model(run, images, segments, mask, priors, self.config, self.fsnet is not None)
         if self.upright is not None and self.config.upright.enabled:
-            check = self.config.upright
-            result = apply_upright(result, upright_probabilities(self.upright, images, check.prior), check.sure)
+            result = self._check_upright(result, images)
         return (result, ParserTrace(**stages)) if return_trace else result
+
+    def _check_upright(self, result: Calibration, images: Tensor) -> Calibration:
+        """The orientation and structure check on the answer (pipeline/upright_check.py)."""
+        check = self.config.upright
+        probs = upright_probabilities(self.upright, images, check.prior)
+        if check.pitch_spread > 0:  # a steep answer is likelier that of a photo turned by a quarter
+            probs = weigh_by_pitch(probs, result.pitch, check.pitch_spread)
+        return apply_upright(result, probs, check.sure)
 
     def _segments(self, images: Tensor, segments: Tensor | None, mask: Tensor | None) -> tuple[Tensor, Tensor]:
         """The segments given (checked) or detected, never an empty tensor."""

@@ -129,11 +129,14 @@ class UprightSettings:
             unsure reading leans to upright, as most photos are).
         sure: the probability that the image is turned or without structure (after the prior) above which the
             confidence is scaled; below it the confidence is the lines' own (0: always scaled).
+        pitch_spread: how far from level, in degrees, photos are taken: the answered pitch as a further cue, since a
+            photo turned by 90 or 270 degrees is answered with a steep pitch (0: the pitch is not used).
     """
 
     enabled: bool = _flag(True)
     prior: float = _number(0.5, 0.01, 0.99)
     sure: float = _number(0.995, 0.0, 1.0)
+    pitch_spread: float = _number(15.0, 0.0, 90.0)
 
     def __post_init__(self) -> None:
         check_settings(self)

@@ -19,7 +19,7 @@ from torch import Tensor, nn
 
 from ngp_kornia.pipeline.result import Calibration
 
-__all__ = ["apply_upright", "upright_probabilities"]
+__all__ = ["apply_upright", "upright_probabilities", "weigh_by_pitch"]
 
 
 def upright_probabilities(net: nn.Module, images: Tensor, prior: float = 0.5) -> Tensor:
@@ -41,6 +41,36 @@ def upright_probabilities(net: nn.Module, images: Tensor, prior: float = 0.5) ->
         turns = probs.new_tensor([prior, *([(1.0 - prior) / 3] * 3)]) * 4.0
         weighed = torch.cat([probs[:, :4] * turns, probs[:, 4:]], -1)
         return weighed / weighed.sum(-1, keepdim=True)
+
+
+#: the largest pitch the parser answers for a photo turned by a quarter turn: its "vertical" is then a horizontal
+#: vanishing point, the one nearer the image's vertical, at most 45 degrees from the view direction
+_TURNED_PITCH = 45.0
+
+
+def weigh_by_pitch(probs: Tensor, pitch: Tensor, spread: float) -> Tensor:
+    """(B, 5) probabilities with the answered ``pitch`` (B,) in degrees as a further cue between the four turns.
+
+    Photos are taken with the camera held near level: read as upright or turned by 180 degrees (which keeps the
+    pitch's size), an answer's pitch is likely within ``spread`` degrees of level (half-normal). A photo turned by
+    90 or 270 degrees is answered with a horizontal vanishing point taken for the vertical one, so its pitch lies
+    anywhere up to 45 degrees (uniform). The turns are weighed by these likelihoods and rescaled to their former
+    total, so the structure-free reading, and with it ``valid``, stays as it was.
+
+    Example:
+        >>> probs = torch.tensor([[0.4, 0.4, 0.0, 0.0, 0.2]])
+        >>> steep = weigh_by_pitch(probs, torch.tensor([30.0]), spread=15.0)[0]
+        >>> bool(steep[1] > steep[0]), round(float(steep[4]), 2)
+        (True, 0.2)
+    """
+    size = pitch.to(probs.dtype).abs()
+    level = torch.exp(-0.5 * (size / spread) ** 2) * (2.0 / (spread * (2.0 * torch.pi) ** 0.5))
+    turned = torch.where(size <= _TURNED_PITCH, 1.0 / _TURNED_PITCH, 1e-3 / _TURNED_PITCH).to(probs.dtype)
+    likelihood = torch.stack([level, turned, level, turned], -1)
+    turns = probs[:, :4] * likelihood
+    total, before = turns.sum(-1, keepdim=True), probs[:, :4].sum(-1, keepdim=True)
+    turns = torch.where(total > 0, turns * before / total.clamp_min(torch.finfo(probs.dtype).tiny), probs[:, :4])
+    return torch.cat([turns, probs[:, 4:]], -1)
 
 
 def apply_upright(result: Calibration, probs: Tensor, sure: float = 0.0) -> Calibration:

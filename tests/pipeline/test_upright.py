@@ -125,3 +125,22 @@ def test_the_prior_weighs_the_turns_and_keeps_the_structure_free_reading():
     assert float(leaning[0]) > 0.75 and abs(float(leaning.sum()) - 1) < 1e-6
     sure = upright_probabilities(_Fixed([0.01, 0.97, 0.01, 0.005, 0.005]), images, prior=0.9)[0]
     assert int(sure[:4].argmax()) == 1  # a clear reading of a turn outweighs the prior
+
+
+def test_a_steep_answer_leans_to_a_quarter_turn_and_a_level_one_to_upright():
+    from ngp_kornia.pipeline.upright_check import weigh_by_pitch
+
+    probs = torch.tensor([[0.3, 0.2, 0.1, 0.2, 0.2], [0.3, 0.2, 0.1, 0.2, 0.2]])
+    out = weigh_by_pitch(probs, torch.tensor([2.0, -30.0]), spread=15.0)
+    assert float(out[0, 0]) > 0.3 and float(out[0, 1]) < 0.2  # near level: upright is likelier than the network said
+    assert float(out[1, 0]) < 0.3 and float(out[1, 1]) > 0.2  # 30 degrees down: a quarter turn is likelier
+    assert float(out[1, 2] / out[1, 0]) == pytest.approx(1 / 3)  # 180 keeps the pitch's size: it moves with upright
+    assert torch.allclose(out[:, 4], probs[:, 4]) and torch.allclose(out.sum(-1), torch.ones(2))
+
+
+def test_the_pitch_cue_can_be_left_out():
+    image = np.rot90(render_scene(HELD_OUT + 3, (320, 240)).image).copy()
+    off = ParserConfig().replace(**{"upright.pitch_spread": 0.0})
+    with_cue, without = calibrate(image), calibrate(image, config=off)
+    assert torch.equal(with_cue.horizon, without.horizon)  # the cue changes only the check's reading
+    assert not torch.equal(with_cue.upright, without.upright)

@@ -52,7 +52,7 @@ from ngp_kornia.pipeline.segments import detect_segments
 from ngp_kornia.pipeline.settings import ParserConfig
 from ngp_kornia.pipeline.trace import ParserTrace
 from ngp_kornia.pipeline.trust import SharedInputs, attach_trust
-from ngp_kornia.pipeline.upright_check import apply_upright, upright_probabilities, weigh_by_pitch
+from ngp_kornia.pipeline.upright_check import apply_upright, read_beside, weigh_by_pitch
 
 __all__ = ["NeuralGeometricParser", "ParserConfig", "checked_segments", "pseudo_lines"]
 
@@ -135,6 +135,9 @@ class NeuralGeometricParser(nn.Module):
             low = None if segments is None else segments.float()
             out = self.forward(images.float(), low, mask, seed=seed, priors=priors, return_trace=return_trace)
             return (out[0].to(images.dtype), out[1]) if return_trace else out.to(images.dtype)
+        reading = None
+        if self.upright is not None and self.config.upright.enabled:  # read on a second core meanwhile
+            reading = read_beside(self.upright, images, self.config.upright.prior)
         segments, mask = self._segments(images, segments, mask)
         stages = {"segments": segments, "detected": mask} if return_trace else None
         weights = None
@@ -151,14 +154,13 @@ class NeuralGeometricParser(nn.Module):
 
         # the principal point and the distortion, given or estimated, around the stages (camera_model.py)
         result = calibrate_camera_model(run, images, segments, mask, priors, self.config, self.fsnet is not None)
-        if self.upright is not None and self.config.upright.enabled:
-            result = self._check_upright(result, images)
+        if reading is not None:
+            result = self._check_upright(result, reading())
         return (result, ParserTrace(**stages)) if return_trace else result
 
-    def _check_upright(self, result: Calibration, images: Tensor) -> Calibration:
-        """The orientation and structure check on the answer (pipeline/upright_check.py)."""
+    def _check_upright(self, result: Calibration, probs: Tensor) -> Calibration:
+        """The orientation and structure check's reading applied to the answer (pipeline/upright_check.py)."""
         check = self.config.upright
-        probs = upright_probabilities(self.upright, images, check.prior)
         if check.pitch_spread > 0:  # a steep answer is likelier that of a photo turned by a quarter
             probs = weigh_by_pitch(probs, result.pitch, check.pitch_spread)
         return apply_upright(result, probs, check.sure)

@@ -12,14 +12,22 @@ can turn the photo back and calibrate it again.
 
 from __future__ import annotations
 
+import os
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 
 import torch
 from torch import Tensor, nn
 
 from ngp_kornia.pipeline.result import Calibration
+from ngp_kornia.pipeline.segments import strip_threads
 
-__all__ = ["apply_upright", "upright_probabilities", "weigh_by_pitch"]
+__all__ = ["apply_upright", "read_beside", "upright_probabilities", "weigh_by_pitch"]
+
+#: one thread per process that reads the images while the caller finds the frame (a pool's thread does not
+#: survive a fork)
+_pools: dict[int, ThreadPoolExecutor] = {}
 
 
 def upright_probabilities(net: nn.Module, images: Tensor, prior: float = 0.5) -> Tensor:
@@ -41,6 +49,19 @@ def upright_probabilities(net: nn.Module, images: Tensor, prior: float = 0.5) ->
         turns = probs.new_tensor([prior, *([(1.0 - prior) / 3] * 3)]) * 4.0
         weighed = torch.cat([probs[:, :4] * turns, probs[:, 4:]], -1)
         return weighed / weighed.sum(-1, keepdim=True)
+
+
+def read_beside(net: nn.Module, images: Tensor, prior: float) -> Callable[[], Tensor]:
+    """Start :func:`upright_probabilities` on a second thread where the call may use two cores, and return the
+    function that gives its result (computed there, or here if that thread has not started on it). The same
+    computation either way: torch releases the GIL, so the reading costs no time beside the frame search."""
+    if strip_threads(2) < 2:
+        return lambda: upright_probabilities(net, images, prior)
+    pid = os.getpid()
+    if pid not in _pools:
+        _pools[pid] = ThreadPoolExecutor(max_workers=1, thread_name_prefix="ngp-upright")
+    pending = _pools[pid].submit(upright_probabilities, net, images, prior)
+    return lambda: upright_probabilities(net, images, prior) if pending.cancel() else pending.result()
 
 
 #: the largest pitch the parser answers for a photo turned by a quarter turn: its "vertical" is then a horizontal

@@ -144,3 +144,11 @@ def test_the_pitch_cue_can_be_left_out():
     with_cue, without = calibrate(image), calibrate(image, config=off)
     assert torch.equal(with_cue.horizon, without.horizon)  # the cue changes only the check's reading
     assert not torch.equal(with_cue.upright, without.upright)
+
+
+def test_the_reading_beside_the_frame_search_is_the_reading_here(shipped):
+    from ngp_kornia.pipeline.upright_check import read_beside, upright_probabilities
+
+    images = torch.rand(2, 3, 96, 128, generator=torch.Generator().manual_seed(1))
+    beside = read_beside(shipped, images, 0.5)()
+    assert torch.equal(beside, upright_probabilities(shipped, images, 0.5))  # the same computation, bit for bit

@@ -253,13 +253,17 @@ def _calibrate(args: argparse.Namespace) -> int:
 
 
 def _warn_if_turned(image: str, result, sure: float) -> None:
-    """One line on stderr where the orientation check is sure enough that the photo is turned to scale its
-    confidence (its upright probability below ``1 - sure``): the answer is that of a camera rolled that far."""
+    """One line on stderr where the orientation check is sure enough that the photo is turned to act on it (its
+    upright probability below ``1 - sure``): either the answer is the turned camera's (its roll beyond 45 degrees,
+    ``upright.turn_back``), or it is that of a camera rolled the other way and its confidence was scaled."""
     turned = 0 if result.turned is None else int(result.turned)
     if turned and bool(result.valid) and float(result.upright) < 1.0 - sure:
-        print(f"ngp: warning: {image} looks turned by {turned} degrees counter-clockwise (upright probability "
-              f"{float(result.upright):.2f}): turn it back or give it an orientation tag, then calibrate it again",
-              file=sys.stderr, flush=True)  # fmt: skip
+        head = f"ngp: warning: {image} looks turned by {turned} degrees counter-clockwise"
+        if abs(float(result.roll)) > 45.0:
+            tail = f"answered as the camera of a turned photo (roll {float(result.roll):.1f})"
+        else:
+            tail = "turn it back or give it an orientation tag, then calibrate it again"
+        print(f"{head} (upright probability {float(result.upright):.2f}): {tail}", file=sys.stderr, flush=True)
 
 
 def _calibrate_or_none(image: str, rgb: np.ndarray, args: argparse.Namespace):

@@ -65,7 +65,9 @@ class Calibration:
             not computed.
         turned: (B,) long: the image's most likely counter-clockwise turn from upright in degrees (0, 90, 180,
             270): ``np.rot90(image, -turned // 90)`` turns it back. The answer is always that of the image as
-            given, upright or not. None when not computed.
+            given, upright or not: where the check is sure of the turn, the camera of the turned photo (its roll
+            beyond 45 degrees, ``UprightSettings.turn_back``); elsewhere the camera whose up is the frame's axis
+            nearest the image's vertical. None when not computed.
     """
 
     K: Tensor

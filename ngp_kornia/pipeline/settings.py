@@ -131,12 +131,17 @@ class UprightSettings:
             confidence is scaled; below it the confidence is the lines' own (0: always scaled).
         pitch_spread: how far from level, in degrees, photos are taken: the answered pitch as a further cue, since a
             photo turned by 90 or 270 degrees is answered with a steep pitch (0: the pitch is not used).
+        turn_back: where one turn's probability is above ``sure``, answer the camera of the turned photo (the
+            frame's axis that turn puts up taken as up, so the roll is the turned camera's, beyond 45 degrees) with
+            the confidence scaled by that turn's probability, instead of the upright camera's answer with its
+            confidence scaled by ``upright`` (:func:`ngp_kornia.pipeline.upright_check.turned_answer`).
     """
 
     enabled: bool = _flag(True)
     prior: float = _number(0.5, 0.01, 0.99)
     sure: float = _number(0.995, 0.0, 1.0)
     pitch_spread: float = _number(15.0, 0.0, 90.0)
+    turn_back: bool = _flag(True)
 
     def __post_init__(self) -> None:
         check_settings(self)

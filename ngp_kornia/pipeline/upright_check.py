@@ -7,7 +7,9 @@ with no structure (noise, clouds, foliage) gives lines that support no camera at
 :class:`~ngp_kornia.nets.upright.UprightNet` reads the image's appearance and says how likely each case is; the
 answer's confidence, the probability that it is right, is multiplied by the probability that the assumption holds
 (an answer for the wrong way up is never right), and the answer reports the most likely turn, so that the caller
-can turn the photo back and calibrate it again.
+can turn the photo back and calibrate it again. Where the check is sure of one turn, the answer is turned instead
+(:func:`turned_answer`): the frame the lines found is the same whichever way the photo is held, only which of its
+axes is up changes, so the camera of the turned photo is the one whose up axis that turn points up.
 """
 
 from __future__ import annotations
@@ -20,10 +22,12 @@ from dataclasses import replace
 import torch
 from torch import Tensor, nn
 
+from ngp_kornia.geometry.camera import canonical_manhattan_rotation
+from ngp_kornia.pipeline.answer import calibration_from_camera
 from ngp_kornia.pipeline.result import Calibration
 from ngp_kornia.pipeline.segments import strip_threads
 
-__all__ = ["apply_upright", "read_beside", "upright_probabilities", "weigh_by_pitch"]
+__all__ = ["apply_upright", "read_beside", "turned_answer", "upright_probabilities", "weigh_by_pitch"]
 
 #: one thread per process that reads the images while the caller finds the frame (a pool's thread does not
 #: survive a fork)
@@ -94,14 +98,54 @@ def weigh_by_pitch(probs: Tensor, pitch: Tensor, spread: float) -> Tensor:
     return torch.cat([turns, probs[:, 4:]], -1)
 
 
-def apply_upright(result: Calibration, probs: Tensor, sure: float = 0.0) -> Calibration:
+def turned_answer(result: Calibration, turns: Tensor, use: Tensor) -> Calibration:
+    """The answer, where ``use`` (B,), for the image turned counter-clockwise by ``turns`` (B,) quarter turns from
+    upright: the frame's axis (either sign) whose direction in the image is nearest the one that turn gives the
+    scene's up (left for one quarter turn, down for two, right for three) becomes up; the frame, the focal length
+    and the principal point stay, and pitch, roll, yaw, up, zenith, horizon and VPs follow. Every other field
+    (score, confidence, standard deviations, distortion) is kept as it is.
+
+    Example:
+        >>> from ngp_kornia.pipeline.answer import calibration_from_camera
+        >>> K = torch.tensor([[[500.0, 0, 320], [0, 500, 240], [0, 0, 1]]])
+        >>> level = calibration_from_camera(K, torch.eye(3)[None], torch.ones(1), torch.ones(1, dtype=torch.bool),
+        ...                                 480, 640)
+        >>> round(float(turned_answer(level, torch.tensor([1]), torch.tensor([True])).roll), 1)
+        -90.0
+    """
+    if not bool(use.any()):
+        return result
+    R = result.R
+    angle = turns.to(R.dtype) * (torch.pi / 2)
+    want = torch.stack([-torch.sin(angle), -torch.cos(angle)], -1)  # the image direction of up, turned
+    axes = torch.cat([R, -R], -1).transpose(-1, -2)  # (B, 6, 3): each axis, either sign, as an up candidate
+    flat = axes[..., :2] / torch.linalg.vector_norm(axes[..., :2], dim=-1, keepdim=True).clamp_min(1e-12)
+    pick = (flat * want[:, None]).sum(-1).argmax(-1)
+    rows = torch.arange(len(R), device=R.device)
+    up = axes[rows, pick]
+    others = axes[rows[:, None], (pick[:, None] % 3 + torch.arange(1, 3, device=R.device)) % 3]  # (B, 2, 3)
+    frame = canonical_manhattan_rotation(torch.stack([others[:, 0], -up, others[:, 1]], -1))
+    height, width = (int(v) for v in result.image_size[0])
+    turned = calibration_from_camera(result.K, frame, result.score, result.valid, height, width)
+    fields = {
+        name: torch.where(use.reshape(-1, *[1] * (value.dim() - 1)), value, getattr(result, name))
+        for name, value in vars(turned).items()
+        if name in ("R", "pitch", "roll", "yaw", "up", "zenith", "horizon", "vps")
+    }
+    return replace(result, **fields)
+
+
+def apply_upright(result: Calibration, probs: Tensor, sure: float = 0.0, turn_back: bool = False) -> Calibration:
     """The answer with ``upright`` and ``turned`` filled in and its confidence scaled by ``upright`` where the
     probability that the image is not upright with structure is above ``sure`` (``upright < 1 - sure``).
 
     ``upright`` is the probability that the image is upright and shows structure; ``turned`` the most likely
     counter-clockwise turn of the image from upright, in degrees (0, 90, 180 or 270; 0 where no structure is the
     likeliest reading). Below ``sure`` the confidence stays the lines' own: the network reads real photos less
-    well than renders, and an upright photo it doubts wrongly would lose a confidence that was right. ``valid``
+    well than renders, and an upright photo it doubts wrongly would lose a confidence that was right. With
+    ``turn_back``, where one turn's probability is above ``sure`` the answer is that of the turned camera
+    (:func:`turned_answer`; its roll then lies beyond 45 degrees, which no upright answer has) and its confidence
+    is scaled by that turn's probability instead; not where a gravity prior says which way is up. ``valid``
     becomes False where no structure is likelier than every reading with structure: the answer then rests on no
     line evidence worth the name; it keeps what the lines gave, with confidence 0 and the standard deviations of an
     answer without a frame (90 degrees for pitch and roll, 180 for the field of view, 0 for a known focal length).
@@ -109,13 +153,16 @@ def apply_upright(result: Calibration, probs: Tensor, sure: float = 0.0) -> Cali
     probs = probs.to(result.focal.dtype)
     upright = probs[:, 0]
     structured = probs[:, :4]
-    turned = (structured.argmax(-1) * 90).long()
+    turns = structured.argmax(-1)
     valid = result.valid & (probs[:, 4] < structured.max(-1).values)
-    factor = torch.where(1.0 - upright > sure, upright, 1.0)
+    likeliest = structured.gather(-1, turns[:, None])[:, 0]
+    back = (turns > 0) & (likeliest > sure) & valid & turn_back & (result.gravity is None)
+    factor = torch.where(back, likeliest, torch.where(1.0 - upright > sure, upright, 1.0))
+    result = turned_answer(result, turns, back)
     confidence = None if result.confidence is None else torch.where(valid, result.confidence * factor, 0.0)
     stds = {}
     for name, nothing in (("pitch_std", 90.0), ("roll_std", 90.0), ("fov_v_std", 180.0)):
         std = getattr(result, name)
         if std is not None:  # a known focal length keeps its 0
             stds[name] = torch.where(valid | (std == 0), std, nothing)
-    return replace(result, valid=valid, confidence=confidence, upright=upright, turned=turned, **stds)
+    return replace(result, valid=valid, confidence=confidence, upright=upright, turned=(turns * 90).long(), **stds)

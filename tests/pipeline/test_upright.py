@@ -140,8 +140,9 @@ def test_a_steep_answer_leans_to_a_quarter_turn_and_a_level_one_to_upright():
 
 def test_the_pitch_cue_can_be_left_out():
     image = np.rot90(render_scene(HELD_OUT + 3, (320, 240)).image).copy()
-    off = ParserConfig().replace(**{"upright.pitch_spread": 0.0})
-    with_cue, without = calibrate(image), calibrate(image, config=off)
+    on = ParserConfig().replace(**{"upright.turn_back": False})
+    off = on.replace(**{"upright.pitch_spread": 0.0})
+    with_cue, without = calibrate(image, config=on), calibrate(image, config=off)
     assert torch.equal(with_cue.horizon, without.horizon)  # the cue changes only the check's reading
     assert not torch.equal(with_cue.upright, without.upright)
 
@@ -152,3 +153,75 @@ def test_the_reading_beside_the_frame_search_is_the_reading_here(shipped):
     images = torch.rand(2, 3, 96, 128, generator=torch.Generator().manual_seed(1))
     beside = read_beside(shipped, images, 0.5)()
     assert torch.equal(beside, upright_probabilities(shipped, images, 0.5))  # the same computation, bit for bit
+
+
+def _camera(pitch, roll, yaw, size=400):
+    """A square image's calibration (its centre stays where it is under a quarter turn)."""
+    from ngp_kornia.geometry.camera import rotation_from_angles
+    from ngp_kornia.pipeline.answer import calibration_from_camera
+
+    c = (size - 1) / 2
+    K = torch.tensor([[[300.0, 0.0, c], [0.0, 300.0, c], [0.0, 0.0, 1.0]]], dtype=torch.float64)
+    R = rotation_from_angles(*(torch.tensor([a], dtype=torch.float64) for a in (pitch, roll, yaw)))
+    score, valid = torch.ones(1, dtype=torch.float64), torch.ones(1, dtype=torch.bool)
+    return calibration_from_camera(K, R, score, valid, size, size)
+
+
+@pytest.mark.parametrize("turns", [1, 2, 3])
+@pytest.mark.parametrize(("pitch", "roll", "yaw"), [(0.0, 0.0, 0.0), (8.0, -3.0, 25.0), (-12.0, 6.0, -40.0)])
+def test_the_turned_answer_is_the_camera_of_the_turned_photo(turns, pitch, roll, yaw):
+    from ngp_kornia.pipeline.answer import calibration_from_camera
+    from ngp_kornia.pipeline.upright_check import turned_answer
+
+    upright = _camera(pitch, roll, yaw)
+    quarter = torch.tensor([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]], dtype=torch.float64)
+    truth = torch.linalg.matrix_power(quarter, turns) @ upright.R  # np.rot90's turn, in camera directions
+    # what the lines answer for the turned photo: the same frame, its axis nearest the image's vertical as up
+    answered = turned_answer(
+        calibration_from_camera(upright.K, truth, upright.score, upright.valid, 400, 400),
+        torch.tensor([0]),
+        torch.tensor([True]),
+    )
+    assert abs(float(answered.roll)) <= 45.0
+    out = turned_answer(answered, torch.tensor([turns]), torch.tensor([True]))
+    assert torch.allclose(out.up, -truth[:, :, 1], atol=1e-9)
+    assert float(out.pitch) == pytest.approx(pitch, abs=1e-6)
+    assert (float(out.roll) - (roll - 90.0 * turns) + 180.0) % 360.0 - 180.0 == pytest.approx(0.0, abs=1e-6)
+    true = calibration_from_camera(upright.K, truth, upright.score, upright.valid, 400, 400)
+    assert torch.allclose(out.horizon, true.horizon, atol=1e-9) and torch.allclose(out.zenith.abs(), true.zenith.abs())
+    assert torch.equal(out.K, answered.K) and torch.equal(out.score, answered.score)
+    kept = turned_answer(answered, torch.tensor([turns]), torch.tensor([False]))
+    assert torch.equal(kept.R, answered.R)
+
+
+def test_a_sure_turn_is_answered_as_turned_and_an_unsure_one_is_scaled():
+    result = _camera(5.0, 2.0, 20.0)
+    result = type(result)(**{**result.__dict__, "confidence": torch.tensor([0.9], dtype=torch.float64)})
+    sure = torch.tensor([[0.002, 0.997, 0.0005, 0.0005, 0.0]])
+    back = apply_upright(result, sure, sure=0.995, turn_back=True)
+    assert back.turned.tolist() == [90] and -135.0 < float(back.roll) < -45.0  # up points left in the image
+    columns = torch.cat([result.R, -result.R], -1)[0].T
+    assert torch.isclose(columns, back.up).all(-1).any()  # one of the frame's axes is now up
+    assert float(back.confidence) == pytest.approx(0.9 * 0.997)
+    scaled = apply_upright(result, sure, sure=0.995, turn_back=False)
+    assert float(scaled.roll) == pytest.approx(2.0) and float(scaled.confidence) == pytest.approx(0.9 * 0.002)
+    spread = apply_upright(result, torch.tensor([[0.002, 0.5, 0.4, 0.098, 0.0]]), sure=0.995, turn_back=True)
+    assert float(spread.roll) == pytest.approx(2.0)  # not upright, but no turn alone is sure: scaled, not turned
+    assert float(spread.confidence) == pytest.approx(0.9 * 0.002)
+    given = type(result)(**{**result.__dict__, "gravity": torch.tensor([[5.0, 2.0, 1.0]], dtype=torch.float64)})
+    assert float(apply_upright(given, sure, sure=0.995, turn_back=True).roll) == pytest.approx(2.0)
+
+
+def test_a_render_the_check_is_sure_of_is_calibrated_right_when_turned():
+    from ngp_kornia.geometry.camera import pitch_roll_from_up
+    from ngp_kornia.metrics import roll_error
+
+    scene = render_scene(HELD_OUT + 6, (320, 240))
+    image = np.rot90(scene.image).copy()
+    out = calibrate(image)
+    up = -torch.as_tensor(scene.R, dtype=torch.float64)[:, 1]
+    _, roll = pitch_roll_from_up(torch.stack([up[1], -up[0], up[2]])[None])  # the up of the turned photo
+    assert int(out.turned) == 90 and float(out.upright) < 0.005 and float(out.confidence) > 0.5
+    assert float(roll_error(out.roll.double().reshape(1), roll)) < 5.0
+    off = calibrate(image, config=ParserConfig().replace(**{"upright.turn_back": False}))
+    assert float(roll_error(off.roll.double().reshape(1), roll)) > 45.0 and float(off.confidence) < 0.01

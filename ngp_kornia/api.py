@@ -14,10 +14,11 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ngp_kornia.errors import NGPError, WeightsError
+from ngp_kornia.errors import NGPError, WeightsError, shown
 from ngp_kornia.io import as_batch, exif_focal, read_rgb_oriented
 from ngp_kornia.nets.weights import load_network, network_name, shipped_weights
 from ngp_kornia.pipeline import Calibration, NeuralGeometricParser, ParserConfig
+from ngp_kornia.pipeline.parser import checked_config
 from ngp_kornia.pipeline.priors import ESTIMATE, Priors, checked_seed
 from ngp_kornia.pipeline.segments import detect_segments
 from ngp_kornia.pipeline.shared_camera import (
@@ -55,6 +56,13 @@ _NAMED = {"none": (), "zsnet": ("zsnet",), "fsnet": ("fsnet",), "full": ("zsnet"
 _ALWAYS = {"LineEvidenceNet": "evidence", "UprightNet": "upright"}
 
 
+#: said where a network (a parser from load_parser(), say) is passed as a weight set
+_PARSER_HINT = (
+    "; a parser from load_parser() runs on tensors itself (parser(images)), or save its networks with "
+    "ngp_kornia.nets.weights.save_network and pass those files"
+)
+
+
 @lru_cache(maxsize=8)
 def _network(path: str) -> torch.nn.Module:
     return load_network(path, network_name(path))
@@ -70,7 +78,7 @@ def check_weights(weights: object) -> list[torch.nn.Module]:
     if weights is None or not isinstance(weights, (str, Path, list, tuple)):
         raise ValueError(
             f"weights must be one of {', '.join(WEIGHTS)} or the path of a .pt weights file (or a list of paths), "
-            f"got {weights!r}"
+            f"got {shown(weights)}{_PARSER_HINT if isinstance(weights, torch.nn.Module) else ''}"
         )
     if isinstance(weights, str) and weights == "default":
         weights = DEFAULT_WEIGHTS
@@ -79,7 +87,7 @@ def check_weights(weights: object) -> list[torch.nn.Module]:
     paths = [weights] if isinstance(weights, (str, Path)) else list(weights)
     if not paths or not all(isinstance(p, Path) or str(p).endswith(".pt") for p in paths):
         raise ValueError(
-            f"unknown weights {weights!r}; choose one of {', '.join(WEIGHTS)} or give paths to .pt weights files"
+            f"unknown weights {shown(weights)}; choose one of {', '.join(WEIGHTS)} or give paths to .pt weights files"
         )
     nets, seen = [], {}
     for path in paths:
@@ -110,7 +118,7 @@ def load_parser(
     The networks are the caller's own copies, in eval mode: training them (as a layer of a larger model) or moving
     them does not change what :func:`calibrate` computes.
     """
-    return _parser(check_weights(weights), config, copy=True)
+    return _parser(check_weights(weights), checked_config(config), copy=True)
 
 
 def _parser(nets: list[torch.nn.Module], config: ParserConfig | None, copy: bool) -> NeuralGeometricParser:
@@ -148,7 +156,7 @@ def calibrate(
             candidates scored by the shipped ZSNet), ``"fsnet"`` (frames rescored by the shipped FSNet), ``"full"``
             (both), or the path of a weights file (or a list of paths: one ZSNet and one FSNet file).
         seed: seed of the random candidate sampling; the same input and seed give the same result.
-        config: the pipeline's settings (:class:`~ngp_kornia.pipeline.settings.ParserConfig`); None for the defaults.
+        config: a :class:`~ngp_kornia.pipeline.settings.ParserConfig`, or a mapping ``{"horizon.refine": False, ...}``.
         focal: a known focal length in pixels of the input image (a prior).
         fov_v: a known vertical field of view in degrees (a prior; ``focal`` wins when both are given).
         exif: for a file without ``focal`` / ``fov_v``, use the focal length its EXIF block records
@@ -166,7 +174,7 @@ def calibrate(
     Raises:
         ImageReadError: unreadable, truncated, corrupt, too small (< 32 px), too large or NaN input.
         InputError: a seed, prior or thread count that is not one (a bool as a focal length, say).
-        ValueError: ``shared_intrinsics`` with photos of different sizes, or with ``exif``.
+        ValueError: ``shared_intrinsics`` with photos of different sizes, or with ``exif``; a bad ``config``.
         WeightsError: a missing, corrupt or mismatched weights file.
         TypeError: an input type or dtype that is not supported.
 
@@ -177,8 +185,8 @@ def calibrate(
         >>> [c.image_size.tolist() for c in calibrate([torch.rand(3, 64, 64), torch.rand(3, 48, 80)])]
         [[64, 64], [48, 80]]
     """
-    priors = Priors(focal, fov_v, gravity, gravity_std, principal_point, k1)
-    call = _Call(check_weights(weights), config or ParserConfig(), checked_seed(seed), priors, exif)
+    call = _Call(check_weights(weights), checked_config(config), checked_seed(seed),
+                 Priors(focal, fov_v, gravity, gravity_std, principal_point, k1), exif)
     return _calibrate_call(image, call, num_threads, shared_intrinsics)
 
 
@@ -186,7 +194,7 @@ def _calibrate_call(image, call: _Call, num_threads: int | None, shared_intrinsi
     """The rest of :func:`calibrate` once its weights, settings and priors are checked."""
     for name, flag in (("exif", call.exif), ("shared_intrinsics", shared_intrinsics)):
         if not isinstance(flag, bool):
-            raise TypeError(f"{name} must be True or False, got {flag!r}")
+            raise TypeError(f"{name} must be True or False, got {shown(flag)}")
     resolve_num_threads(num_threads)  # a bad count is refused before any image is read
     if shared_intrinsics:
         return calibrate_shared(image, call, num_threads)
@@ -338,8 +346,11 @@ def shared_focal(
 
     Raises:
         ValueError: photos of different sizes, or none readable.
+        TypeError: one path instead of a list of them.
     """
-    call = _Call(check_weights(weights), config or ParserConfig(), checked_seed(seed), priors or Priors(), False)
+    call = _Call(check_weights(weights), checked_config(config), checked_seed(seed), priors or Priors(), False)
+    if isinstance(images, (str, Path)) or not isinstance(images, Sequence):
+        raise TypeError(f"shared_focal() takes a list of photo paths, got {shown(images)}; for one photo: [path]")
     if not images:
         raise ValueError("shared_focal() got no images")
     with pipeline_threads(None):

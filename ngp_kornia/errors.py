@@ -21,7 +21,30 @@ __all__ = [
     "NGPError",
     "OutputError",
     "WeightsError",
+    "shown",
 ]
+
+#: the longest ``repr`` a message quotes; a longer one (a network, a large array) is named by its type
+_SHOWN_CHARS = 80
+
+
+def shown(value: object) -> str:
+    """How an error message quotes a value a caller passed: its ``repr`` where that is one short line, else its type
+    in angle brackets (with the shape of an array or tensor), so that a message stays one line whatever was passed.
+
+    Example:
+        >>> shown(0.5), shown("x" * 200)
+        ('0.5', '<str>')
+        >>> import numpy as np
+        >>> shown(np.zeros((480, 640)))
+        '<ndarray of shape (480, 640)>'
+    """
+    text = repr(value)
+    if len(text) <= _SHOWN_CHARS and "\n" not in text:
+        return text
+    shape = getattr(value, "shape", None)
+    of_shape = f" of shape {tuple(shape)}" if isinstance(shape, tuple) else ""  # torch.Size is a tuple
+    return f"<{type(value).__name__}{of_shape}>"
 
 
 class NGPError(Exception):

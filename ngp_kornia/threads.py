@@ -27,6 +27,8 @@ from typing import Any
 
 import torch
 
+from ngp_kornia.errors import shown
+
 __all__ = ["ENV_VAR", "Lookahead", "pipeline_threads", "resolve_num_threads", "usable_cores"]
 
 #: the environment variable read when a call does not say how many threads to use
@@ -55,7 +57,7 @@ def resolve_num_threads(num_threads: int | None = None) -> int:
             return _checked(int(raw), f"{ENV_VAR}={raw}")
         except ValueError:
             raise ValueError(f"{ENV_VAR}={raw!r} is not a thread count; set it to 1, 4, ... or 0") from None
-    return _checked(num_threads, f"num_threads={num_threads!r}")
+    return _checked(num_threads, f"num_threads={shown(num_threads)}")
 
 
 def _checked(count: object, source: str) -> int:

@@ -14,13 +14,14 @@ FSNet, gradients flow from the outputs to FSNet's parameters and to the image's 
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import replace
 from functools import partial
 
 import torch
 from torch import Tensor, nn
 
-from ngp_kornia.errors import InputError
+from ngp_kornia.errors import ConfigError, InputError, shown
 from ngp_kornia.geometry import (
     FrameCandidates,
     frame_manhattan_scores,
@@ -54,14 +55,50 @@ from ngp_kornia.pipeline.trace import ParserTrace
 from ngp_kornia.pipeline.trust import SharedInputs, attach_trust
 from ngp_kornia.pipeline.upright_check import apply_upright, read_beside, weigh_by_pitch
 
-__all__ = ["NeuralGeometricParser", "ParserConfig", "checked_segments", "pseudo_lines"]
+__all__ = ["NeuralGeometricParser", "ParserConfig", "checked_config", "checked_segments", "pseudo_lines"]
+
+
+def checked_config(config: object) -> ParserConfig:
+    """The settings a caller passed as ``config``: a :class:`ParserConfig`, a mapping of the settings to change
+    (keys as :meth:`ParserConfig.replace` takes them), or None for the defaults.
+
+    Raises:
+        ConfigError: anything else, or an unknown setting or bad value in the mapping.
+
+    Example:
+        >>> checked_config({"horizon.refine": False}).horizon.refine
+        False
+    """
+    if config is None:
+        return ParserConfig()
+    if isinstance(config, ParserConfig):
+        return config
+    if isinstance(config, Mapping) and all(isinstance(key, str) for key in config):
+        return ParserConfig().replace(**config)
+    raise ConfigError(
+        f"config must be a ParserConfig, a mapping of settings such as {{'horizon.refine': False}}, or None; "
+        f"got {shown(config)}"
+    )
+
+
+def _checked_call(images: object, seed: object, priors: object) -> tuple[int, Priors]:
+    """The seed and priors of a :meth:`NeuralGeometricParser.forward` call, once its images are a tensor."""
+    if not isinstance(images, Tensor):
+        raise TypeError(
+            f"images must be a (B, 3, H, W) float tensor in [0, 1], got {type(images).__name__}; "
+            "ngp_kornia.calibrate() takes files, arrays and lists"
+        )
+    if priors is not None and not isinstance(priors, Priors):
+        raise TypeError(f"priors must be a Priors, got {type(priors).__name__}")
+    return checked_seed(seed), priors or Priors()
 
 
 class NeuralGeometricParser(nn.Module):
     """Single-image calibration of a Manhattan / Atlanta-world scene.
 
     Args:
-        config: the stages' settings (:class:`~ngp_kornia.pipeline.settings.ParserConfig`).
+        config: the stages' settings (:class:`~ngp_kornia.pipeline.settings.ParserConfig`, or a mapping of the settings
+            to change).
         zsnet: a :class:`~ngp_kornia.nets.zsnet.ZSNet` scoring the zenith candidates; None weights every valid
             candidate equally (the geometric path).
         fsnet: an :class:`~ngp_kornia.nets.fsnet.FSNet` scoring the best frames; None ranks the frames by the
@@ -89,9 +126,7 @@ class NeuralGeometricParser(nn.Module):
         upright: nn.Module | None = None,
     ) -> None:
         super().__init__()
-        if config is not None and not isinstance(config, ParserConfig):
-            raise TypeError(f"config must be a ParserConfig, got {type(config).__name__}")
-        self.config = config or ParserConfig()
+        self.config = checked_config(config)
         self.zsnet = zsnet
         self.fsnet = fsnet
         self.evidence = evidence
@@ -127,10 +162,7 @@ class NeuralGeometricParser(nn.Module):
             a batched :class:`Calibration`; with ``return_trace``, the pair ``(calibration, trace)``, the trace a
             :class:`ParserTrace` of the stages (the same computation: the calibration does not change).
         """
-        seed = checked_seed(seed)
-        if priors is not None and not isinstance(priors, Priors):
-            raise TypeError(f"priors must be a Priors, got {type(priors).__name__}")
-        priors = priors or Priors()
+        seed, priors = _checked_call(images, seed, priors)
         if images.dtype in (torch.float16, torch.bfloat16):  # computed in float32, returned in the input's dtype
             low = None if segments is None else segments.float()
             out = self.forward(images.float(), low, mask, seed=seed, priors=priors, return_trace=return_trace)

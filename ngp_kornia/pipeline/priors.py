@@ -17,7 +17,7 @@ import math
 import numbers
 from dataclasses import dataclass
 
-from ngp_kornia.errors import InputError
+from ngp_kornia.errors import InputError, shown
 
 __all__ = ["DEFAULT_GRAVITY_STD", "ESTIMATE", "MAX_SEED", "Priors", "checked_seed"]
 
@@ -40,9 +40,9 @@ def checked_seed(seed: object) -> int:
         5
     """
     if isinstance(seed, bool) or not isinstance(seed, numbers.Integral):
-        raise InputError(f"seed must be an integer in [0, 2**64 - 1], got {seed!r}")
+        raise InputError(f"seed must be an integer in [0, 2**64 - 1], got {shown(seed)}")
     if not 0 <= int(seed) <= MAX_SEED:
-        raise InputError(f"seed must be in [0, 2**64 - 1], got {seed!r}")
+        raise InputError(f"seed must be in [0, 2**64 - 1], got {shown(seed)}")
     return int(seed)
 
 
@@ -56,7 +56,7 @@ def _positive(value: object, name: str, what: str, high: float = math.inf) -> fl
         except (TypeError, ValueError):
             pass
     if not (math.isfinite(number) and 0 < number < high):
-        raise InputError(f"{name} must be {what} or None, got {value!r}")
+        raise InputError(f"{name} must be {what} or None, got {shown(value)}")
     return number
 
 
@@ -70,35 +70,45 @@ def _finite(value: object) -> float:
         return math.nan
 
 
+def _pair(value: object) -> tuple[float, ...]:
+    """The numbers of a pair given as a tuple, a list, a 1-d numpy array or a 1-d tensor (NaN for a non-number;
+    an empty tuple for anything else)."""
+    if hasattr(value, "ndim") and hasattr(value, "tolist") and value.ndim == 1:
+        value = value.tolist()  # numpy arrays and tensors
+    return tuple(_finite(v) for v in value) if isinstance(value, (tuple, list)) else ()
+
+
+def _estimate(value: object) -> bool:
+    return isinstance(value, str) and value == ESTIMATE
+
+
 def _gravity(value: object) -> tuple[float, float] | None:
     if value is None:
         return None
-    pair = tuple(value) if isinstance(value, (tuple, list)) else ()
-    numbers_ = tuple(_finite(v) for v in pair)
+    numbers_ = _pair(value)
     if len(numbers_) != 2 or not all(math.isfinite(v) for v in numbers_) or not abs(numbers_[0]) < 90:
         raise InputError(
-            f"gravity must be (pitch, roll) in degrees, pitch in (-90, 90), or None; got {value!r}"
+            f"gravity must be (pitch, roll) in degrees, pitch in (-90, 90), or None; got {shown(value)}"
         )
     return numbers_
 
 
 def _principal_point(value: object) -> tuple[float, float] | str | None:
-    if value is None or value == ESTIMATE:
+    if value is None or _estimate(value):
         return value
-    pair = tuple(value) if isinstance(value, (tuple, list)) else ()
-    numbers_ = tuple(_finite(v) for v in pair)
+    numbers_ = _pair(value)
     if len(numbers_) != 2 or not all(math.isfinite(v) for v in numbers_):
-        raise InputError(f"principal_point must be (cx, cy) in pixels, 'estimate' or None; got {value!r}")
+        raise InputError(f"principal_point must be (cx, cy) in pixels, 'estimate' or None; got {shown(value)}")
     return numbers_
 
 
 def _k1(value: object) -> float | str | None:
-    if value is None or value == ESTIMATE:
+    if value is None or _estimate(value):
         return value
     number = _finite(value)
     if not -1.0 <= number <= 1.0:
         raise InputError(f"k1 must be a number in [-1, 1] (the division model's coefficient), 'estimate' or None; "
-                         f"got {value!r}")
+                         f"got {shown(value)}")
     return number
 
 
@@ -116,6 +126,7 @@ class Priors:
         gravity_std: its standard deviation per angle, degrees (:data:`DEFAULT_GRAVITY_STD` when omitted); only
             with ``gravity``.
         principal_point: ``(cx, cy)`` in pixels of the input image, ``"estimate"``, or None for the image centre.
+            Pairs (this and ``gravity``) may be tuples, lists, 1-d numpy arrays or 1-d tensors.
         k1: the division model's radial distortion (:mod:`ngp_kornia.geometry.lens`), ``"estimate"``, or None
             for a distortion-free pinhole.
 

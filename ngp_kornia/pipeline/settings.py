@@ -27,7 +27,7 @@ import re
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 
-from ngp_kornia.errors import ConfigError
+from ngp_kornia.errors import ConfigError, shown
 
 __all__ = [
     "DETECTORS",
@@ -458,11 +458,11 @@ def _checked(f: dataclasses.Field, value: object, name: str) -> object:
     meta = f.metadata
     if "flag" in meta:
         if not isinstance(value, bool):
-            raise ConfigError(f"{name} must be True or False, got {value!r}")
+            raise ConfigError(f"{name} must be True or False, got {shown(value)}")
         return value
     if "choices" in meta:
-        if value not in meta["choices"]:
-            raise ConfigError(f"{name} must be one of {', '.join(meta['choices'])}, got {value!r}")
+        if not isinstance(value, str) or value not in meta["choices"]:
+            raise ConfigError(f"{name} must be one of {', '.join(meta['choices'])}, got {shown(value)}")
         return value
     if "tuple" in meta:
         return _checked_tuple(value, name, *meta["tuple"], meta["meaning"])
@@ -474,16 +474,16 @@ def _checked_number(value: object, name: str, integer: bool, bounds: tuple) -> i
     meaning = f"in {'(' if open_low else '['}{low:g}, {high:g}{')' if open_high else ']'}"
     if integer:
         if isinstance(value, bool) or not isinstance(value, numbers.Integral):
-            raise ConfigError(f"{name} must be an integer {meaning}, got {value!r}")
+            raise ConfigError(f"{name} must be an integer {meaning}, got {shown(value)}")
         value = int(value)
     else:
         if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(value):
-            raise ConfigError(f"{name} must be a finite number {meaning}, got {value!r}")
+            raise ConfigError(f"{name} must be a finite number {meaning}, got {shown(value)}")
         value = float(value)
     below = value <= low if open_low else value < low
     above = value >= high if open_high else value > high
     if below or above:
-        raise ConfigError(f"{name} must be {'an integer' if integer else 'a number'} {meaning}, got {value!r}")
+        raise ConfigError(f"{name} must be {'an integer' if integer else 'a number'} {meaning}, got {shown(value)}")
     return value
 
 
@@ -493,5 +493,5 @@ def _checked_tuple(value: object, name: str, count: int | None, low: float, mean
         isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v) and v > low for v in value
     )
     if not ok:
-        raise ConfigError(f"{name} must be {meaning}, got {value!r}")
+        raise ConfigError(f"{name} must be {meaning}, got {shown(value)}")
     return tuple(float(v) for v in value)

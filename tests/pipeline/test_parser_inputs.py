@@ -1,5 +1,6 @@
-"""What the parser refuses and what it accepts: ParserConfig fields checked by name, half-precision images computed
-in float32 and returned in their dtype, NaN segments refused (NaN padding ignored)."""
+"""What the parser refuses and what it accepts: ParserConfig fields checked by name, what a caller passed quoted in one
+line, half-precision images computed in float32 and returned in their dtype, NaN segments refused (NaN padding
+ignored)."""
 
 import subprocess
 import sys
@@ -10,6 +11,7 @@ import pytest
 import torch
 
 from ngp_kornia import ConfigError, InputError, NeuralGeometricParser, ParserConfig, calibrate
+from ngp_kornia.api import shared_focal
 
 
 @pytest.mark.parametrize(
@@ -81,6 +83,32 @@ def test_bad_call_arguments_are_one_clear_error(kwargs, message):
         calibrate(torch.rand(3, 64, 64), **kwargs)
 
 
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [({"gravity": np.zeros(1000)}, r"gravity must be .* got <ndarray of shape \(1000,\)>$")]
+    + [({"principal_point": np.zeros(1000)}, "principal_point must be .* got <ndarray of shape")]
+    + [({"k1": torch.zeros(500)}, r"k1 must be .* got <Tensor of shape \(500,\)>$")]
+    + [({"weights": NeuralGeometricParser()}, "NeuralGeometricParser.*; a parser from load_parser")]
+    + [({"config": 5}, "config must be a ParserConfig, a mapping of settings"), ({"config": {"seed": 1}}, "'seed'")],
+)
+def test_what_a_caller_passed_is_quoted_in_one_line(kwargs, message):
+    """A network or a large array passed where a number or a name belongs is named by its type, not printed."""
+    with pytest.raises((InputError, ValueError), match=message) as err:
+        calibrate(torch.rand(3, 64, 64), **kwargs)
+    assert "\n" not in str(err.value)
+
+
+def test_pairs_and_settings_are_taken_in_the_forms_a_caller_has():
+    image = torch.rand(3, 64, 80)
+    plain = calibrate(image, principal_point=(41.0, 30.0), gravity=(2.0, -1.0))
+    for pp, gravity in ((np.array([41, 30]), torch.tensor([2.0, -1.0])), ([41, 30], np.array([2.0, -1.0]))):
+        other = calibrate(image, principal_point=pp, gravity=gravity)
+        assert torch.equal(other.K, plain.K) and torch.equal(other.R, plain.R)
+    mapped = calibrate(image, config={"horizon.refine": False})
+    built = calibrate(image, config=ParserConfig().replace(**{"horizon.refine": False}))
+    assert torch.equal(mapped.K, built.K) and torch.equal(mapped.horizon, built.horizon)
+
+
 def test_bad_seed_through_the_command_line(tmp_path):
     image = tmp_path / "x.png"
     cv2.imwrite(str(image), np.full((64, 64, 3), 100, np.uint8))
@@ -126,3 +154,15 @@ def test_nan_segments_are_refused_and_nan_padding_is_ignored():
         parser(images, poisoned, mask)
     with pytest.raises(InputError, match="without their"):
         parser(images, segments)
+
+
+def test_the_parser_takes_its_settings_as_calibrate_does_and_names_a_wrong_input():
+    mapped = NeuralGeometricParser({"horizon.refine": False})
+    assert mapped.config == ParserConfig().replace(**{"horizon.refine": False})
+    with pytest.raises(TypeError, match="images must be a \\(B, 3, H, W\\) float tensor .* got list"):
+        NeuralGeometricParser()([torch.rand(3, 64, 64)])
+
+
+def test_one_path_is_not_taken_for_a_list_of_photos():
+    with pytest.raises(TypeError, match="takes a list of photo paths, got 'x.jpg'"):
+        shared_focal("x.jpg")

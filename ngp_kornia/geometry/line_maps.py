@@ -209,12 +209,34 @@ def _cell_index(batch: int, height: int, width: int, cell: int, device: torch.de
         return (torch.arange(batch, device=device)[:, None] * ((height // cell) * (width // cell)) + index).flatten()
 
 
+def _shortened(segments: Tensor, height: int, width: int) -> Tensor:
+    """(..., 2, 2) segments with those longer than any segment inside the map can be cut to the map's rectangle
+    (one pixel around it kept): they cover the same pixels of it, and the points sampled along them stay a few
+    thousand, where a segment thrown far out (undistorted beyond the lens model's reach) would ask for billions.
+    Segments no longer than that are returned as they are, so their pixels do not change."""
+    limit = 2.0 * (height + width) + 4.0
+    d = segments[..., 1, :] - segments[..., 0, :]
+    long = torch.linalg.vector_norm(d, dim=-1) > limit
+    if not bool(long.any()):
+        return segments
+    wide = torch.float32 if segments.device.type == "mps" else torch.float64  # MPS has no float64
+    p, d = segments[..., 0, :].to(wide), d.to(wide)  # ends millions of pixels out: float32 would miss the map
+    low, high = p.new_tensor([-1.0, -1.0]), p.new_tensor([width + 0.0, height + 0.0])
+    d = torch.where(d == 0, torch.full_like(d, 1e-12), d)
+    a, b = (low - p) / d, (high - p) / d  # where each coordinate crosses the rectangle's sides (Liang-Barsky)
+    enter = torch.minimum(a, b).amax(-1).clamp(0.0, 1.0)
+    leave = torch.maximum(a, b).amin(-1).clamp(0.0, 1.0).maximum(enter)  # a segment that misses it: one point
+    cut = torch.stack([p + enter[..., None] * d, p + leave[..., None] * d], -2)
+    return torch.where(long[..., None, None], cut.to(segments.dtype), segments)
+
+
 def _segment_pixels(segments: Tensor, mask: Tensor, height: int, width: int) -> tuple[Tensor, Tensor]:
     """Every (segment, pixel) pair a drawn segment covers, once: the segment's index in the flattened (B * N)
     segments and the pixel's index in the flattened (B, H, W) maps, from points sampled about one pixel apart and
     rounded to the nearest pixel."""
     B, N = mask.shape
-    length = torch.linalg.vector_norm(segments[..., 1, :] - segments[..., 0, :], dim=-1).detach()
+    segments = _shortened(segments.detach(), height, width)
+    length = torch.linalg.vector_norm(segments[..., 1, :] - segments[..., 0, :], dim=-1)
     # sample points per image, by its own longest segment: an image's map does not depend on the rest of its batch
     longest = torch.where(mask, length, 0.0).amax(-1).ceil().long() + 2  # (B,)
     t = _steps(longest.tolist(), segments)  # (B, S)

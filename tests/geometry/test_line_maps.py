@@ -283,3 +283,12 @@ def test_rasterize_segments_equal_reference_sampling(size):
     lines, pooled = line_map_and_pooled_maps(segments, mask, values, height, width, 1)
     assert torch.equal(lines.flatten(1), (expected > 0).float())
     assert torch.equal(pooled.flatten(1), expected)
+
+
+def test_a_segment_thrown_far_out_draws_the_pixels_of_its_part_inside():
+    """Undistorting beyond the lens model's reach throws segment ends millions of pixels out: the map holds the
+    same pixels as for the segment cut at its border (sampled a few hundred times, not 2e10 times)."""
+    far = torch.tensor([[[[-1e10, 20.0], [1e10, 30.0]], [[5.0, 5.0], [50.0, 40.0]]]])
+    cut = torch.tensor([[[[-1.0, 24.9999995], [64.0, 25.0000003]], [[5.0, 5.0], [50.0, 40.0]]]])
+    mask, values = torch.ones(1, 2, dtype=torch.bool), torch.tensor([[[1.0], [2.0]]])
+    assert torch.equal(rasterize_segments(far, mask, values, 48, 64), rasterize_segments(cut, mask, values, 48, 64))

@@ -74,7 +74,10 @@ def _pair(value: object) -> tuple[float, ...]:
     """The numbers of a pair given as a tuple, a list, a 1-d numpy array or a 1-d tensor (NaN for a non-number;
     an empty tuple for anything else)."""
     if hasattr(value, "ndim") and hasattr(value, "tolist") and value.ndim == 1:
-        value = value.tolist()  # numpy arrays and tensors
+        try:
+            value = value.tolist()  # numpy arrays and tensors
+        except (RuntimeError, NotImplementedError):  # a tensor without values (on the meta device)
+            return ()
     return tuple(_finite(v) for v in value) if isinstance(value, (tuple, list)) else ()
 
 

@@ -81,7 +81,10 @@ def _parser() -> argparse.ArgumentParser:
     _add_prior_arguments(cal, truth=True)
     pred = sub.add_parser("predict", help="calibrate every image of a folder into a JSON Lines file")
     pred.add_argument("folder", help="folder of images")
-    pred.add_argument("--out", required=True, help="the .jsonl file to write: one JSON object per image")
+    pred.add_argument(
+        "-o", "--out", required=True,
+        help="the .jsonl file to write: one JSON object per image (an existing file only if it holds such rows)",
+    )
     pred.add_argument("--devices", type=int, default=1, help="CPU processes (DDP, gloo), at most one per core")
     pred.add_argument("--weights", default="default", help="a weight set as for calibrate, or a weights file")
     pred.add_argument("--recursive", action="store_true", help="also calibrate the images of sub-folders")

@@ -312,12 +312,45 @@ def _trainer(devices: int, writer: JsonlWriter, progress_bar: bool) -> L.Trainer
     )
 
 
-def _check_out(out: Path, images: ImageFolder) -> None:
+def _check_out(out: Path, images: ImageFolder) -> Path:
+    """The file the rows replace: ``out``, or the file it links to (the link stays a link). Refused: a folder, a
+    device or pipe, one of the images (by any name, hard links too), and an existing file that holds no rows of
+    ``ngp predict`` (it would be lost)."""
     if out.is_dir():
         raise OutputError(f"--out {out} is a folder; give the .jsonl file to write, e.g. {out / 'results.jsonl'}")
     target = out.resolve()
-    if any(path.resolve() == target for path in images.paths):
+    if target.exists() and not target.is_file():
+        raise OutputError(f"--out {out} is not a regular file (a device or a pipe); give a file, e.g. results.jsonl")
+    if any(path.resolve() == target or _same_file(path, target) for path in images.paths):
         raise OutputError(f"--out {out} is one of the input images; give another file, e.g. results.jsonl")
+    if target.is_file() and not _holds_rows(target):
+        raise OutputError(
+            f"--out {out} exists and holds no rows of ngp predict, so it would be lost; give another file or remove it"
+        )
+    return target
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return b.exists() and os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def _holds_rows(path: Path) -> bool:
+    """Whether a file may be replaced: empty, or its first line a row as :class:`JsonlWriter` writes them."""
+    try:
+        with path.open("rb") as f:
+            first = f.readline(1 << 20)
+    except OSError:
+        return False
+    if not first.strip():
+        return True
+    try:
+        row = json.loads(first)
+    except (ValueError, UnicodeDecodeError):
+        return False
+    return isinstance(row, dict) and "image" in row
 
 
 def cap_devices(devices: int) -> int:
@@ -357,7 +390,8 @@ def predict_folder(
 
     Args:
         folder: the folder of images.
-        out: the ``.jsonl`` file to write (replaced if it exists, once the run ends; never one of the images).
+        out: the ``.jsonl`` file to write (replaced once the run ends if it holds an earlier run's rows; never
+            one of the images, nor any other existing file).
         devices: number of processes.
         weights: a weight set name or weights file, as for :func:`ngp_kornia.calibrate`.
         recursive: also calibrate the images of sub-folders.
@@ -374,12 +408,13 @@ def predict_folder(
         FileNotFoundError: ``folder`` does not exist.
         NotADirectoryError: ``folder`` is a file.
         ValueError: no images in ``folder``, ``devices`` or ``batch_size`` below 1, unknown weights.
-        OutputError: ``out`` is one of the images, or a folder; or the run stopped on an error (a full disk, a
-            file-size limit, a process that died): the message says whether ``out`` holds the rows finished.
+        OutputError: ``out`` is one of the images, a folder, a device, or a file holding no rows of a run like this
+            (a link is followed: its file gets the rows); or the run stopped on an error (a full disk, a file-size
+            limit, a process that died): the message says whether ``out`` holds the rows finished.
     """
     _check_counts(devices, batch_size)
     images = _check_folder(Path(folder), recursive)
-    _check_out(Path(out), images)
+    out = _check_out(Path(out), images)
     devices = min(cap_devices(devices), len(images))  # Lightning's predict sampler refuses a process without an image
     cameras = folder_cameras(images, weights, seed, config, priors, exif) if same_camera else None
     module = FolderPredictor(parser := load_parser(weights, config), images.root, seed, priors, exif, cameras)

@@ -14,6 +14,9 @@ from ngp_kornia.cli import main
 from ngp_kornia.predict import merge_parts, predict_folder
 from ngp_kornia.training.synth.render import render_scene
 
+#: an earlier run's results in the file a run replaces
+OLD_RESULTS = '{"image": "earlier.png", "error": "an earlier run"}\n'
+
 
 def _write_scenes(folder, seeds):
     folder.mkdir(parents=True, exist_ok=True)
@@ -147,13 +150,41 @@ def test_out_that_is_an_input_is_refused(tmp_path, capsys):
     assert "is one of the input images" in err and err.count("\n") == 1 and image.read_bytes() == before
 
 
+def test_out_that_would_lose_a_file_of_the_users_is_refused(tmp_path, capsys):
+    folder = tmp_path / "photos"
+    _write_scenes(folder, [0])
+    notes = tmp_path / "notes.txt"
+    notes.write_text("precious\n")
+    (tmp_path / "hard.png").hardlink_to(folder / "scene00.png")
+    for out, message in ((notes, "holds no rows of ngp predict"), (tmp_path / "hard.png", "one of the input images")):
+        assert main(["predict", str(folder), "-o", str(out)]) == 1
+        err = capsys.readouterr().err
+        assert message in err and err.count("\n") == 1
+    assert notes.read_text() == "precious\n"
+    if os.path.exists("/dev/null"):
+        assert main(["predict", str(folder), "-o", "/dev/null"]) == 1
+        assert "not a regular file" in capsys.readouterr().err and os.path.exists("/dev/null")
+
+
+def test_out_that_is_a_link_gets_the_rows_in_the_file_it_links_to(tmp_path):
+    folder = tmp_path / "photos"
+    _write_scenes(folder, [0])
+    (tmp_path / "runs").mkdir()
+    real = tmp_path / "runs" / "real.jsonl"
+    real.write_text('{"image": "earlier run"}\n')
+    link = tmp_path / "latest.jsonl"
+    link.symlink_to(real)
+    assert main(["predict", str(folder), "--out", str(link)]) == 0
+    assert link.is_symlink() and [row["image"] for row in _rows(real)] == ["scene00.png"]
+
+
 def test_unrelated_part_files_and_the_old_results_survive_until_the_end(tmp_path, monkeypatch):
     from ngp_kornia import predict as predict_module
 
     folder = tmp_path / "photos"
     _write_scenes(folder, [0, 1])
     out = tmp_path / "results.jsonl"
-    out.write_text("old results\n")
+    out.write_text(OLD_RESULTS)
     unrelated = tmp_path / "results.jsonl.rank0"
     unrelated.write_text("someone else's file\n")
     seen = []
@@ -165,7 +196,7 @@ def test_unrelated_part_files_and_the_old_results_survive_until_the_end(tmp_path
 
     monkeypatch.setattr(predict_module.FolderPredictor, "calibrate", spy)
     predict_folder(folder, out)
-    assert seen == ["old results\n"] * 2 and len(_rows(out)) == 2
+    assert seen == [OLD_RESULTS] * 2 and len(_rows(out)) == 2
     assert unrelated.read_text() == "someone else's file\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["photos", "results.jsonl", "results.jsonl.rank0"]
 

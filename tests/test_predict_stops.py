@@ -20,6 +20,9 @@ from ngp_kornia.errors import OutputError
 from ngp_kornia.predict import JsonlWriter, predict_folder
 from ngp_kornia.training.synth.render import render_scene
 
+#: an earlier run's results in the file a run replaces
+OLD_RESULTS = '{"image": "earlier.png", "error": "an earlier run"}\n'
+
 
 def _photos(folder, count):
     """``count`` copies of one small scene: cheap to write, each a second or so to calibrate."""
@@ -98,7 +101,7 @@ _LIMITED = textwrap.dedent(
 @pytest.mark.parametrize("devices", [1, 2])
 def test_a_file_size_limit_leaves_no_hidden_file(tmp_path, devices):
     folder, out = _photos(tmp_path / "photos", 6), tmp_path / "results.jsonl"
-    out.write_text("old results\n")
+    out.write_text(OLD_RESULTS)
     row = len(json.dumps({"image": "scene000.png", **_one_row(folder, tmp_path)})) + 1
     command = [sys.executable, "-c", _LIMITED, str(folder), str(out), str(int(2.5 * row)), str(devices)]
     run = subprocess.run(command, capture_output=True, text=True, timeout=300)
@@ -110,7 +113,7 @@ def test_a_file_size_limit_leaves_no_hidden_file(tmp_path, devices):
         assert message.endswith(f"the {len(rows)} rows finished are in {out}") and len(rows) == 2
         assert [r["image"] for r in rows] == ["scene000.png", "scene001.png"] and all("focal" in r for r in rows)
     elif message.endswith(f"{out} is unchanged"):  # the merged rows do not fit either: the old results stay
-        assert out.read_text() == "old results\n"
+        assert out.read_text() == OLD_RESULTS
     else:  # on a busy machine one process may have finished two rows while the other had none: those fit
         rows = _rows(out)
         assert message.endswith(f"the {len(rows)} rows finished are in {out}") and 0 < len(rows) <= 2, message

@@ -159,6 +159,32 @@ def _overlay_path(target: str, image: str, many: bool) -> Path:
     return Path(target) / f"{Path(image).stem}_overlay.png"
 
 
+def _check_overlays(target: str, images: list[str], force: bool) -> None:
+    """Refuse ``--overlay`` where it names a file for several images, or where two images would write one overlay
+    (the same name in two folders): the second would replace the first within the run."""
+    if len(images) == 1:
+        return check_output(Path(target), force, images)
+    if Path(target).is_file() or (not Path(target).is_dir() and Path(target).suffix.lower() in (".png", ".jpg")):
+        raise OutputError(f"--overlay {target} names a file, but {len(images)} images were given; give a folder")
+    first: dict[Path, str] = {}
+    for image in images:
+        other = first.setdefault(_overlay_path(target, image, True), image)
+        if other != image:
+            raise OutputError(
+                f"{other} and {image} would both write {_overlay_path(target, image, True)}; calibrate them in "
+                "separate runs, or give one of them another name"
+            )
+    return None
+
+
+def _same_file(a: Path, b: str) -> bool:
+    """Whether two names are one file: the same path once links are resolved, or hard links of one file."""
+    try:
+        return a.resolve() == Path(b).resolve() or os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
 def check_output(path: Path, force: bool, inputs: list[str] = ()) -> None:
     """Refuse an output image path that OpenCV cannot write (no or unknown extension), that is one of the inputs,
     or that exists already (unless ``force``).
@@ -173,7 +199,7 @@ def check_output(path: Path, force: bool, inputs: list[str] = ()) -> None:
     if not cv2.haveImageWriter(str(path)):
         raise OutputError(f"{path}: cannot tell the image format from the extension; end the name with .png or .jpg")
     if path.exists():
-        if any(path.resolve() == Path(i).resolve() for i in inputs):
+        if any(_same_file(path, i) for i in inputs):
             raise OutputError(f"{path} is one of the input images; write the output to another file")
         if not force:
             raise OutputError(f"{path} exists; add --force to overwrite it, or choose another name")
@@ -216,10 +242,8 @@ def _calibrate(args: argparse.Namespace) -> int:
     from ngp_kornia.io import read_rgb_oriented
 
     many = len(args.images) > 1
-    if args.overlay and many and Path(args.overlay).is_file():
-        raise OutputError(f"--overlay {args.overlay} is a file; for several images give a folder")
-    if args.overlay and not many:
-        check_output(Path(args.overlay), args.force, args.images)
+    if args.overlay:
+        _check_overlays(args.overlay, args.images, args.force)
     failed, truth = 0, load_truth(args.truth)
     chunk = len(args.images) if args.same_camera else _CHUNK  # one camera: its photos are calibrated together
     for start in range(0, len(args.images), chunk):  # a few images at a time, so results come as they are done

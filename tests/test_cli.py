@@ -223,6 +223,26 @@ def test_an_input_is_never_overwritten_even_with_force(photo, capsys):
     assert err.count("is one of the input images") == 2 and photo.read_bytes() == before
 
 
+def test_a_hard_link_of_an_input_is_the_input(photo, capsys):
+    link = photo.parent / "link.png"
+    link.hardlink_to(photo)
+    before = photo.read_bytes()
+    assert main(["rectify", str(photo), "-o", str(link), "--force"]) == 1
+    assert "is one of the input images" in capsys.readouterr().err and photo.read_bytes() == before
+
+
+def test_overlays_of_several_images_never_replace_each_other(photo, tmp_path, capsys):
+    for folder in ("one", "two"):
+        (tmp_path / folder).mkdir()
+        (tmp_path / folder / "same.png").write_bytes(photo.read_bytes())
+    same = [str(tmp_path / "one" / "same.png"), str(tmp_path / "two" / "same.png")]
+    assert main(["calibrate", *same, "--overlay", str(tmp_path / "overlays")]) == 1
+    assert "would both write" in capsys.readouterr().err and not (tmp_path / "overlays").exists()
+    assert main(["calibrate", same[0], str(photo), "--overlay", str(tmp_path / "one.png")]) == 1
+    assert "names a file, but 2 images were given" in capsys.readouterr().err
+    assert not (tmp_path / "one.png").exists()
+
+
 def test_render_into_a_dataset_needs_force(tmp_path, capsys):
     assert main(["render", str(tmp_path / "set"), "--count", "1", "--size", "64x48"]) == 0
     truth = (tmp_path / "set" / "ground_truth.json").read_text()

@@ -390,8 +390,7 @@ def predict_folder(
 
     Args:
         folder: the folder of images.
-        out: the ``.jsonl`` file to write (replaced once the run ends if it holds an earlier run's rows; never
-            one of the images, nor any other existing file).
+        out: the ``.jsonl`` file to write (replaced at the end if it holds an earlier run's rows; see Raises).
         devices: number of processes.
         weights: a weight set name or weights file, as for :func:`ngp_kornia.calibrate`.
         recursive: also calibrate the images of sub-folders.
@@ -408,9 +407,8 @@ def predict_folder(
         FileNotFoundError: ``folder`` does not exist.
         NotADirectoryError: ``folder`` is a file.
         ValueError: no images in ``folder``, ``devices`` or ``batch_size`` below 1, unknown weights.
-        OutputError: ``out`` is one of the images, a folder, a device, or a file holding no rows of a run like this
-            (a link is followed: its file gets the rows); or the run stopped on an error (a full disk, a file-size
-            limit, a process that died): the message says whether ``out`` holds the rows finished.
+        OutputError: ``out`` an image, a folder, a device or a file of no rows (a link's file gets the rows); or the
+            run stopped on an error (full disk, size limit, a process died): the message says where the rows are.
     """
     _check_counts(devices, batch_size)
     images = _check_folder(Path(folder), recursive)

@@ -295,10 +295,22 @@ def _calibrate_list(images, call: _Call, num_threads: int | None) -> list[Calibr
     last = len(images) - 1
     # the next item is read and its lines detected on a second thread while the parser works on this one: the
     # same inputs as one call per item (the segments do not depend on threads), so the same results
+    results = []
     with pipeline_threads(num_threads), Lookahead(lambda i: _inputs(images[i], call)) as ahead:
-        return [
-            _calibrate_inputs(item, ahead.get(i, i + 1 if i < last else None), call) for i, item in enumerate(images)
-        ]
+        for i, item in enumerate(images):
+            try:
+                results.append(_calibrate_inputs(item, ahead.get(i, i + 1 if i < last else None), call))
+            except (NGPError, TypeError, ValueError) as err:
+                raise _naming_item(err, i) from err
+    return results
+
+
+def _naming_item(err: Exception, index: int) -> Exception:
+    """The error of one item of a list, its message naming the item (the same type, for ``except`` clauses)."""
+    try:
+        return type(err)(f"item {index} of the list: {err}")
+    except TypeError:  # an exception type that takes other arguments: as it was
+        return err
 
 
 def calibrate_shared(image, call: _Call, num_threads: int | None) -> Calibration | list[Calibration]:

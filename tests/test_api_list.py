@@ -6,7 +6,7 @@ import cv2
 import pytest
 import torch
 
-from ngp_kornia import calibrate
+from ngp_kornia import ImageReadError, calibrate
 from ngp_kornia.training.synth.render import render_scene
 
 
@@ -63,3 +63,10 @@ def test_bad_weights_are_reported_before_any_image_is_read(tmp_path):
 def test_nested_list_is_refused(items):
     with pytest.raises(TypeError, match="item 1"):
         calibrate([items[1], [items[1]]], weights="none")
+
+
+def test_a_bad_item_is_named_by_its_place_in_the_list(items):
+    with pytest.raises(ImageReadError, match=r"^item 1 of the list: image array is 3x3 pixels"):
+        calibrate([items[0], torch.zeros(3, 3, 3).numpy().astype("uint8")])
+    with pytest.raises(TypeError, match=r"^item 2 of the list: expected a path.*got NoneType"):
+        calibrate([items[0], items[0], None])

@@ -48,6 +48,10 @@ def _list_files(root: Path, recursive: bool) -> Iterator[Path]:
         yield from (Path(folder) / f for f in files if not _is_hidden(f))
 
 
+def _broken_link(path: Path) -> bool:
+    return path.is_symlink() and not path.exists()
+
+
 class ImageFolder(Sequence[tuple[Path, Tensor]]):
     """The image files of a folder as a sorted sequence of ``(path, image)``.
 
@@ -85,7 +89,8 @@ class ImageFolder(Sequence[tuple[Path, Tensor]]):
         self.recursive = bool(recursive)
         self.extensions = _normalize_extensions(extensions)
         found = (p for p in _list_files(self.root, self.recursive) if p.suffix.lower() in self.extensions)
-        self.paths: list[Path] = sorted((p for p in found if p.is_file()), key=self._sort_key)
+        # a link to nothing is listed, so its row says so instead of the image vanishing from the results
+        self.paths: list[Path] = sorted((p for p in found if p.is_file() or _broken_link(p)), key=self._sort_key)
 
     def _sort_key(self, path: Path) -> tuple[str, ...]:
         return path.relative_to(self.root).parts

@@ -114,3 +114,12 @@ def test_errors(tmp_path):
     with pytest.raises(ValueError, match="extensions"):
         ImageFolder(tmp_path, extensions=["."])
     assert len(ImageFolder(tmp_path, extensions=["gif"])) == 0
+
+
+def test_a_link_to_nothing_is_listed_and_reported(tmp_path):
+    cv2.imwrite(str(tmp_path / "a.png"), np.full((40, 40, 3), 90, np.uint8))
+    (tmp_path / "gone.png").symlink_to(tmp_path / "moved-away.png")
+    ds = ImageFolder(tmp_path)
+    assert ds.names == ["a.png", "gone.png"]
+    path, image, error = ds.safe_load(1)
+    assert image is None and "moved-away.png, which does not exist" in error

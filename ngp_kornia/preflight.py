@@ -45,6 +45,11 @@ def _installed(name: str) -> bool:
         return False
 
 
+def _listed(path: Path) -> bool:
+    """A file, or a link to nothing (listed so that its row says so)."""
+    return path.is_file() or (path.is_symlink() and not path.exists())
+
+
 def image_files(folder: Path, recursive: bool) -> Iterator[Path]:
     """The image files of a folder as :class:`~ngp_kornia.data.folder.ImageFolder` lists them (by extension,
     case-insensitive; hidden files and folders skipped; links to folders not followed), in the order found."""
@@ -52,7 +57,7 @@ def image_files(folder: Path, recursive: bool) -> Iterator[Path]:
         dirs[:] = [d for d in dirs if not d.startswith(".")] if recursive else []
         for name in files:
             path = Path(root) / name
-            if not name.startswith(".") and path.suffix.lower() in IMAGE_EXTENSIONS and path.is_file():
+            if not name.startswith(".") and path.suffix.lower() in IMAGE_EXTENSIONS and _listed(path):
                 yield path
 
 

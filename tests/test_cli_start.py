@@ -87,8 +87,10 @@ def test_light_folder_check_lists_what_image_folder_lists(tmp_path):
     for recursive in (False, True):
         listed = sorted(image_files(tmp_path, recursive))
         assert listed == ImageFolder(tmp_path, recursive=recursive).paths
-    assert [p.name for p in sorted(image_files(tmp_path, True))] == ["UPPER.JPG", "a.webp"]
+    # a link to nothing is listed: its row then says the file is gone
+    assert [p.name for p in sorted(image_files(tmp_path, True))] == ["UPPER.JPG", "broken.tif", "a.webp"]
     (tmp_path / "UPPER.JPG").unlink()
+    (tmp_path / "broken.tif").unlink()
     with pytest.raises(ValueError, match="no images found .* use --recursive"):
         check_folder(tmp_path)
     check_folder(tmp_path, recursive=True)

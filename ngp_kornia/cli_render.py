@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -15,6 +16,10 @@ from ngp_kornia.errors import OutputError
 
 __all__ = ["add_render_command", "read_render_config", "render_command"]
 
+#: the limits of :mod:`ngp_kornia.io` (``MIN_SIZE``, ``MAX_PIXELS``, which ``NGP_MAX_PIXELS`` overrides), here without
+#: importing it (and torch) so that an argument error answers at once; a test holds them equal
+MIN_SIDE = 32
+MAX_PIXELS = 2**27
 #: seconds before a progress bar appears: short runs show none
 PROGRESS_DELAY = 2.0
 
@@ -25,8 +30,16 @@ def _size(text: str) -> tuple[int, int]:
         width, height = (int(v) for v in text.lower().split("x"))
     except ValueError:
         raise argparse.ArgumentTypeError(f"must look like 640x480, got {text!r}") from None
-    if width < 1 or height < 1:
-        raise argparse.ArgumentTypeError(f"width and height must be at least 1 pixel, got {text!r}")
+    if min(width, height) < MIN_SIDE:
+        raise argparse.ArgumentTypeError(
+            f"width and height must be at least {MIN_SIDE} pixels (smaller images cannot be calibrated), got {text!r}"
+        )
+    limit = os.environ.get("NGP_MAX_PIXELS", "")
+    limit = int(limit) if limit.isdigit() and int(limit) > 0 else MAX_PIXELS
+    if width * height > limit:
+        raise argparse.ArgumentTypeError(
+            f"at most {limit:,} pixels, the largest image the parser reads, got {text!r}; e.g. 1920x1080"
+        )
     return width, height
 
 

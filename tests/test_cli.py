@@ -120,7 +120,10 @@ def test_render_bad_config_is_a_usage_error(tmp_path, capsys, text, message):
     assert not (tmp_path / "r").exists()
 
 
-@pytest.mark.parametrize("option", [["--size", "big"], ["--size", "0x480"], ["--count", "0"]])
+@pytest.mark.parametrize(
+    "option",
+    [["--size", "big"], ["--size", "0x480"], ["--size", "10x10"], ["--size", "100000x100000"], ["--count", "0"]],
+)
 def test_render_rejects_a_bad_size_or_count(tmp_path, capsys, option):
     with pytest.raises(SystemExit) as exit_info:
         main(["render", str(tmp_path / "r"), *option])
@@ -241,6 +244,12 @@ def test_overlays_of_several_images_never_replace_each_other(photo, tmp_path, ca
     assert main(["calibrate", same[0], str(photo), "--overlay", str(tmp_path / "one.png")]) == 1
     assert "names a file, but 2 images were given" in capsys.readouterr().err
     assert not (tmp_path / "one.png").exists()
+
+
+def test_the_render_size_limits_are_those_of_the_image_reader():
+    from ngp_kornia import cli_render, io
+
+    assert (cli_render.MIN_SIDE, cli_render.MAX_PIXELS) == (io.MIN_SIZE, io.MAX_PIXELS)
 
 
 def test_render_into_a_dataset_needs_force(tmp_path, capsys):

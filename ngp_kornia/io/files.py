@@ -80,6 +80,8 @@ def _open_error(path: Path, err: OSError, what: str) -> str:
     if err.errno in (errno.ENOENT, errno.ENOTDIR):
         if path.is_symlink():
             return f"{path}: file not found (a symbolic link to {os.readlink(path)}, which does not exist)"
+        if str(path).startswith("~"):
+            return f"{path}: file not found ('~' is not expanded here; pass os.path.expanduser(path))"
         return f"{path}: file not found"
     if err.errno in (errno.EACCES, errno.EPERM):
         return f"{path}: cannot read the file: Permission denied"
@@ -104,6 +106,10 @@ def open_file(path: str | Path, error: type[Exception], what: str) -> tuple[Bina
     Raises:
         error: the path does not name a readable regular file.
     """
+    if str(path) == "":
+        raise error(f"an empty path was given where {_article(what)} was expected")
+    if "://" in str(path) and not os.path.exists(path):
+        raise error(f"{path}: addresses are not downloaded; give the path of a local copy of the {what}")
     path = Path(path)
     try:
         mode = os.stat(path).st_mode

@@ -91,9 +91,9 @@ def read_image(path: str | Path, max_pixels: int | None = None) -> ImageFile:
         ImageReadError: missing, empty, too large, undecodable, truncated or corrupt files, and paths that are not
             regular files.
     """
-    path = Path(path)
     limit = globals()["max_pixels"]() if max_pixels is None else int(max_pixels)
-    file, size = open_file(path, ImageReadError, "image file")
+    file, size = open_file(path, ImageReadError, "image file")  # before Path(): it names "" and "a://b" as given
+    path = Path(path)
     with file:
         if size == 0:
             raise ImageReadError(f"{path}: file is empty")

@@ -74,3 +74,16 @@ def test_header_size_of_every_format_read(ext):
     ok, data = cv2.imencode(ext, np.zeros((37, 53, 3), np.uint8))
     assert header_size(data.tobytes()) == (37, 53)
     assert header_size(data.tobytes()[:6]) is None and header_size(b"not an image") is None
+
+
+@pytest.mark.parametrize(
+    "path, message",
+    [
+        ("", "^an empty path was given where an image file was expected$"),
+        ("~/no-such-photo.png", r"'~' is not expanded here; pass os.path.expanduser\(path\)"),
+        ("https://example.com/a.jpg", "^https://example.com/a.jpg: addresses are not downloaded"),
+    ],
+)
+def test_paths_a_user_may_mean_otherwise_are_named_as_given(path, message):
+    with pytest.raises(ImageReadError, match=message):
+        calibrate(path)

@@ -46,6 +46,11 @@ def checked_seed(seed: object) -> int:
     return int(seed)
 
 
+#: the largest focal length a prior may give, in pixels: a field of view of a few ten-thousandths of a degree, where
+#: the frame's arithmetic in float32 still holds (at 1e15 it no longer gives a rotation)
+MAX_FOCAL = 1e8
+
+
 def _positive(value: object, name: str, what: str, high: float = math.inf) -> float | None:
     if value is None:
         return None
@@ -139,7 +144,7 @@ class Priors:
         >>> Priors(focal=True)
         Traceback (most recent call last):
         ...
-        ngp_kornia.errors.InputError: focal must be a positive number of pixels or None, got True
+        ngp_kornia.errors.InputError: focal must be a number of pixels in (0, 1e8) or None, got True
     """
 
     focal: float | None = None
@@ -150,10 +155,10 @@ class Priors:
     k1: float | str | None = None
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "focal", _positive(self.focal, "focal", "a positive number of pixels"))
+        object.__setattr__(self, "focal", _positive(self.focal, "focal", "a number of pixels in (0, 1e8)", MAX_FOCAL))
         object.__setattr__(self, "fov_v", _positive(self.fov_v, "fov_v", "an angle in (0, 180) degrees", 180.0))
         object.__setattr__(self, "gravity", _gravity(self.gravity))
-        std = _positive(self.gravity_std, "gravity_std", "a positive number of degrees", 90.0)
+        std = _positive(self.gravity_std, "gravity_std", "a number of degrees in (0, 90)", 90.0)
         if std is not None and self.gravity is None:
             raise InputError("gravity_std was given without gravity; give gravity=(pitch, roll) too, or neither")
         object.__setattr__(self, "gravity_std", DEFAULT_GRAVITY_STD if std is None and self.gravity else std)

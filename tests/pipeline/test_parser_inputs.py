@@ -74,7 +74,9 @@ def test_numpy_seeds_and_the_largest_seed_are_accepted():
 
 @pytest.mark.parametrize(
     "kwargs, message",
-    [({"focal": True}, "focal must be a positive number of pixels"), ({"fov_v": 180.0}, "fov_v must be an angle")]
+    [({"focal": True}, r"focal must be a number of pixels in \(0, 1e8\)"), ({"fov_v": 180.0}, "fov_v must be an angle")]
+    + [({"focal": 1e15}, r"focal must be a number of pixels in \(0, 1e8\)")]
+    + [({"gravity": (0, 0), "gravity_std": 1e9}, r"gravity_std must be a number of degrees in \(0, 90\)")]
     + [({"focal": float("nan")}, "focal must be"), ({"num_threads": -1}, "expected a thread count")]
     + [({"weights": None}, "weights must be one of default"), ({"exif": "yes"}, "exif must be True or False")],
 )

@@ -10,7 +10,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from ngp_kornia.cli_camera import add_camera_arguments, camera_arguments, load_truth
+from ngp_kornia.cli_camera import add_camera_arguments, camera_arguments, images_after_the_point, load_truth
 from ngp_kornia.cli_options import add_setting_options, config_from_args
 from ngp_kornia.cli_render import add_render_command, render_command
 from ngp_kornia.errors import ConfigError, NGPError, OutputError
@@ -71,7 +71,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--version", action=_VersionAction, help="print the version and exit")
     sub = p.add_subparsers(dest="command", required=True)
     cal = sub.add_parser("calibrate", help="calibrate photos; prints one JSON object per image")
-    cal.add_argument("images", nargs="+", help="image files")
+    cal.add_argument("images", nargs="*", help="image files (at least one)")
     cal.add_argument("--weights", default="default", help=WEIGHTS_HELP)
     cal.add_argument("--seed", type=int, default=0, help="seed of the candidate sampling")
     cal.add_argument(
@@ -431,6 +431,8 @@ def parse(argv: list[str] | None = None) -> argparse.Namespace | int:
     """
     parser = _parser()
     args = parser.parse_args(argv)
+    if args.command == "calibrate":
+        images_after_the_point(args, parser)
     if hasattr(args, "setting:segments.working_size"):
         try:
             _config(args)

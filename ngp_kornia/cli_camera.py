@@ -15,7 +15,18 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-__all__ = ["add_camera_arguments", "camera_arguments", "load_truth"]
+__all__ = ["add_camera_arguments", "camera_arguments", "images_after_the_point", "load_truth"]
+
+
+def images_after_the_point(args: argparse.Namespace, parser: argparse.ArgumentParser) -> None:
+    """``--principal-point`` takes one or two values, and argparse gives it every word that follows, the images
+    too: what is beyond its values goes back to the images."""
+    point = args.principal_point or []
+    size = 1 if point[:1] == ["estimate"] else 2
+    if len(point) > size:
+        args.principal_point, args.images = point[:size], point[size:] + args.images
+    if not args.images:
+        parser.error("the following arguments are required: images")
 
 
 def add_camera_arguments(command: argparse.ArgumentParser, truth: bool = False) -> None:

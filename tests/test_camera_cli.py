@@ -48,6 +48,15 @@ def test_predict_same_camera_shares_per_folder(folder, tmp_path):
         predict_folder(folder, out, weights="none", same_camera=True, exif=True)
 
 
+def test_images_may_follow_the_principal_point(folder, capsys):
+    images = [str(p) for p in sorted(folder.glob("*.png"))[:2]]
+    assert main(["calibrate", "--weights", "none", "--principal-point", "161", "118", *images]) == 0
+    rows = _rows(capsys)
+    assert [r["image"] for r in rows] == images and all((r["cx"], r["cy"]) == (161.0, 118.0) for r in rows)
+    assert main(["calibrate", "--weights", "none", "--principal-point", "estimate", images[0]]) == 0
+    assert [r["image"] for r in _rows(capsys)] == images[:1]
+
+
 def test_camera_options_reach_calibrate(folder, capsys):
     image = str(sorted(folder.glob("*.png"))[0])
     assert main(["calibrate", image, "--weights", "none", "--gravity", "3", "-2", "--gravity-std", "2",

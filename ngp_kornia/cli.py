@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ngp_kornia.cli_camera import add_camera_arguments, camera_arguments, images_after_the_point, load_truth
-from ngp_kornia.cli_options import add_setting_options, config_from_args
+from ngp_kornia.cli_options import add_setting_options, config_from_args, short_usage, subcommand
 from ngp_kornia.cli_render import add_render_command, render_command
 from ngp_kornia.errors import ConfigError, NGPError, OutputError
 from ngp_kornia.preflight import check_extra, check_folder
@@ -98,6 +98,7 @@ def _parser() -> argparse.ArgumentParser:
     add_render_command(sub)
     for command in sub.choices.values():  # defaults in every --help
         command.formatter_class = _HelpFormatter
+        command.usage = short_usage(command)
     return p
 
 
@@ -432,7 +433,7 @@ def parse(argv: list[str] | None = None) -> argparse.Namespace | int:
     parser = _parser()
     args = parser.parse_args(argv)
     if args.command == "calibrate":
-        images_after_the_point(args, parser)
+        images_after_the_point(args, subcommand(parser, "calibrate"))
     if hasattr(args, "setting:segments.working_size"):
         try:
             _config(args)

@@ -16,7 +16,7 @@ import argparse
 
 from ngp_kornia.pipeline.settings import ParserConfig, setting_fields
 
-__all__ = ["add_setting_options", "config_from_args"]
+__all__ = ["add_setting_options", "config_from_args", "short_usage", "subcommand"]
 
 #: the namespace attribute prefix of the settings' options
 _PREFIX = "setting:"
@@ -62,3 +62,15 @@ def config_from_args(args: argparse.Namespace) -> ParserConfig:
         if key.startswith(_PREFIX) and value is not None
     }
     return ParserConfig().replace(**given) if given else ParserConfig()
+
+
+def subcommand(parser: argparse.ArgumentParser, name: str) -> argparse.ArgumentParser:
+    """The parser of subcommand ``name``, whose usage errors name it (``ngp calibrate: error: ...``)."""
+    return next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices[name]
+
+
+def short_usage(command: argparse.ArgumentParser) -> str:
+    """``ngp calibrate [options] images ...``: argparse's own usage lists every setting (forty lines), and prints it
+    before every usage error; ``--help`` lists the options."""
+    names = [a.dest + (" ..." if a.nargs in ("*", "+") else "") for a in command._actions if not a.option_strings]
+    return " ".join(["%(prog)s [options]", *names])

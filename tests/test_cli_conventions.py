@@ -128,3 +128,14 @@ def test_an_image_failing_inside_a_chunk_is_reported_and_the_others_still_print(
     out, err = capsys.readouterr()
     assert [json.loads(line)["image"] for line in out.splitlines()] == [str(scenes[0]), str(scenes[2])]
     assert err.strip() == f"ngp: error: {scenes[1]}: cannot calibrate this one"
+
+
+@pytest.mark.parametrize(
+    "argv", [["calibrate", "--seed", "1e3", "x.png"], ["predict", "photos", "--seed", "x"], ["rectify"], ["calibrate"]]
+)
+def test_a_usage_error_is_the_short_usage_and_one_line(argv, capsys):
+    with pytest.raises(SystemExit) as stop:
+        cli.main(argv)
+    lines = capsys.readouterr().err.splitlines()
+    assert stop.value.code == 2 and len(lines) == 2
+    assert lines[0].startswith(f"usage: ngp {argv[0]} [options]") and lines[1].startswith(f"ngp {argv[0]}: error: ")

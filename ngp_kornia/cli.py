@@ -14,7 +14,7 @@ from ngp_kornia.cli_camera import add_camera_arguments, camera_arguments, images
 from ngp_kornia.cli_options import add_setting_options, config_from_args, short_usage, subcommand
 from ngp_kornia.cli_render import add_render_command, render_command
 from ngp_kornia.errors import ConfigError, NGPError, OutputError
-from ngp_kornia.preflight import check_extra, check_folder
+from ngp_kornia.preflight import check_extra, check_folder, same_file
 
 if TYPE_CHECKING:
     import numpy as np
@@ -178,14 +178,6 @@ def _check_overlays(target: str, images: list[str], force: bool) -> None:
     return None
 
 
-def _same_file(a: Path, b: str) -> bool:
-    """Whether two names are one file: the same path once links are resolved, or hard links of one file."""
-    try:
-        return a.resolve() == Path(b).resolve() or os.path.samefile(a, b)
-    except OSError:
-        return False
-
-
 def check_output(path: Path, force: bool, inputs: list[str] = ()) -> None:
     """Refuse an output image path that OpenCV cannot write (no or unknown extension), that is one of the inputs,
     or that exists already (unless ``force``).
@@ -200,7 +192,7 @@ def check_output(path: Path, force: bool, inputs: list[str] = ()) -> None:
     if not cv2.haveImageWriter(str(path)):
         raise OutputError(f"{path}: cannot tell the image format from the extension; end the name with .png or .jpg")
     if path.exists():
-        if any(_same_file(path, i) for i in inputs):
+        if any(same_file(path, i) for i in inputs):
             raise OutputError(f"{path} is one of the input images; write the output to another file")
         if not force:
             raise OutputError(f"{path} exists; add --force to overwrite it, or choose another name")

@@ -54,7 +54,7 @@ from ngp_kornia.pipeline import Calibration, NeuralGeometricParser, ParserConfig
 from ngp_kornia.pipeline.priors import Priors, checked_seed
 from ngp_kornia.pipeline.segments import line_workers
 from ngp_kornia.pipeline.shared_camera import SharedFocal, with_shared_focal
-from ngp_kornia.preflight import check_folder
+from ngp_kornia.preflight import check_folder, same_file
 from ngp_kornia.rowfiles import count_rows, merge_parts, open_locked, remove_stale_files
 from ngp_kornia.threads import pipeline_threads, usable_cores
 
@@ -321,20 +321,13 @@ def _check_out(out: Path, images: ImageFolder) -> Path:
     target = out.resolve()
     if target.exists() and not target.is_file():
         raise OutputError(f"--out {out} is not a regular file (a device or a pipe); give a file, e.g. results.jsonl")
-    if any(path.resolve() == target or _same_file(path, target) for path in images.paths):
+    if any(same_file(path, target) for path in images.paths):
         raise OutputError(f"--out {out} is one of the input images; give another file, e.g. results.jsonl")
     if target.is_file() and not _holds_rows(target):
         raise OutputError(
             f"--out {out} exists and holds no rows of ngp predict, so it would be lost; give another file or remove it"
         )
     return target
-
-
-def _same_file(a: Path, b: Path) -> bool:
-    try:
-        return b.exists() and os.path.samefile(a, b)
-    except OSError:
-        return False
 
 
 def _holds_rows(path: Path) -> bool:

@@ -14,7 +14,7 @@ import os
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
-__all__ = ["IMAGE_EXTENSIONS", "check_extra", "check_folder", "image_files"]
+__all__ = ["IMAGE_EXTENSIONS", "check_extra", "check_folder", "image_files", "same_file"]
 
 #: the file endings of a folder's images: those of :class:`ngp_kornia.data.folder.ImageFolder`, which imports torch
 #: (a test keeps the two the same)
@@ -77,3 +77,17 @@ def check_folder(folder: str | Path, recursive: bool = False) -> None:
     if next(image_files(folder, recursive), None) is None:
         hint = "" if recursive else "; use --recursive for images in sub-folders"
         raise ValueError(f"{folder}: no images found (looked for {', '.join(IMAGE_EXTENSIONS)}){hint}")
+
+
+def same_file(a: str | Path, b: str | Path) -> bool:
+    """Whether two names are one file: the same path once links are resolved, or hard links of one file (False
+    where either cannot be looked at).
+
+    Example:
+        >>> same_file(".", "./")
+        True
+    """
+    try:
+        return Path(a).resolve() == Path(b).resolve() or os.path.samefile(a, b)
+    except OSError:
+        return False

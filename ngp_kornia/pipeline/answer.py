@@ -9,12 +9,10 @@ import torch
 from torch import Tensor
 
 from ngp_kornia.geometry import (
+    Camera,
     FrameCandidates,
-    angles_from_rotation,
     canonical_manhattan_rotation,
     dominant_eigenvector,
-    fov_from_focal,
-    horizon_from_zenith,
     image_center,
     intrinsics_matrix,
     normalize,
@@ -22,8 +20,6 @@ from ngp_kornia.geometry import (
     rotation_from_vps,
     structure_tensor,
     topk_weighted_average,
-    vanishing_points_from_rotation,
-    zenith_from_up,
 )
 from ngp_kornia.pipeline.constants import constant_tensors
 from ngp_kornia.pipeline.result import Calibration
@@ -75,33 +71,20 @@ def calibration_from_camera(
     K: Tensor, R: Tensor, score: Tensor, valid: Tensor, height: int, width: int
 ) -> Calibration:
     """The :class:`Calibration` of cameras ``K`` (B, 3, 3), ``R`` (B, 3, 3) in an image of ``height`` x ``width``:
-    up, zenith, horizon, VPs, pitch / roll / yaw and both fields of view follow from ``K`` and ``R``; ``score``
-    (B,) and ``valid`` (B,) are carried as they are."""
-    up = -R[..., :, 1]
-    zenith = zenith_from_up(K, up)
-    zenith = zenith / torch.linalg.vector_norm(zenith, dim=-1, keepdim=True)
-    pitch, roll, yaw = angles_from_rotation(R)  # its pitch and roll are those of up = -R[:, :, 1]
-    f = K[:, 0, 0]
-    size = torch.tensor([height, width], device=K.device)
-    fov_v, fov_h = fov_from_focal(f[:, None], size).unbind(-1)  # both sides at once, the same values
-    return Calibration(
-        K=K,
-        R=R,
-        focal=f,
-        fov_v=fov_v,
-        fov_h=fov_h,
-        pitch=pitch,
-        roll=roll,
-        yaw=yaw,
-        up=up,
-        zenith=zenith,
-        horizon=horizon_from_zenith(K, zenith),
-        vps=vanishing_points_from_rotation(K, R),
-        score=score,
-        valid=valid,
-        image_size=size.expand(len(f), 2),
-        exif_orientation=torch.ones(len(f), dtype=torch.long, device=K.device),  # tensors are taken as they are
-    )
+    up, zenith, horizon, VPs, pitch / roll / yaw and both fields of view follow from ``K`` and ``R``
+    (:class:`~ngp_kornia.geometry.pinhole.Camera`); ``score`` (B,) and ``valid`` (B,) are carried as they are.
+
+    Example:
+        >>> K = torch.tensor([[[500.0, 0, 319.5], [0, 500, 239.5], [0, 0, 1]]])
+        >>> cal = calibration_from_camera(K, torch.eye(3)[None], torch.ones(1), torch.ones(1, dtype=torch.bool),
+        ...                               480, 640)
+        >>> cal.horizon.tolist(), round(float(cal.fov_v), 2)
+        ([[0.0, 1.0, -239.5]], 51.28)
+    """
+    size = torch.tensor([height, width], device=K.device).expand(len(K), 2)
+    camera = Camera.from_matrix(K, R, size)
+    exif = torch.ones(len(K), dtype=torch.long, device=K.device)  # tensors are taken as they are
+    return Calibration(camera=camera, score=score, valid=valid, exif_orientation=exif)
 
 
 def _weighted_zenith_tensor(zenith: Tensor, weights: Tensor, k: int) -> Tensor:

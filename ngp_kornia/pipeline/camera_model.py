@@ -40,23 +40,20 @@ Stages = Callable[[Tensor, Tensor, Tensor, Priors, float], Calibration]
 
 
 def moved_calibration(cal: Calibration, offset: Tensor) -> Calibration:
-    """A batched calibration with its pixels moved by ``offset`` (B, 2): ``K``, zenith, VPs and horizon.
+    """A batched calibration with its pixels moved by ``offset`` (B, 2): the camera's principal point, so ``K``, the
+    zenith, VPs and horizon follow (points move as ``p + offset``).
 
-    Points move as ``p + offset``; lines ``l`` as ``T^-T l`` (their third coordinate less ``a dx + b dy``).
+    Example:
+        >>> from ngp_kornia.pipeline.answer import calibration_from_camera
+        >>> K = torch.tensor([[[500.0, 0, 319.5], [0, 500, 239.5], [0, 0, 1]]])
+        >>> level = calibration_from_camera(K, torch.eye(3)[None], torch.ones(1), torch.ones(1, dtype=torch.bool),
+        ...                                 480, 640)
+        >>> moved_calibration(level, torch.tensor([[2.0, -10.0]])).horizon.tolist()
+        [[0.0, 1.0, -229.5]]
     """
-    T = torch.eye(3, dtype=cal.K.dtype, device=cal.K.device).repeat(len(offset), 1, 1)
-    T[:, :2, 2] = offset.to(cal.K)
-    zenith = (T @ cal.zenith[..., None])[..., 0]
-    vps = cal.vps @ T.transpose(1, 2)
-    a, b, c = cal.horizon.unbind(-1)
-    horizon = torch.stack([a, b, c - a * offset[:, 0].to(a) - b * offset[:, 1].to(a)], -1)
-    return replace(
-        cal,
-        K=T @ cal.K,
-        zenith=zenith / torch.linalg.vector_norm(zenith, dim=-1, keepdim=True),
-        vps=vps / torch.linalg.vector_norm(vps, dim=-1, keepdim=True),
-        horizon=horizon,
-    )
+    params = cal.camera.params
+    shift = torch.cat([torch.zeros_like(offset), offset], -1).to(params)  # (0, 0, dx, dy): f stays
+    return replace(cal, camera=cal.camera.replace(params=params + shift))
 
 
 def _pseudo_K(centre: Tensor, height: int, width: int) -> Tensor:
@@ -142,9 +139,10 @@ def calibrate_camera_model(
     elif given:
         result = replace(result, principal_point_std=torch.zeros_like(result.K[:, :2, 2]))
     if priors.k1 == ESTIMATE:
-        result = replace(result, k1=k1_from_units(lam.to(result.focal), result.focal, height, width))
+        k1 = k1_from_units(lam.to(result.focal), result.focal, height, width)
+        result = replace(result, camera=result.camera.replace(k1=k1))
     elif priors.k1 is not None:  # given: reported as given (undistorted at the first run's focal length)
-        result = replace(result, k1=torch.full_like(result.focal, priors.k1))
+        result = replace(result, camera=result.camera.replace(k1=torch.full_like(result.focal, priors.k1)))
     return result
 
 

@@ -43,15 +43,7 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
-from ngp_kornia.geometry import (
-    angles_from_rotation,
-    canonical_manhattan_rotation,
-    fov_from_focal,
-    horizon_from_zenith,
-    pitch_roll_from_up,
-    vanishing_points_from_rotation,
-    zenith_from_up,
-)
+from ngp_kornia.geometry import Camera, canonical_manhattan_rotation, normalize, pitch_roll_from_up
 from ngp_kornia.pipeline.constants import cached
 from ngp_kornia.pipeline.horizon_support import refine_up_on_camera, support_on_camera, up_from_pitch_roll
 from ngp_kornia.pipeline.line_kernel import (
@@ -62,7 +54,6 @@ from ngp_kornia.pipeline.line_kernel import (
     scaled_camera_segments,
     scaled_focal,
     total_length,
-    unit_vectors,
 )
 from ngp_kornia.pipeline.result import Calibration
 from ngp_kornia.pipeline.settings import HorizonSettings
@@ -331,31 +322,11 @@ def _fine_search(cam, lengths, total, grid: _Grid, coarse: _Coarse, pitch_step, 
 
 def _with_up(cal: Calibration, use: Tensor, K: Tensor, up: Tensor, horizontal: Tensor) -> Calibration:
     """The calibration with, where ``use``, the up vector ``up``, the rotation from it and the horizontal VP
-    direction, and ``K``; every other field follows, so the horizon is the polar of the zenith."""
-    if not bool(use.any()):  # every frame kept (the common case): the fields the choice below would give
-        return replace(cal, K=K, focal=K[:, 0, 0], up=-cal.R[..., :, 1])
+    direction, and ``K``; every other field follows (the camera's), so the horizon is the polar of the zenith."""
+    if not bool(use.any()):  # every frame kept (the common case): K is the calibration's own
+        return cal
     down = -up
-    h = unit_vectors(horizontal - (horizontal * up).sum(-1, keepdim=True) * up)
+    h = normalize(horizontal - (horizontal * up).sum(-1, keepdim=True) * up)
     R = canonical_manhattan_rotation(torch.stack([h, down, torch.linalg.cross(h, down)], -1))
     R = torch.where(use[:, None, None], R, cal.R)
-    up = -R[..., :, 1]
-    zenith = unit_vectors(zenith_from_up(K, up))
-    pitch, roll = pitch_roll_from_up(up)
-    _, _, yaw = angles_from_rotation(R)
-    focal = K[:, 0, 0]
-    height, width = cal.image_size[:, 0].to(K), cal.image_size[:, 1].to(K)
-    return replace(
-        cal,
-        K=K,
-        focal=focal,
-        fov_v=torch.where(use, fov_from_focal(focal, height), cal.fov_v),
-        fov_h=torch.where(use, fov_from_focal(focal, width), cal.fov_h),
-        R=R,
-        up=up,
-        zenith=torch.where(use[:, None], zenith, cal.zenith),
-        horizon=torch.where(use[:, None], horizon_from_zenith(K, zenith), cal.horizon),
-        vps=torch.where(use[:, None, None], vanishing_points_from_rotation(K, R), cal.vps),
-        pitch=torch.where(use, pitch, cal.pitch),
-        roll=torch.where(use, roll, cal.roll),
-        yaw=torch.where(use, yaw, cal.yaw),
-    )
+    return replace(cal, camera=Camera.from_matrix(K, R, cal.image_size, cal.k1))

@@ -21,7 +21,6 @@ division-model distortion.
 from __future__ import annotations
 
 from collections.abc import Callable
-from functools import cached_property
 
 import torch
 from kornia.core.check import KORNIA_CHECK_SHAPE
@@ -51,6 +50,23 @@ __all__ = ["Camera"]
 
 #: the properties derived from the parameters (computed once, on first use)
 DERIVED = ("K", "fov_v", "fov_h", "up", "zenith", "horizon", "vps", "pitch", "roll", "yaw")
+
+
+def _derived(compute: Callable[[Camera], Tensor]) -> property:
+    """A property computed once from the camera's parameters and kept; not kept where it was computed without
+    autograd from parameters that require grad (``torch.no_grad()`` inside a stage), so a later use outside has its
+    gradient."""
+    name = compute.__name__
+
+    def get(self: Camera) -> Tensor:
+        if name in self.__dict__:
+            return self.__dict__[name]
+        value = compute(self)
+        if self._keeps():
+            self.__dict__[name] = value
+        return value
+
+    return property(get, doc=compute.__doc__)
 
 
 class Camera:
@@ -204,60 +220,60 @@ class Camera:
 
     # --- derived ---
 
-    @cached_property
+    @_derived
     def K(self) -> Tensor:
         """(B, 3, 3) intrinsics ``[[f_x, 0, c_x], [0, f_y, c_y], [0, 0, 1]]`` (kornia's ``PinholeModel.matrix()``)."""
         return self.intrinsics.matrix()
 
-    @cached_property
+    @_derived
     def fov_v(self) -> Tensor:
         """(B,) vertical field of view, degrees."""
         return self._fovs[..., 0]
 
-    @cached_property
+    @_derived
     def fov_h(self) -> Tensor:
         """(B,) horizontal field of view, degrees."""
         return self._fovs[..., 1]
 
-    @cached_property
+    @_derived
     def _fovs(self) -> Tensor:
         return fov_from_focal(self.focal[..., None], self._image_size)  # both sides at once, the same values
 
-    @cached_property
+    @_derived
     def up(self) -> Tensor:
         """(B, 3) unit up vector in camera coordinates, ``-R[:, :, 1]``."""
         return up_from_rotation(self._R)
 
-    @cached_property
+    @_derived
     def zenith(self) -> Tensor:
         """(B, 3) homogeneous zenith VP ``K @ up`` in pixels, unit norm (third coordinate 0 when at infinity)."""
         return normalize(zenith_from_up(self.K, self.up))
 
-    @cached_property
+    @_derived
     def horizon(self) -> Tensor:
         """(B, 3) horizon line ``(a, b, c)`` in pixels, ``a^2 + b^2 = 1``, ``b >= 0``."""
         return horizon_from_zenith(self.K, self.zenith)
 
-    @cached_property
+    @_derived
     def vps(self) -> Tensor:
         """(B, 3, 3) the three Manhattan VPs, homogeneous pixels, unit norm; row ``i`` is world axis ``i``'s."""
         return vanishing_points_from_rotation(self.K, self._R)
 
-    @cached_property
+    @_derived
     def _angles(self) -> tuple[Tensor, Tensor, Tensor]:
         return angles_from_rotation(self._R)
 
-    @cached_property
+    @_derived
     def pitch(self) -> Tensor:
         """(B,) degrees, > 0 looking up."""
         return self._angles[0]
 
-    @cached_property
+    @_derived
     def roll(self) -> Tensor:
         """(B,) degrees, > 0 when the scene's up leans right in the image."""
         return self._angles[1]
 
-    @cached_property
+    @_derived
     def yaw(self) -> Tensor:
         """(B,) degrees, relative to world z."""
         return self._angles[2]
@@ -279,9 +295,15 @@ class Camera:
         if not self.batched:
             raise TypeError("an unbatched Camera cannot be indexed")
         out = self.apply(lambda t: t[index])
-        for name in DERIVED:  # computed on the batch, as one call computes them, then indexed
-            out.__dict__[name] = getattr(self, name)[index]
+        if self._keeps():
+            for name in DERIVED:  # computed on the batch, as one call computes them, then indexed
+                out.__dict__[name] = getattr(self, name)[index]
         return out
+
+    def _keeps(self) -> bool:
+        """Whether derived values may be kept: autograd is on, or no parameter requires grad."""
+        tensors = (self._params, self._R) if self._k1 is None else (self._params, self._R, self._k1)
+        return torch.is_grad_enabled() or not any(t.requires_grad for t in tensors)
 
     def apply(self, fn: Callable[[Tensor], Tensor]) -> Camera:
         """A camera of ``fn`` applied to every parameter tensor (``params``, ``R``, ``image_size``, ``k1``)."""

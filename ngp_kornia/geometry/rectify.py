@@ -22,6 +22,7 @@ from kornia.geometry.conversions import convert_points_to_homogeneous
 from kornia.geometry.transform import remap, warp_perspective
 from torch import Tensor
 
+from ngp_kornia.geometry.camera import image_center
 from ngp_kornia.geometry.lens import distort_points, undistort_points
 
 __all__ = ["frontal_homography", "level_homography", "rectify", "upright_homography"]
@@ -318,7 +319,8 @@ def _output_frame(
         out_h, out_w = int(size[0]), int(size[1])
         scale = torch.minimum(out_w / box[:, 0], out_h / box[:, 1])
     z, o = torch.zeros_like(scale), torch.ones_like(scale)
-    tx = (out_w - 1) / 2.0 - scale * centre[:, 0]
-    ty = (out_h - 1) / 2.0 - scale * centre[:, 1]
+    middle = image_center(out_h, out_w, like=scale)
+    tx = middle[0] - scale * centre[:, 0]
+    ty = middle[1] - scale * centre[:, 1]
     frame = torch.stack([scale, z, tx, z, scale, ty, z, z, o], -1).reshape(-1, 3, 3)
     return frame, out_h, out_w

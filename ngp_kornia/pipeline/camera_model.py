@@ -26,7 +26,7 @@ import torch
 from kornia.geometry.transform import remap
 from torch import Tensor
 
-from ngp_kornia.geometry import distort_points, image_center, undistort_points
+from ngp_kornia.geometry import distort_points, image_center, pseudo_intrinsics, undistort_points
 from ngp_kornia.pipeline.distortion import estimate_distortion, k1_from_units, units_from_k1
 from ngp_kornia.pipeline.principal_point import estimate_principal_point
 from ngp_kornia.pipeline.priors import ESTIMATE, Priors
@@ -56,21 +56,13 @@ def moved_calibration(cal: Calibration, offset: Tensor) -> Calibration:
     return replace(cal, camera=cal.camera.replace(params=params + shift))
 
 
-def _pseudo_K(centre: Tensor, height: int, width: int) -> Tensor:
-    """Intrinsics (B, 3, 3) whose focal length is half the long side: rays in pseudo-camera units about ``centre``."""
-    K = torch.eye(3, dtype=centre.dtype, device=centre.device).repeat(len(centre), 1, 1)
-    K[:, 0, 0] = K[:, 1, 1] = max(height, width) / 2.0
-    K[:, :2, 2] = centre
-    return K
-
-
 def _moved_segments(segments: Tensor, point: Tensor, lam: Tensor | None, height: int, width: int) -> Tensor:
     """The segments undistorted about ``point`` (B, 2) by ``lam`` (B,) pseudo units, then moved so that ``point``
     lands on the image centre."""
     B, N = segments.shape[:2]
     flat = segments.reshape(B, 2 * N, 2)
     if lam is not None:
-        flat = undistort_points(flat, _pseudo_K(point.to(flat), height, width), lam.to(flat))
+        flat = undistort_points(flat, pseudo_intrinsics(height, width, flat, point), lam.to(flat))
     shift = image_center(height, width, like=flat) - point.to(flat)
     return (flat + shift[:, None]).reshape(segments.shape)
 
@@ -87,7 +79,7 @@ def _moved_images(images: Tensor, point: Tensor, lam: Tensor | None) -> Tensor:
     shift = image_center(height, width, like=grid) - point.to(grid)
     source = grid - shift[:, None]
     if lam is not None:
-        source = distort_points(source, _pseudo_K(point.to(grid), height, width), lam.to(grid))
+        source = distort_points(source, pseudo_intrinsics(height, width, grid, point), lam.to(grid))
     source = source.reshape(B, height, width, 2)
     return remap(images, source[..., 0], source[..., 1], align_corners=True)
 

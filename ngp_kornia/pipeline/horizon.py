@@ -43,13 +43,12 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
-from ngp_kornia.geometry import Camera, canonical_manhattan_rotation, normalize, pitch_roll_from_up
+from ngp_kornia.geometry import Camera, canonical_manhattan_rotation, normalize, pitch_roll_from_up, segment_lengths
 from ngp_kornia.pipeline.constants import cached
 from ngp_kornia.pipeline.horizon_support import refine_up_on_camera, support_on_camera, up_from_pitch_roll
 from ngp_kornia.pipeline.line_kernel import (
     CameraSegments,
     camera_segments_at_scales,
-    masked_lengths,
     scale_constants,
     scaled_camera_segments,
     scaled_focal,
@@ -163,7 +162,7 @@ def _search_horizon(
     seg = segments.to(cal.K.dtype)
     # the frame's focal length first; with a known focal length only that one
     scales = [1.0] + ([] if known_focal else [x for x in settings.focal_scales if x != 1.0])
-    (cam, cam_s), lengths = camera_segments_at_scales(seg, cal.K, scales), masked_lengths(seg, mask)
+    (cam, cam_s), lengths = camera_segments_at_scales(seg, cal.K, scales), segment_lengths(seg, mask)
     if weights is not None:
         lengths = lengths * weights.to(lengths)
     s = settings

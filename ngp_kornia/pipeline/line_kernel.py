@@ -15,6 +15,7 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
+from ngp_kornia.geometry import normalize
 from ngp_kornia.pipeline.constants import cached, numbers_like
 
 __all__ = [
@@ -24,20 +25,13 @@ __all__ = [
     "camera_segments_at_scales",
     "camera_terms",
     "closeness_kernel",
-    "masked_lengths",
     "near_direction",
     "scale_constants",
     "scaled_camera_segments",
     "scaled_focal",
     "squared_sines",
     "total_length",
-    "unit_vectors",
 ]
-
-
-def unit_vectors(v: Tensor) -> Tensor:
-    """Unit vectors along the last dim; a zero vector stays zero (its norm is clamped to tiny^0.5)."""
-    return v / torch.linalg.vector_norm(v, dim=-1, keepdim=True).clamp_min(torch.finfo(v.dtype).tiny ** 0.5)
 
 
 class CameraSegments(NamedTuple):
@@ -88,7 +82,7 @@ def camera_points(segments: Tensor, K: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     cam = cam / cam[..., 2:]  # (x, y, 1): z / z is exactly 1
     xy = cam[..., :2]
     mid, direction = xy.mean(-2), xy[..., 1, :] - xy[..., 0, :]
-    return mid, direction, unit_vectors(torch.linalg.cross(cam[..., 0, :], cam[..., 1, :]))
+    return mid, direction, normalize(torch.linalg.cross(cam[..., 0, :], cam[..., 1, :]))
 
 
 def _ratio(cam: CameraSegments, vps: Tensor, inplace: bool = False) -> tuple[Tensor, Tensor]:
@@ -174,10 +168,6 @@ def near_direction(cam: CameraSegments, up: Tensor, bound: float) -> Tensor:
         return (torch.div(num, den, out=num)[:, 0] <= bound_t) & (den[:, 0] > tiny)
 
 
-def masked_lengths(segments: Tensor, mask: Tensor) -> Tensor:
-    return torch.linalg.vector_norm(segments[..., 1, :] - segments[..., 0, :], dim=-1) * mask.to(segments)
-
-
 def total_length(lengths: Tensor) -> Tensor:
     """The total segment length (B, 1), at least tiny^0.5 (the support's denominator)."""
     return lengths.sum(-1, keepdim=True).clamp_min(torch.finfo(lengths.dtype).tiny ** 0.5)
@@ -201,7 +191,7 @@ def scaled_camera_segments(cam: CameraSegments, inv: Tensor, stretch: Tensor) ->
 
 def _scaled(mid: Tensor, direction: Tensor, normals: Tensor, inv: Tensor, stretch: Tensor) -> CameraSegments:
     mid_s, direction_s = (mid * inv).flatten(0, 1), (direction * inv).flatten(0, 1)
-    return camera_terms(mid_s, direction_s, unit_vectors((normals * stretch).flatten(0, 1)))
+    return camera_terms(mid_s, direction_s, normalize((normals * stretch).flatten(0, 1)))
 
 
 def camera_segments_at_scales(

@@ -15,6 +15,7 @@ from torch import Tensor
 
 from ngp_kornia.geometry import (
     fov_from_focal,
+    image_center,
     pitch_roll_from_up,
     pseudo_focal,
     segment_lengths,
@@ -110,7 +111,7 @@ def _frame_horizons(frames: FrameCandidates, height: int, width: int) -> Tensor:
     z = frames.zenith
     ab = z[..., :2] / (f**2)[..., None]
     pf = pseudo_focal(height, width)
-    cx, cy = (width - 1) / 2.0, (height - 1) / 2.0
+    cx, cy = image_center(height, width, like=ab)
     a, b = ab.unbind(-1)
     return torch.cat([ab / pf, (z[..., 2] - (cx * a + cy * b) / pf)[..., None]], -1)
 
@@ -265,7 +266,7 @@ def _line_support(
     """Line-length shares (B, 3) of each of the (B, 3, 3) VPs, and (B,) the Manhattan share of all three."""
     if shared is None:
         lines = segments_to_lines(to_pseudo_camera(segments, height, width))
-        lengths = segment_lengths(segments) * mask.to(segments)
+        lengths = segment_lengths(segments, mask)
     else:
         lines, lengths = shared.lines, shared.lengths
     close = sharp_closeness(lines, vps, kernel_angle)  # (B, 3, N)

@@ -170,3 +170,13 @@ def test_shapes_are_checked():
         Camera(camera.params[:, :3], camera.R, camera.image_size)
     with pytest.raises(TypeError, match="unbatched"):
         camera[0][0]
+
+
+def test_a_value_first_read_without_autograd_keeps_its_gradient_after():
+    camera = _camera()
+    params = camera.params.clone().requires_grad_()
+    camera = camera.replace(params=params)
+    with torch.no_grad():
+        assert not camera.horizon.requires_grad and not camera[0].zenith.requires_grad
+    camera.horizon.sum().backward()  # read again with autograd on: computed again, with its graph
+    assert params.grad is not None and bool(params.grad.abs().sum() > 0)

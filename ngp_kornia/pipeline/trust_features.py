@@ -14,13 +14,13 @@ import torch
 from torch import Tensor
 
 from ngp_kornia.geometry import (
+    closeness,
     fov_from_focal,
     image_center,
     pitch_roll_from_up,
     pseudo_focal,
     segment_lengths,
     segments_to_lines,
-    sharp_closeness,
     to_pseudo_camera,
     topk_weighted_average,
 )
@@ -269,7 +269,7 @@ def _line_support(
         lengths = segment_lengths(segments, mask)
     else:
         lines, lengths = shared.lines, shared.lengths
-    close = sharp_closeness(lines, vps, kernel_angle)  # (B, 3, N)
+    close = closeness(lines, vps, kernel_angle)  # (B, 3, N)
     total = lengths.sum(-1).clamp_min(1e-9)
     shares = (close * lengths[:, None]).sum(-1) / total[:, None]
     return shares, (close.amax(1) * lengths).sum(-1) / total

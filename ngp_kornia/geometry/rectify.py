@@ -18,6 +18,7 @@ import math
 
 import torch
 from kornia.core.check import KORNIA_CHECK, KORNIA_CHECK_SHAPE
+from kornia.geometry import create_meshgrid
 from kornia.geometry.conversions import convert_points_to_homogeneous
 from kornia.geometry.transform import remap, warp_perspective
 from torch import Tensor
@@ -283,12 +284,7 @@ def _undistorting_warp(images: Tensor, applied: Tensor, size: tuple[int, int], K
     """The images sampled at every output pixel taken back through ``applied`` and distorted (bilinear, zeros
     outside)."""
     B, (out_h, out_w) = images.shape[0], size
-    ys, xs = torch.meshgrid(
-        torch.arange(out_h, dtype=images.dtype, device=images.device),
-        torch.arange(out_w, dtype=images.dtype, device=images.device),
-        indexing="ij",
-    )
-    grid = torch.stack([xs, ys], -1).reshape(1, -1, 2).expand(B, -1, 2)
+    grid = create_meshgrid(out_h, out_w, False, images.device, images.dtype).reshape(1, -1, 2).expand(B, -1, 2)
     back, _ = _project(torch.linalg.inv(applied), grid)
     source = distort_points(back, K, k1).reshape(B, out_h, out_w, 2)
     return remap(images, source[..., 0], source[..., 1], align_corners=True)

@@ -21,6 +21,7 @@ from __future__ import annotations
 import math
 
 import torch
+from kornia.geometry.conversions import pol2cart
 from torch import Tensor
 
 from ngp_kornia.geometry import image_center, pseudo_focal, segment_vp_angle
@@ -144,7 +145,7 @@ def sphere_directions(count: int = _SPHERE_BINS) -> Tensor:
     z = 1.0 - k / count
     phi = k * math.pi * (3.0 - math.sqrt(5.0))
     r = (1.0 - z * z).sqrt()
-    return torch.stack([r * phi.cos(), r * phi.sin(), z], -1).float()
+    return torch.stack([*pol2cart(r, phi), z], -1).float()
 
 
 _BINS = sphere_directions()

@@ -23,6 +23,7 @@ from collections.abc import Callable
 from dataclasses import replace
 
 import torch
+from kornia.geometry import create_meshgrid
 from kornia.geometry.transform import remap
 from torch import Tensor
 
@@ -70,12 +71,7 @@ def _moved_segments(segments: Tensor, point: Tensor, lam: Tensor | None, height:
 def _moved_images(images: Tensor, point: Tensor, lam: Tensor | None) -> Tensor:
     """The images warped as :func:`_moved_segments` moves the segments (bilinear, zeros outside)."""
     B, _, height, width = images.shape
-    ys, xs = torch.meshgrid(
-        torch.arange(height, dtype=images.dtype, device=images.device),
-        torch.arange(width, dtype=images.dtype, device=images.device),
-        indexing="ij",
-    )
-    grid = torch.stack([xs, ys], -1).reshape(1, -1, 2).expand(B, -1, 2)
+    grid = create_meshgrid(height, width, False, images.device, images.dtype).reshape(1, -1, 2).expand(B, -1, 2)
     shift = image_center(height, width, like=grid) - point.to(grid)
     source = grid - shift[:, None]
     if lam is not None:

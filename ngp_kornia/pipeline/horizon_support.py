@@ -11,6 +11,7 @@ import math
 
 import torch
 import torch.nn.functional as F
+from kornia.geometry.conversions import pol2cart
 from torch import Tensor
 
 from ngp_kornia.geometry import normalize, segment_lengths
@@ -215,7 +216,7 @@ def _bin_angles(bins: int, like: Tensor) -> Tensor:
 
     def build() -> Tensor:
         angle = (torch.arange(bins, device=like.device).to(like) + 0.5) * (math.pi / bins)
-        return torch.stack([torch.cos(angle), torch.sin(angle)], -1)
+        return torch.stack(pol2cart(torch.ones_like(angle), angle), -1)
 
     return cached(("bins", bins, like.dtype, like.device), build)
 

@@ -13,6 +13,8 @@ import math
 from typing import NamedTuple
 
 import torch
+from kornia.geometry.conversions import convert_points_to_homogeneous
+from kornia.geometry.linalg import transform_points
 from torch import Tensor
 
 from ngp_kornia.geometry import normalize
@@ -76,11 +78,9 @@ def camera_segments(segments: Tensor, K: Tensor) -> CameraSegments:
 
 def camera_points(segments: Tensor, K: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     """The midpoints, directions and unit plane normals of :func:`camera_segments`."""
-    ones = segments.new_ones(*segments.shape[:-1], 1)
-    pts = torch.cat([segments, ones], -1)  # (B, N, 2, 3)
-    cam = torch.bmm(pts.flatten(1, 2), torch.linalg.inv(K).transpose(-1, -2)).view_as(pts)
-    cam = cam / cam[..., 2:]  # (x, y, 1): z / z is exactly 1
-    xy = cam[..., :2]
+    # kornia's transform_points divides by K^-1's z, which is exactly 1 (K^-1's last row is exactly (0, 0, 1))
+    xy = transform_points(torch.linalg.inv(K), segments.flatten(1, 2)).view_as(segments)
+    cam = convert_points_to_homogeneous(xy)  # (B, N, 2, 3): (x, y, 1)
     mid, direction = xy.mean(-2), xy[..., 1, :] - xy[..., 0, :]
     return mid, direction, normalize(torch.linalg.cross(cam[..., 0, :], cam[..., 1, :]))
 

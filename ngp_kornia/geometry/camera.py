@@ -25,6 +25,7 @@ from __future__ import annotations
 import torch
 from kornia.core.check import KORNIA_CHECK, KORNIA_CHECK_SHAPE
 from kornia.geometry.liegroup import So3
+from kornia.geometry.linalg import batched_dot_product
 from kornia.image import ImageSize
 from kornia.sensors.camera import PinholeModel
 from torch import Tensor
@@ -44,6 +45,7 @@ __all__ = [
     "pinhole_model",
     "pitch_roll_from_up",
     "rotation_from_angles",
+    "rotation_from_up",
     "rotation_from_vps",
     "up_from_rotation",
     "up_from_zenith",
@@ -407,9 +409,30 @@ def rotation_from_vps(K: Tensor, zenith: Tensor, horizontal: Tensor) -> Tensor:
     Returns:
         (B, 3, 3) rotation matrices.
     """
-    up = up_from_zenith(K, zenith)
-    h = torch.linalg.solve(K, horizontal.unsqueeze(-1)).squeeze(-1)
-    h = normalize(h - (h * up).sum(-1, keepdim=True) * up)
+    return rotation_from_up(up_from_zenith(K, zenith), torch.linalg.solve(K, horizontal.unsqueeze(-1)).squeeze(-1))
+
+
+def rotation_from_up(up: Tensor, horizontal: Tensor) -> Tensor:
+    """World-to-camera rotation of a Manhattan frame from its up vector and a horizontal direction, both in camera
+    coordinates: world y = down exactly, world x = the horizontal direction made orthogonal to up (so a slightly
+    non-orthogonal pair still yields a rotation), world z = x cross y.
+
+    Args:
+        up: (B, 3) unit up vectors.
+        horizontal: (B, 3) horizontal directions (any length).
+
+    Returns:
+        (B, 3, 3) rotation matrices.
+
+    Example:
+        >>> rotation_from_up(torch.tensor([[0.0, -1.0, 0.0]]), torch.tensor([[2.0, 0.1, 0.0]]))
+        tensor([[[1., 0., 0.],
+                 [0., 1., 0.],
+                 [0., 0., 1.]]])
+    """
+    KORNIA_CHECK_SHAPE(up, ["*", "3"])
+    KORNIA_CHECK_SHAPE(horizontal, ["*", "3"])
+    h = normalize(horizontal - batched_dot_product(horizontal, up, keepdim=True) * up)
     down = -up
     return torch.stack([h, down, torch.linalg.cross(h, down)], -1)
 

@@ -19,6 +19,7 @@ from __future__ import annotations
 import torch
 from kornia.core.check import KORNIA_CHECK_SHAPE
 from kornia.geometry.conversions import denormalize_points_with_intrinsics, normalize_points_with_intrinsics
+from kornia.geometry.linalg import squared_norm
 from torch import Tensor
 
 __all__ = ["distort_points", "opencv_radial", "undistort_points"]
@@ -44,7 +45,7 @@ def undistort_points(points: Tensor, K: Tensor, k1: Tensor) -> Tensor:
     KORNIA_CHECK_SHAPE(points, ["B", "N", "2"])
     KORNIA_CHECK_SHAPE(K, ["B", "3", "3"])
     x = normalize_points_with_intrinsics(points, K)
-    scale = 1.0 + k1.to(x)[:, None, None] * x.square().sum(-1, keepdim=True)
+    scale = 1.0 + k1.to(x)[:, None, None] * squared_norm(x, keepdim=True)
     return denormalize_points_with_intrinsics(x / scale.clamp_min(1e-6), K)
 
 
@@ -70,7 +71,7 @@ def distort_points(points: Tensor, K: Tensor, k1: Tensor) -> Tensor:
     KORNIA_CHECK_SHAPE(points, ["B", "N", "2"])
     KORNIA_CHECK_SHAPE(K, ["B", "3", "3"])
     x = normalize_points_with_intrinsics(points, K)
-    r2 = x.square().sum(-1, keepdim=True)
+    r2 = squared_norm(x, keepdim=True)
     root = (1.0 - 4.0 * k1.to(x)[:, None, None] * r2).clamp_min(0.0).sqrt()
     return denormalize_points_with_intrinsics(x * (2.0 / (1.0 + root)), K)
 

@@ -52,6 +52,10 @@ __all__ = ["Camera"]
 DERIVED = ("K", "fov_v", "fov_h", "up", "zenith", "horizon", "vps", "pitch", "roll", "yaw")
 
 
+#: dtypes whose derived values are computed in float32 (torch has no half-precision solve), then cast back
+_HALF = (torch.float16, torch.bfloat16)
+
+
 def _derived(compute: Callable[[Camera], Tensor]) -> property:
     """A property computed once from the camera's parameters and kept; not kept where it was computed without
     autograd from parameters that require grad (``torch.no_grad()`` inside a stage), so a later use outside has its
@@ -61,7 +65,12 @@ def _derived(compute: Callable[[Camera], Tensor]) -> property:
     def get(self: Camera) -> Tensor:
         if name in self.__dict__:
             return self.__dict__[name]
-        value = compute(self)
+        if self._params.dtype in _HALF:
+            k1 = None if self._k1 is None else self._k1.float()
+            single = Camera(self._params.float(), self._R.float(), self._image_size, k1)
+            value = getattr(single, name).to(self._params.dtype)
+        else:
+            value = compute(self)
         if self._keeps():
             self.__dict__[name] = value
         return value
@@ -294,11 +303,7 @@ class Camera:
         indexed."""
         if not self.batched:
             raise TypeError("an unbatched Camera cannot be indexed")
-        out = self.apply(lambda t: t[index])
-        if self._keeps():
-            for name in DERIVED:  # computed on the batch, as one call computes them, then indexed
-                out.__dict__[name] = getattr(self, name)[index]
-        return out
+        return self.apply(lambda t: t[index])
 
     def _keeps(self) -> bool:
         """Whether derived values may be kept: autograd is on, or no parameter requires grad."""
@@ -306,9 +311,15 @@ class Camera:
         return torch.is_grad_enabled() or not any(t.requires_grad for t in tensors)
 
     def apply(self, fn: Callable[[Tensor], Tensor]) -> Camera:
-        """A camera of ``fn`` applied to every parameter tensor (``params``, ``R``, ``image_size``, ``k1``)."""
+        """A camera of ``fn`` applied to every parameter tensor (``params``, ``R``, ``image_size``, ``k1``): a map
+        of the batch's layout, device or dtype (index, stack, move, cast, clone), which is applied to the derived
+        values too, so they stay those of the camera they came from (a batch's, indexed; float32's, cast)."""
         k1 = None if self._k1 is None else fn(self._k1)
-        return Camera(fn(self._params), fn(self._R), fn(self._image_size), k1)
+        out = Camera(fn(self._params), fn(self._R), fn(self._image_size), k1)
+        if self._keeps():
+            for name in DERIVED:  # computed here, as one call computes them, then mapped
+                out.__dict__[name] = fn(getattr(self, name))
+        return out
 
     def to(self, *args, **kwargs) -> Camera:
         """Move or cast like :meth:`torch.Tensor.to`: floating-point parameters take the dtype, all the device."""

@@ -43,7 +43,13 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
-from ngp_kornia.geometry import Camera, canonical_manhattan_rotation, normalize, pitch_roll_from_up, segment_lengths
+from ngp_kornia.geometry import (
+    Camera,
+    canonical_manhattan_rotation,
+    pitch_roll_from_up,
+    rotation_from_up,
+    segment_lengths,
+)
 from ngp_kornia.pipeline.constants import cached
 from ngp_kornia.pipeline.horizon_support import refine_up_on_camera, support_on_camera, up_from_pitch_roll
 from ngp_kornia.pipeline.line_kernel import (
@@ -324,8 +330,5 @@ def _with_up(cal: Calibration, use: Tensor, K: Tensor, up: Tensor, horizontal: T
     direction, and ``K``; every other field follows (the camera's), so the horizon is the polar of the zenith."""
     if not bool(use.any()):  # every frame kept (the common case): K is the calibration's own
         return cal
-    down = -up
-    h = normalize(horizontal - (horizontal * up).sum(-1, keepdim=True) * up)
-    R = canonical_manhattan_rotation(torch.stack([h, down, torch.linalg.cross(h, down)], -1))
-    R = torch.where(use[:, None, None], R, cal.R)
+    R = torch.where(use[:, None, None], canonical_manhattan_rotation(rotation_from_up(up, horizontal)), cal.R)
     return replace(cal, camera=Camera.from_matrix(K, R, cal.image_size, cal.k1))

@@ -180,3 +180,13 @@ def test_a_value_first_read_without_autograd_keeps_its_gradient_after():
         assert not camera.horizon.requires_grad and not camera[0].zenith.requires_grad
     camera.horizon.sum().backward()  # read again with autograd on: computed again, with its graph
     assert params.grad is not None and bool(params.grad.abs().sum() > 0)
+
+
+@pytest.mark.parametrize("half", [torch.float16, torch.bfloat16])
+def test_half_precision_is_derived_in_float32_and_kept_in_its_dtype(half):
+    camera = _camera()
+    low = Camera(camera.params.to(half), camera.R.to(half), camera.image_size)
+    assert low.horizon.dtype == half and low.pitch.dtype == half
+    torch.testing.assert_close(low.horizon.double(), camera.horizon, atol=0.5, rtol=1e-2)
+    cast = camera.to(half)  # cast from the float64 camera: its derived values, cast
+    assert torch.equal(cast.horizon, camera.horizon.to(half))

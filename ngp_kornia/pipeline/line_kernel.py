@@ -77,12 +77,14 @@ def camera_segments(segments: Tensor, K: Tensor) -> CameraSegments:
 
 
 def camera_points(segments: Tensor, K: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-    """The midpoints, directions and unit plane normals of :func:`camera_segments`."""
+    """The midpoints, directions and unit plane normals of :func:`camera_segments`; a zero-length segment (padding)
+    has no plane, and its normal is 0 (its cross product is rounding residue that normalising would blow up)."""
     # kornia's transform_points divides by K^-1's z, which is exactly 1 (K^-1's last row is exactly (0, 0, 1))
     xy = transform_points(torch.linalg.inv(K), segments.flatten(1, 2)).view_as(segments)
     cam = convert_points_to_homogeneous(xy)  # (B, N, 2, 3): (x, y, 1)
     mid, direction = xy.mean(-2), xy[..., 1, :] - xy[..., 0, :]
-    return mid, direction, normalize(torch.linalg.cross(cam[..., 0, :], cam[..., 1, :]))
+    cross = torch.linalg.cross(cam[..., 0, :], cam[..., 1, :])
+    return mid, direction, normalize(torch.where((direction != 0).any(-1, keepdim=True), cross, 0.0))
 
 
 def _ratio(cam: CameraSegments, vps: Tensor, inplace: bool = False) -> tuple[Tensor, Tensor]:

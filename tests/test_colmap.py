@@ -52,7 +52,7 @@ def save(path: Path, rgb: np.ndarray, orientation: int = 1) -> Path:
 def photos(tmp_path_factory) -> dict:
     """Three rendered photos as files, and their calibrations by name."""
     folder = tmp_path_factory.mktemp("photos")
-    names = {"street.png": 2, "sub/plaza.png": 3, "room.png": 5}
+    names = {"plaza.png": 2, "sub/room.png": 3, "street.png": 5}
     files = {name: save(folder / name, render_scene(seed, SIZE).image) for name, seed in names.items()}
     calibrations = {name: calibrate(str(path)) for name, path in files.items()}
     assert all(bool(c.valid) for c in calibrations.values())
@@ -108,9 +108,9 @@ def test_cameras_and_gravity_read_back_as_written(photos, tmp_path):
 
 
 def test_a_radial_camera_for_a_calibration_with_k1(photos, tmp_path):
-    cal = calibrate(str(photos["folder"] / "street.png"), k1="estimate")
-    write_colmap_database(tmp_path / "radial.db", {"street.png": cal})
-    camera = read_back(tmp_path / "radial.db")["street.png"]["camera"]
+    cal = calibrate(str(photos["folder"] / "plaza.png"), k1="estimate")
+    write_colmap_database(tmp_path / "radial.db", {"plaza.png": cal})
+    camera = read_back(tmp_path / "radial.db")["plaza.png"]["camera"]
     assert camera.model_name == "RADIAL" and camera.has_prior_focal_length
     np.testing.assert_allclose(camera.params, cal.to_colmap()["params"], rtol=1e-6)
 
@@ -171,12 +171,12 @@ def snapshot(database: Path) -> dict:
 def test_an_existing_database_keeps_what_is_not_ours(photos, tmp_path):
     database = colmap_database(tmp_path, photos["folder"])
     before, kept = read_back(database), snapshot(database)
-    ours = {name: photos["calibrations"][name] for name in ("room.png", "street.png")}
+    ours = {name: photos["calibrations"][name] for name in ("street.png", "plaza.png")}
     new = calibrate(render_scene(7, SIZE).image)
     report = write_colmap_database(database, {**ours, "new.png": new})
     assert report.added == ["new.png"] and sorted(report.updated) == sorted(ours) and not report.camera_kept
     after = read_back(database)
-    other = "sub/plaza.png"  # not ours: its image, camera and prior are as COLMAP left them
+    other = "sub/room.png"  # not ours: its image, camera and prior are as COLMAP left them
     assert plain(after[other]["image"]) == plain(before[other]["image"])
     assert plain(after[other]["camera"]) == plain(before[other]["camera"])
     assert [plain(p) for p in after[other]["priors"]] == [plain(p) for p in before[other]["priors"]]
@@ -186,7 +186,7 @@ def test_an_existing_database_keeps_what_is_not_ours(photos, tmp_path):
         np.testing.assert_allclose(after[name]["camera"].params, cal.to_colmap()["params"], rtol=1e-6)
         assert after[name]["camera"].has_prior_focal_length and len(after[name]["priors"]) == 1
         assert abs(pitch_roll(after[name]["priors"][0].gravity)[0] - float(cal.pitch)) < 0.01
-    gps = after["room.png"]["priors"][0]  # its GPS position stays beside the gravity
+    gps = after["plaza.png"]["priors"][0]  # its GPS position stays beside the gravity
     assert gps.position.tolist() == [1.0, 2.0, 3.0] and gps.coordinate_system.name == "WGS84"
     now = snapshot(database)
     assert {name: now["keypoints"][name] for name in kept["keypoints"]} == kept["keypoints"]
@@ -199,19 +199,19 @@ def test_an_existing_database_keeps_what_is_not_ours(photos, tmp_path):
 def test_a_camera_shared_with_other_images_is_left_as_it_is(photos, tmp_path):
     database = colmap_database(tmp_path, photos["folder"], pycolmap.CameraMode.SINGLE)
     before = read_back(database)
-    ours = {name: photos["calibrations"][name] for name in ("room.png", "street.png")}
+    ours = {name: photos["calibrations"][name] for name in ("street.png", "plaza.png")}
     report = write_colmap_database(database, ours)
-    assert sorted(report.camera_kept) == sorted(ours) and "sub/plaza.png" in report.camera_kept["room.png"]
+    assert sorted(report.camera_kept) == sorted(ours) and "sub/room.png" in report.camera_kept["street.png"]
     after = read_back(database)
     assert after["counts"]["cameras"] == 1
-    assert plain(after["street.png"]["camera"]) == plain(before["street.png"]["camera"])
-    assert abs(pitch_roll(after["street.png"]["priors"][0].gravity)[1] - float(ours["street.png"].roll)) < 0.01
+    assert plain(after["plaza.png"]["camera"]) == plain(before["plaza.png"]["camera"])
+    assert abs(pitch_roll(after["plaza.png"]["priors"][0].gravity)[1] - float(ours["plaza.png"].roll)) < 0.01
     # every photo of the camera written, with one focal length: the camera is theirs, and updated
     shared = calibrate([str(photos["folder"] / name) for name in before if name != "counts"], shared_intrinsics=True)
     names = sorted(name for name in before if name != "counts")
     report = write_colmap_database(database, dict(zip(names, shared, strict=True)))
     assert not report.camera_kept and sorted(report.updated) == names
-    camera = read_back(database)["street.png"]["camera"]
+    camera = read_back(database)["plaza.png"]["camera"]
     assert camera.has_prior_focal_length and camera.params[0] == pytest.approx(float(shared[0].focal), rel=1e-6)
 
 
@@ -232,20 +232,20 @@ def test_a_rerun_updates_rather_than_duplicates(photos, tmp_path):
 
 def test_an_image_of_another_size_is_left_alone(photos, tmp_path):
     folder = tmp_path / "other"
-    save(folder / "street.png", render_scene(2, (160, 120)).image)
+    save(folder / "plaza.png", render_scene(2, (160, 120)).image)
     database = colmap_database(tmp_path, folder)
     before = read_back(database)
-    report = write_colmap_database(database, {"street.png": photos["calibrations"]["street.png"]})
-    assert "160x120" in report.skipped["street.png"] and not report.updated
+    report = write_colmap_database(database, {"plaza.png": photos["calibrations"]["plaza.png"]})
+    assert "160x120" in report.skipped["plaza.png"] and not report.updated
     after = read_back(database)
-    assert plain(after["street.png"]["camera"]) == plain(before["street.png"]["camera"])
+    assert plain(after["plaza.png"]["camera"]) == plain(before["plaza.png"]["camera"])
     assert after["counts"] == before["counts"]
 
 
 def test_what_is_not_a_colmap_database_is_refused_and_kept(photos, tmp_path):
     import sqlite3
 
-    png = photos["folder"] / "street.png"
+    png = photos["folder"] / "plaza.png"
     rows = tmp_path / "rows.jsonl"
     rows.write_text('{"image": "a.png", "error": "unreadable"}\n')
     foreign = tmp_path / "other.sqlite"
@@ -264,11 +264,11 @@ def test_what_is_not_a_colmap_database_is_refused_and_kept(photos, tmp_path):
 
 def test_rows_without_a_valid_calibration_are_skipped_and_bad_input_refused(photos, tmp_path):
     rows = tmp_path / "rows.jsonl"
-    good = {"image": "street.png", **photos["calibrations"]["street.png"].to_dict()}
+    good = {"image": "plaza.png", **photos["calibrations"]["plaza.png"].to_dict()}
     lines = [good, {"image": "bad.png", "error": "truncated file"}, {**good, "image": "flat.png", "valid": False}]
     rows.write_text("".join(json.dumps(row) + "\n" for row in lines))
     report = write_colmap_database(tmp_path / "rows.db", read_predictions(rows))
-    assert report.added == ["street.png"]
+    assert report.added == ["plaza.png"]
     assert report.skipped == {"bad.png": "no calibration (truncated file)",
                               "flat.png": "no valid calibration (valid is false)"}
     batch = calibrate(torch.rand(2, 3, 32, 32))
@@ -289,7 +289,7 @@ def test_rows_without_a_valid_calibration_are_skipped_and_bad_input_refused(phot
 
 def test_predict_writes_the_database_and_a_rerun_updates_it(photos, tmp_path, capsys):
     folder = tmp_path / "photos"
-    for name in ("street.png", "sub/plaza.png"):
+    for name in ("plaza.png", "sub/room.png"):
         save(folder / name, np.asarray(Image.open(photos["folder"] / name)))
     (folder / "broken.png").write_bytes(b"not an image")
     database, rows = tmp_path / "colmap" / "database.db", tmp_path / "rows.jsonl"  # its folder made too

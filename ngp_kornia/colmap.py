@@ -138,6 +138,12 @@ def displayed_to_stored(orientation: int, height: int, width: int) -> np.ndarray
 def gravity_in_camera(up) -> np.ndarray:
     """The direction of gravity in the camera frame (x right, y down, z forward): ``-up``, unit length, float64.
 
+    Args:
+        up: (3,) the up vector in camera coordinates (``Calibration.up``), any length.
+
+    Returns:
+        (3,) float64 unit vector, COLMAP's ``PosePrior.gravity`` for a file stored as displayed.
+
     Example:
         >>> gravity_in_camera([0.0, -1.0, 0.0]).tolist()  # a level camera: gravity along +y, down in the image
         [0.0, 1.0, 0.0]
@@ -186,7 +192,14 @@ def _photo(name: str, row: dict, model: str | None) -> _Photo | str:
 
 
 def read_predictions(path: str | Path) -> dict[str, dict]:
-    """The rows of an ``ngp predict`` results file by image name (error rows included: they are skipped).
+    """The rows of an ``ngp predict`` results file by image name (error rows included: :func:`write_colmap_database`
+    skips them).
+
+    Args:
+        path: the ``.jsonl`` file ``ngp predict --out`` wrote.
+
+    Returns:
+        ``{image name: row}``, the names relative to the folder ``ngp predict`` was given.
 
     Raises:
         InputError: a line that is not such a row.

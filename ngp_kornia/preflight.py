@@ -106,8 +106,18 @@ def check_database(database: str | Path) -> Path:
     COLMAP's tables (``cameras``, ``images``): anything else (a photo, a results file, another program's SQLite file,
     a folder) is refused, never written to.
 
+    Args:
+        database: the path given for the database.
+
+    Returns:
+        the path, as a :class:`~pathlib.Path`.
+
     Raises:
         OutputError: with the fix in the message.
+
+    Example:
+        >>> check_database(getfixture("tmp_path") / "new.db").name
+        'new.db'
     """
     path = Path(database)
     if path.is_dir():

@@ -141,20 +141,26 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--yud", help="York Urban DB folder")
     p.add_argument("--manifest", action="append", default=[], help="CSV manifest (PATH or NAME=PATH), repeatable")
     p.add_argument("--renders", help="a folder written by ngp render (reported, not pooled)")
+    p.add_argument("--nyu", help="NYU-VP folder: its validation scenes 1000-1223, given as segments (pooled)")
     p.add_argument("--baseline", default="default", help="weights spec of the current default")
-    p.add_argument("--candidate", required=True, help="weights spec of the change, e.g. default:margin=0.1")
+    p.add_argument("--candidate", action="append", required=True,
+                   help="weights spec of the change, e.g. default:margin=0.1; repeatable (each against the baseline)")
     p.add_argument("--seeds", default=",".join(map(str, DEFAULT_SEEDS)), help="sampling seeds, comma-separated")
     p.add_argument("--split", default="all", help="York Urban split: all, train or test")
     p.add_argument("--json", help="also write the result here")
+    p.add_argument("--quiet", action="store_true", help="no progress on stderr")
     args = p.parse_args(argv)
-    sets = load_sets(args.yud, args.manifest, args.renders, args.split)
+    sets = load_sets(args.yud, args.manifest, args.renders, args.split, nyu=args.nyu)
     seeds = [int(s) for s in args.seeds.split(",")]
-    records = run_suite([args.baseline, args.candidate], sets, seeds)
-    result = compare(records, sets, args.baseline, args.candidate)
-    print(comparison_table(result, args.baseline, args.candidate))
+    records = run_suite([args.baseline, *args.candidate], sets, seeds, None if args.quiet else sys.stderr)
+    results = []
+    for candidate in args.candidate:
+        result = compare(records, sets, args.baseline, candidate)
+        print(comparison_table(result, args.baseline, candidate) + "\n")
+        results.append({"baseline": args.baseline, "candidate": candidate, "seeds": seeds, **result})
     if args.json:
         with open(args.json, "w", encoding="utf-8") as f:
-            json.dump({"baseline": args.baseline, "candidate": args.candidate, "seeds": seeds, **result}, f, indent=1)
+            json.dump(results[0] if len(results) == 1 else results, f, indent=1)
     return 0
 
 

@@ -23,12 +23,13 @@ import argparse
 import json
 import sys
 from collections.abc import Sequence
+from pathlib import Path
 
 import numpy as np
 
 from ngp_kornia.evaluation.suite import DEFAULT_SEEDS, SuiteSet, load_sets, run_suite
 
-__all__ = ["AUC_RANGE", "compare", "comparison_table", "image_scores", "main"]
+__all__ = ["AUC_RANGE", "compare", "comparison_table", "image_scores", "main", "run_with_records"]
 
 #: the horizon error at which an image's AUC score falls to zero (image heights)
 AUC_RANGE = 0.25
@@ -135,26 +136,54 @@ def comparison_table(result: dict, baseline: str, candidate: str) -> str:
     return "\n".join(lines)
 
 
+def run_with_records(specs: Sequence[str], sets, seeds: Sequence[int], path: str | None, quiet: bool) -> list[dict]:
+    """:func:`run_suite` records of ``specs``, taking those a records file already holds (for every set and seed
+    asked for) from it instead of running them again, and writing all of them back to it."""
+    known = json.loads(Path(path).read_text()) if path and Path(path).is_file() else []
+    wanted = {(s.name, t, seed) for s in sets for t in s.truths for seed in seeds}
+
+    def held(spec: str) -> list[dict]:
+        rows = [r for r in known if r["weights"] == spec and (r["set"], r["truth"], r["seed"]) in wanted]
+        return rows if len(rows) == len(wanted) else []
+
+    todo = [spec for spec in dict.fromkeys(specs) if not held(spec)]
+    fresh = run_suite(todo, sets, seeds, None if quiet else sys.stderr) if todo else []
+    records = [r for spec in specs if spec not in todo for r in held(spec)] + fresh
+    if path:
+        kept = [r for r in known if r["weights"] not in todo]
+        Path(path).write_text(json.dumps(kept + fresh))
+    return records
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point: ``python -m ngp_kornia.evaluation.compare``."""
     p = argparse.ArgumentParser(prog="python -m ngp_kornia.evaluation.compare", description=__doc__.split("\n\n")[0])
     p.add_argument("--yud", help="York Urban DB folder")
     p.add_argument("--manifest", action="append", default=[], help="CSV manifest (PATH or NAME=PATH), repeatable")
     p.add_argument("--renders", help="a folder written by ngp render (reported, not pooled)")
+    p.add_argument("--nyu", help="NYU-VP folder: its validation scenes 1000-1223, given as segments (pooled)")
     p.add_argument("--baseline", default="default", help="weights spec of the current default")
-    p.add_argument("--candidate", required=True, help="weights spec of the change, e.g. default:margin=0.1")
+    p.add_argument("--candidate", action="append", required=True,
+                   help="weights spec of the change, e.g. default:margin=0.1; repeatable (each against the baseline)")
     p.add_argument("--seeds", default=",".join(map(str, DEFAULT_SEEDS)), help="sampling seeds, comma-separated")
     p.add_argument("--split", default="all", help="York Urban split: all, train or test")
     p.add_argument("--json", help="also write the result here")
+    p.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    p.add_argument("--records", help="a JSON file of earlier runs: specs found there (same sets and seeds) are not run "
+                   "again, and every run is written back (the spec names a weights file by path: a new file there needs "
+                   "a new records file)")
     args = p.parse_args(argv)
-    sets = load_sets(args.yud, args.manifest, args.renders, args.split)
+    sets = load_sets(args.yud, args.manifest, args.renders, args.split, nyu=args.nyu)
     seeds = [int(s) for s in args.seeds.split(",")]
-    records = run_suite([args.baseline, args.candidate], sets, seeds)
-    result = compare(records, sets, args.baseline, args.candidate)
-    print(comparison_table(result, args.baseline, args.candidate))
+    records = run_with_records([args.baseline, *args.candidate], sets, seeds, args.records, args.quiet)
+    results = []
+    for candidate in args.candidate:
+        result = compare(records, sets, args.baseline, candidate)
+        print(comparison_table(result, args.baseline, candidate) + "\n")
+        results.append({"baseline": args.baseline, "candidate": candidate, "seeds": seeds, **result})
     if args.json:
         with open(args.json, "w", encoding="utf-8") as f:
-            json.dump({"baseline": args.baseline, "candidate": args.candidate, "seeds": seeds, **result}, f, indent=1)
+            json.dump(results[0] if len(results) == 1 else results, f, indent=1)
     return 0
 
 

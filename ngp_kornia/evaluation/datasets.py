@@ -1,6 +1,9 @@
 """Labelled images for evaluation: the York Urban DB (with either ground-truth horizon), CSV manifests and folders
 written by ``ngp render``, all read into one type, :class:`LabelledImage`, so every method and metric is shared.
 
+Scenes given as segments without pixels (NYU-VP, :func:`load_nyu`) carry their segments instead of an image file; the
+methods run the parser on them directly.
+
 Two ground-truth horizons exist for York Urban (see :func:`load_yud`): ``"calibrated"``, the dataset's own camera
 (``K^-T up`` with the true, off-centre principal point and the orthogonalised vertical), and ``"published"``, the
 line through the two raw horizontal vanishing points that the literature's horizon benchmarks draw
@@ -18,11 +21,12 @@ import torch
 from torch import Tensor
 
 from ngp_kornia.data.manifest import CSVManifest
+from ngp_kornia.data.nyu import NYUVP, VALIDATION_SCENES
 from ngp_kornia.data.yud import YorkUrbanDB, published_horizon
 from ngp_kornia.geometry.camera import horizon_from_zenith, pitch_roll_from_up, zenith_from_up
 from ngp_kornia.metrics import horizon_error
 
-__all__ = ["YUD_HORIZONS", "LabelledImage", "load_manifest", "load_renders", "load_yud"]
+__all__ = ["YUD_HORIZONS", "LabelledImage", "load_manifest", "load_nyu", "load_renders", "load_yud"]
 
 #: the ground-truth horizons :func:`load_yud` offers
 YUD_HORIZONS = ("calibrated", "published")
@@ -36,8 +40,8 @@ class LabelledImage:
     for example); the metrics that need it are then skipped for that image.
 
     Attributes:
-        name: a name unique within its dataset (York Urban folder, manifest path, render file stem).
-        image_path: the image file.
+        name: a name unique within its dataset (York Urban folder, manifest path, render file stem, NYU-VP scene).
+        image_path: the image file; ``None`` for a scene given as segments.
         height: image height in pixels.
         width: image width in pixels.
         horizon: (3,) horizon line ``(a, b, c)`` in pixels.
@@ -49,10 +53,11 @@ class LabelledImage:
         kind: the scene kind of a rendered image (street / indoor / atlanta); ``None`` for photos.
         k1: the radial distortion a rendered image was drawn with (the division model of
             :mod:`ngp_kornia.geometry.lens`; 0 for a pinhole render); ``None`` for photos.
+        segments: (N, 2, 2) the scene's line segments in pixels, for a scene given without pixels; ``None`` else.
     """
 
     name: str
-    image_path: Path
+    image_path: Path | None
     height: int
     width: int
     horizon: Tensor | None = None
@@ -63,6 +68,7 @@ class LabelledImage:
     fov_v: float | None = None
     kind: str | None = None
     k1: float | None = None
+    segments: Tensor | None = None
 
 
 def load_yud(
@@ -119,6 +125,26 @@ def load_manifest(path: str | Path, root: str | Path | None = None) -> list[Labe
         images.append(
             LabelledImage(name, s.image_path, s.height, s.width, s.horizon, s.K, s.up, s.pitch, s.roll, s.fov_v)
         )
+    return images
+
+
+def load_nyu(root: str | Path, scenes=VALIDATION_SCENES) -> list[LabelledImage]:
+    """The scenes of an NYU-VP folder (:class:`ngp_kornia.data.NYUVP`) that have a horizon truth, as segments.
+
+    Args:
+        root: the folder holding ``data/``.
+        scenes: scene numbers; by default the set's validation split (1000-1223), the one to decide on.
+
+    Returns:
+        one :class:`LabelledImage` per scene with a vertical vanishing point (the others have no horizon truth and
+        are left out), ``image_path`` None and ``segments`` the scene's LSD segments.
+    """
+    images = []
+    for s in NYUVP(root, scenes):
+        if s.up is None:
+            continue
+        images.append(LabelledImage(s.name, None, s.height, s.width, s.horizon, s.K, s.up, s.pitch, s.roll, s.fov_v,
+                                    segments=s.segments))
     return images
 
 

@@ -20,7 +20,9 @@ from torch import Tensor
 
 from ngp_kornia.evaluation.datasets import LabelledImage
 from ngp_kornia.geometry.camera import horizon_from_zenith, image_center, pitch_roll_from_up, zenith_from_up
-from ngp_kornia.pipeline import Calibration, ParserConfig
+from ngp_kornia.pipeline import Calibration, NeuralGeometricParser, ParserConfig
+from ngp_kornia.pipeline.priors import Priors
+from ngp_kornia.pipeline.segments import longest_segments, pad_segments
 from ngp_kornia.pipeline.settings import locate_setting
 
 __all__ = [
@@ -29,6 +31,7 @@ __all__ = [
     "Method",
     "MethodRun",
     "calibrate_method",
+    "calibrate_segments",
     "calibration_method",
     "call_arguments",
     "estimate_from_calibration",
@@ -235,13 +238,51 @@ def calibration_method(
     if extra.pop("shared_intrinsics", False):
         return _shared_method(images, options)
 
+    on_segments = _segment_parser(weights, config)
+
     def run(image: LabelledImage) -> Calibration:
         prior = {}
         if noise is not None:
             prior = {"gravity": gravity_prior(image, seed, noise), "gravity_std": stated or max(noise, 0.1)}
+        if image.segments is not None:
+            return calibrate_segments(on_segments(), image, seed, Priors(**{**prior, **extra}))
         return calibrate(str(image.image_path), **options, **prior)
 
     return run
+
+
+def _segment_parser(weights, config: ParserConfig) -> Callable[[], NeuralGeometricParser]:
+    """The parser of a weights spec for scenes given as segments, built at its first use: the spec's networks that
+    read only segments (ZSNet, the line evidence); those that read pixels (FSNet, the orientation check) have
+    none to read, so frames are ranked by the Manhattan score alone and no turn is read."""
+    from ngp_kornia.api import check_weights
+
+    built: list[NeuralGeometricParser] = []
+
+    def parser() -> NeuralGeometricParser:
+        if not built:
+            nets = {type(net).__name__: net for net in check_weights(weights)}
+            settings = config.replace(**{"upright.enabled": False})
+            built.append(NeuralGeometricParser(settings, nets.get("ZSNet"), None, nets.get("LineEvidenceNet")).eval())
+        return built[0]
+
+    return parser
+
+
+def calibrate_segments(parser: NeuralGeometricParser, image: LabelledImage, seed: int, priors: Priors) -> Calibration:
+    """One scene given as segments (:attr:`LabelledImage.segments`) calibrated by ``parser``: the segments the
+    detection would keep (:func:`~ngp_kornia.pipeline.segments.longest_segments`), an image of the scene's size that
+    no network reads.
+
+    Returns:
+        the unbatched :class:`~ngp_kornia.Calibration`.
+    """
+    settings = parser.config.segments
+    kept = longest_segments(image.segments.numpy(), settings.min_length, settings.max_segments)
+    segments, mask = pad_segments([kept])
+    stand_in = torch.zeros((), dtype=torch.float32).expand(1, 3, image.height, image.width)
+    with torch.inference_mode():
+        return parser(stand_in, segments, mask, seed=seed, priors=priors)[0].clone()
 
 
 def _shared_method(images: Sequence[LabelledImage] | None, options: dict) -> Callable[[LabelledImage], Calibration]:

@@ -38,7 +38,14 @@ from typing import TextIO
 
 import torch
 
-from ngp_kornia.evaluation.datasets import YUD_HORIZONS, LabelledImage, load_manifest, load_renders, load_yud
+from ngp_kornia.evaluation.datasets import (
+    YUD_HORIZONS,
+    LabelledImage,
+    load_manifest,
+    load_nyu,
+    load_renders,
+    load_yud,
+)
 from ngp_kornia.evaluation.methods import calibrate_method, run_interleaved
 from ngp_kornia.evaluation.scoring import evaluate
 
@@ -86,9 +93,15 @@ def _label(path: Path) -> str:
 
 
 def load_sets(
-    yud: Path | None, manifests: Sequence[str], renders: Path | None, split: str = "all", limit: int | None = None
+    yud: Path | None,
+    manifests: Sequence[str],
+    renders: Path | None,
+    split: str = "all",
+    limit: int | None = None,
+    nyu: Path | None = None,
 ) -> list[SuiteSet]:
-    """The suite's datasets from their paths; ``manifests`` entries are ``PATH`` or ``NAME=PATH``.
+    """The suite's datasets from their paths; ``manifests`` entries are ``PATH`` or ``NAME=PATH``; ``nyu`` an NYU-VP
+    folder, of which the validation scenes (1000-1223) with a horizon truth are a real set, given as segments.
 
     A manifest's name defaults to its file's stem, or its folder's name for a file called ``manifest.csv``.
 
@@ -103,6 +116,8 @@ def load_sets(
         name, sep, path = entry.partition("=")
         path = Path(path if sep else name)
         sets.append(SuiteSet(name if sep else _label(path), {"horizon": load_manifest(path)[:limit]}))
+    if nyu is not None:
+        sets.append(SuiteSet("NYU-VP", {"horizon": load_nyu(nyu)[:limit]}))
     if renders is not None:
         sets.append(SuiteSet("renders", {"renders": load_renders(renders)[:limit]}, real=False))
     names = [s.name for s in sets]
@@ -244,6 +259,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--yud-split", default="all", choices=["all", "train", "test"], help="York Urban images to use")
     p.add_argument("--manifest", action="append", default=[], metavar="[NAME=]PATH", help="CSV manifest (repeatable)")
     p.add_argument("--renders", type=Path, help="folder written by `ngp render`")
+    p.add_argument("--nyu", type=Path, help="NYU-VP folder: its validation scenes (1000-1223), given as segments")
     p.add_argument(
         "--weights",
         action="append",
@@ -263,15 +279,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     """The command line: ``python -m ngp_kornia.evaluation --help``."""
     parser = build_parser()
     args = parser.parse_args(argv)
-    if args.yud is None and not args.manifest and args.renders is None:
-        parser.error("nothing to evaluate: give --yud, --manifest or --renders")
+    if args.yud is None and not args.manifest and args.renders is None and args.nyu is None:
+        parser.error("nothing to evaluate: give --yud, --manifest, --nyu or --renders")
     try:
         seeds = [int(s) for s in args.seeds.split(",") if s.strip()]
     except ValueError:
         parser.error(f"--seeds must be comma-separated integers, got {args.seeds!r}")
     specs = args.weights or list(DEFAULT_WEIGHTS)
     try:
-        sets = load_sets(args.yud, args.manifest, args.renders, args.yud_split, args.limit)
+        sets = load_sets(args.yud, args.manifest, args.renders, args.yud_split, args.limit, args.nyu)
     except (FileNotFoundError, ValueError) as e:
         parser.error(str(e))
     started = datetime.datetime.now(datetime.UTC)

@@ -44,6 +44,7 @@ __all__ = [
     "LineDetector",
     "detect_segments",
     "detect_segments_gray",
+    "longest_segments",
     "line_workers",
     "pad_segments",
     "strip_threads",
@@ -98,10 +99,7 @@ def detect_segments_gray(gray: np.ndarray, settings: SegmentSettings | None = No
     seg = _lsd_in_strips(small, strips) if detector == "lsd" else _as_segments(_fld(min_length).detect(small))
     if len(seg) == 0:
         return np.zeros((0, 2, 2), np.float32)
-    length = np.linalg.norm(seg[:, 1] - seg[:, 0], axis=-1)
-    order = np.argsort(-length, kind="stable")
-    order = order[length[order] >= min_length][:max_segments]
-    seg = seg[order]
+    seg = longest_segments(seg, min_length, max_segments)
     sx, sy = w / small.shape[1], h / small.shape[0]
     seg[..., 0] = (seg[..., 0] + 0.5) * sx - 0.5
     seg[..., 1] = (seg[..., 1] + 0.5) * sy - 0.5
@@ -259,6 +257,20 @@ def _join_at_cut(upper: np.ndarray, lower: np.ndarray, cut: int) -> np.ndarray:
 
 def _unit(v: np.ndarray) -> np.ndarray:
     return v / np.linalg.norm(v, axis=-1, keepdims=True).clip(1e-9)
+
+
+def longest_segments(segments: np.ndarray, min_length: float, max_segments: int) -> np.ndarray:
+    """The segments the detection keeps of those found: at least ``min_length`` long, the ``max_segments`` longest,
+    longest first (ties in their order). (N, 2, 2) -> (M, 2, 2); also for segments found elsewhere (a data set's).
+
+    Example:
+        >>> seg = np.array([[[0, 0], [5, 0]], [[0, 0], [30, 0]], [[0, 0], [0, 20]]], dtype=np.float32)
+        >>> longest_segments(seg, 10.0, 512)[:, 1].tolist()
+        [[30.0, 0.0], [0.0, 20.0]]
+    """
+    length = np.linalg.norm(segments[:, 1] - segments[:, 0], axis=-1)
+    order = np.argsort(-length, kind="stable")
+    return segments[order[length[order] >= min_length][:max_segments]]
 
 
 def pad_segments(segments: list[np.ndarray | Tensor], like: Tensor | None = None) -> tuple[Tensor, Tensor]:

@@ -174,7 +174,7 @@ def test_suite_command(renders, manifest, tmp_path, capsys):
 
 def test_suite_bad_input_is_one_clear_line(manifest, tmp_path, capsys):
     for argv, message in (
-        (["--weights", "none"], "give --yud, --manifest or --renders"),
+        (["--weights", "none"], "give --yud, --manifest, --nyu or --renders"),
         (["--manifest", str(tmp_path / "no.csv")], "manifest not found"),
         (["--manifest", str(manifest), "--manifest", str(manifest)], "name the manifests with --manifest NAME=PATH"),
         (["--manifest", str(manifest), "--limit", "0"], "has no images"),
@@ -196,3 +196,20 @@ def test_yud_both_horizons():
     assert 0.005 < r["summary"]["horizon"]["median"] < 0.025  # about 7 px of 480
     with pytest.raises(ValueError, match="horizon must be one of"):
         load_yud(SHARED_YUD, horizon="best")
+
+
+def test_nyu_scenes_are_calibrated_from_their_segments(tmp_path):
+    from ngp_kornia.evaluation.datasets import load_nyu
+    from ngp_kornia.evaluation.methods import calibration_method
+    from tests.nyu_files import write_fake_nyu
+
+    root = write_fake_nyu(tmp_path, scenes=3)
+    images = load_nyu(root, scenes=range(3))
+    assert [im.name for im in images] == ["nyu-0000", "nyu-0002"]  # scene 1 has no horizon truth
+    assert images[0].image_path is None and images[0].segments.shape == (39, 2, 2)
+    runs = run_interleaved({"none": calibrate_method("none"), "fsnet": calibrate_method("fsnet")}, images, None)
+    result = evaluate(images, runs["none"].estimates)
+    assert not runs["none"].exceptions and float(result["horizon_auc"]) > 0.9
+    # FSNet and the orientation check read pixels, which such scenes lack: the weight set runs without them
+    none, fsnet = (calibration_method(spec)(images[0]) for spec in ("none", "fsnet"))
+    assert torch.equal(none.horizon, fsnet.horizon)

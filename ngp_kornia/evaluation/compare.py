@@ -169,9 +169,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--split", default="all", help="York Urban split: all, train or test")
     p.add_argument("--json", help="also write the result here")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
-    p.add_argument("--records", help="a JSON file of earlier runs: specs found there (same sets and seeds) are not run "
-                   "again, and every run is written back (the spec names a weights file by path: a new file there needs "
-                   "a new records file)")
+    p.add_argument("--records", help="a JSON file of earlier runs: specs found there (same sets and seeds) are not "
+                   "run again, and every run is written back (a spec names a weights file by its path: a new file "
+                   "there needs a new records file)")
     args = p.parse_args(argv)
     sets = load_sets(args.yud, args.manifest, args.renders, args.split, nyu=args.nyu)
     seeds = [int(s) for s in args.seeds.split(",")]

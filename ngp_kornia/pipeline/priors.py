@@ -94,10 +94,18 @@ def _gravity(value: object) -> tuple[float, float] | None:
     if value is None:
         return None
     numbers_ = _pair(value)
-    if len(numbers_) != 2 or not all(math.isfinite(v) for v in numbers_) or not abs(numbers_[0]) < 90:
+    if len(numbers_) != 2 or not all(math.isfinite(v) for v in numbers_):
         raise InputError(
-            f"gravity must be (pitch, roll) in degrees, pitch in (-90, 90), or None; got {shown(value)}"
+            f"gravity must be (pitch, roll) in degrees, pitch in (-90, 90), roll in [-180, 180], or None; "
+            f"got {shown(value)}"
         )
+    pitch, roll = numbers_
+    if not abs(pitch) < 90.0:  # beyond +-90 the camera would be upside down: a roll of 180 says that
+        raise InputError(f"gravity's pitch must be in (-90, 90) degrees (90 looks straight up), got {shown(pitch)}; "
+                         "a camera turned upside down has a roll near 180 instead")
+    if not abs(roll) <= 180.0:
+        raise InputError(f"gravity's roll must be in [-180, 180] degrees, got {shown(roll)}; "
+                         "give the angle itself, not a multiple of a full turn (e.g. 10, not 370)")
     return numbers_
 
 

@@ -3,6 +3,7 @@ length) are read."""
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 from copy import deepcopy
 from dataclasses import replace
@@ -14,7 +15,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ngp_kornia.errors import NGPError, WeightsError, shown
+from ngp_kornia.errors import NGPError, NGPWarning, WeightsError, shown
 from ngp_kornia.io import as_batch, exif_focal, read_rgb_oriented
 from ngp_kornia.nets.weights import load_network, network_name, shipped_weights
 from ngp_kornia.pipeline import Calibration, NeuralGeometricParser, ParserConfig
@@ -166,6 +167,9 @@ def calibrate(
         gravity, gravity_std, principal_point, k1: a known ``(pitch, roll)`` and its standard deviation, degrees;
             the principal point ``(cx, cy)`` and radial distortion, known or ``"estimate"`` (:class:`Priors`).
         shared_intrinsics: the photos (of one size) are one camera's (:mod:`ngp_kornia.pipeline.shared_camera`).
+            Where fewer than two of them have lines to measure the camera by, nothing is shared: each photo is
+            calibrated alone (its own focal length and uncertainty, ``shared_photos`` None) and an
+            :class:`~ngp_kornia.errors.NGPWarning` says so.
 
     Returns:
         a :class:`Calibration` in the input's pixels (documented there), batched for batched tensor input; for a list,
@@ -330,7 +334,10 @@ def calibrate_shared(image, call: _Call, num_threads: int | None) -> Calibration
     if not items:
         raise ValueError("calibrate() got an empty list; give at least one image (path, array or tensor)")
     with pipeline_threads(num_threads):
-        kept, shared = _first_pass(items, call)
+        kept, shared, alone = _first_pass(items, call)
+        if alone and shared.photos < 2:  # one photo's lines, or none: nothing to share between photos
+            warnings.warn(NGPWarning(not_shared_message(shared.photos, len(items))), stacklevel=4)
+            return alone if isinstance(image, (list, tuple)) else alone[0]
         priors = replace(call.priors, focal=shared.focal, fov_v=None)
         if shared.principal_point is not None:
             priors = replace(priors, principal_point=shared.principal_point)
@@ -369,11 +376,40 @@ def shared_focal(
         return _first_pass(list(images), call, skip_unreadable=True)[1]
 
 
-def _first_pass(items: list, call: _Call, skip_unreadable: bool = False) -> tuple[list[tuple], SharedFocal]:
+def not_shared_message(photos: int, total: int) -> str:
+    """What is said where a camera was to be shared by ``total`` photos of which ``photos`` (fewer than two) have
+    lines to measure it by.
+
+    Example:
+        >>> not_shared_message(1, 2)
+        'only 1 of the 2 photos has lines to measure the camera by, so nothing is shared: each photo is ...'
+    """
+    if total == 1:
+        return "one photo cannot share a camera: it is calibrated alone (its own focal length and uncertainty)"
+    some = f"only {photos}" if photos else "none"
+    return (f"{some} of the {total} photos has lines to measure the camera by, so nothing is shared: each photo is "
+            "calibrated alone (its own focal length and uncertainty)")
+
+
+def not_shared_folders(folders: list[str], total: int) -> str:
+    """What is said where the photos of each folder were to share a camera, but in ``folders`` (of ``total``)
+    fewer than two photos have lines.
+
+    Example:
+        >>> not_shared_folders(["a", "b"], 3)
+        '2 of the 3 folders have fewer than two photos with lines (a, b), so their photos share nothing: ...'
+    """
+    named = ", ".join(folders[:3]) + (f" and {len(folders) - 3} more" if len(folders) > 3 else "")
+    return (f"{len(folders)} of the {total} folders have fewer than two photos with lines ({named}), so their photos "
+            "share nothing: each is calibrated alone (its own focal length and uncertainty)")
+
+
+def _first_pass(items: list, call: _Call, skip_unreadable: bool = False) -> tuple[list[tuple], SharedFocal, list]:
     """Each photo calibrated alone and scored on the common focal grid: what is kept of each photo's inputs (its
-    pixels only where they are the caller's tensor or a stand-in) and the joint camera. With ``skip_unreadable``
-    a photo that cannot be read or calibrated is left out (and nothing is kept of any)."""
-    kept, found, sizes = [], {"support": [], "valid": [], "point": [], "point_std": [], "k1": []}, []
+    pixels only where they are the caller's tensor or a stand-in), the joint camera and the photos' own results
+    (none where nothing is estimated jointly). With ``skip_unreadable`` a photo that cannot be read or calibrated
+    is left out (and nothing is kept of any)."""
+    kept, found, sizes, alone = [], {"support": [], "valid": [], "point": [], "point_std": [], "k1": []}, [], []
     estimates = call.priors.principal_point == ESTIMATE or call.priors.k1 == ESTIMATE
     with Lookahead(lambda i: _with_segments(_inputs(items[i], call), call)) as ahead:
         for i, item in enumerate(items):
@@ -386,12 +422,13 @@ def _first_pass(items: list, call: _Call, skip_unreadable: bool = False) -> tupl
             sizes.append(tuple(given[0].shape[-2:]))
             height, width = _one_size(sizes, call.priors.principal_point == ESTIMATE)
             if not call.priors.known_focal or estimates:
-                _evidence(found, _calibrate_inputs(item, given, call), given, call, height, width)
+                alone.append(_calibrate_inputs(item, given, call))
+                _evidence(found, alone[-1], given, call, height, width)
             keep_pixels = isinstance(item, Tensor) or given[0].stride() == (0, 0, 0, 0)  # the caller's, or a stand-in
             kept.append((given[0] if keep_pixels else None, *given[1:]) if not skip_unreadable else (None, given[1]))
     if not kept:
         raise ValueError("no photo could be read, so no focal length can be shared")
-    return kept, _joint_camera(found, call, sum(len(given[1]) for given in kept), height, width)
+    return kept, _joint_camera(found, call, len(kept), height, width), alone
 
 
 def _evidence(found: dict, alone: Calibration, given: tuple, call: _Call, height: int, width: int) -> None:
@@ -399,10 +436,10 @@ def _evidence(found: dict, alone: Calibration, given: tuple, call: _Call, height
     and distortion (where estimated), appended to ``found``."""
     K, R, ok = (t if alone.batched else t[None] for t in (alone.K, alone.R, alone.valid))
     settings = call.config.shared
+    found["valid"].append(ok.cpu())  # the photos with lines to measure the camera by
     if not call.priors.known_focal:
         grid = focal_grid(height, width, settings, call.config.sampling)
         found["support"].append(focal_support(K, R, given[1].to(K), given[2], grid, settings))
-        found["valid"].append(ok.cpu())
     if call.priors.principal_point == ESTIMATE:
         std = alone.principal_point_std
         found["point"].append(K[:, :2, 2].cpu())
@@ -414,6 +451,7 @@ def _evidence(found: dict, alone: Calibration, given: tuple, call: _Call, height
 def _joint_camera(found: dict, call: _Call, photos: int, height: int, width: int) -> SharedFocal:
     """The shared camera of the photos' evidence (:mod:`ngp_kornia.pipeline.shared_camera`)."""
     if call.priors.known_focal:  # nothing to estimate: the known focal length is every photo's
+        photos = int(torch.cat(found["valid"]).sum()) if found["valid"] else photos  # those that tell the rest
         shared = SharedFocal(call.priors.focal_pixels(height), 0.0, photos)
     else:
         grid = focal_grid(height, width, call.config.shared, call.config.sampling)

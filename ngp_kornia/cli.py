@@ -7,13 +7,14 @@ import argparse
 import json
 import os
 import sys
+import warnings
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ngp_kornia.cli_camera import add_camera_arguments, camera_arguments, images_after_the_point, load_truth
 from ngp_kornia.cli_options import add_setting_options, config_from_args, short_usage, subcommand
 from ngp_kornia.cli_render import add_render_command, render_command
-from ngp_kornia.errors import ConfigError, NGPError, OutputError
+from ngp_kornia.errors import ConfigError, NGPError, NGPWarning, OutputError
 from ngp_kornia.preflight import check_extra, check_folder, same_file
 
 if TYPE_CHECKING:
@@ -458,7 +459,9 @@ def run(args: argparse.Namespace) -> int:
     commands = {"calibrate": _calibrate, "predict": _predict, "rectify": _rectify, "demo": _demo}
     commands["render"] = render_command
     try:
-        return commands[args.command](args)
+        with warnings.catch_warnings():
+            warnings.showwarning = _show_warning
+            return commands[args.command](args)
     except KeyboardInterrupt:
         print("ngp: interrupted", file=sys.stderr)
         return 130
@@ -471,6 +474,15 @@ def run(args: argparse.Namespace) -> int:
     except Exception as err:  # a one-line message instead of a traceback, whatever went wrong
         print(f"ngp: error: {type(err).__name__}: {_one_line(err)}", file=sys.stderr)
         return 1
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """The package's warnings (:class:`~ngp_kornia.errors.NGPWarning`) as one line ``ngp: warning: <message>``;
+    other warnings as Python shows them."""
+    if issubclass(category, NGPWarning):
+        print(f"ngp: warning: {_one_line(message)}", file=sys.stderr, flush=True)
+    else:
+        print(warnings.formatwarning(message, category, filename, lineno, line), file=sys.stderr, end="")
 
 
 def main(argv: list[str] | None = None) -> int:

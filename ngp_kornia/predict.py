@@ -46,9 +46,9 @@ except ImportError as err:
         f"folder prediction needs Lightning ({err}); install it with: pip install 'ngp-kornia[train]'"
     ) from err
 
-from ngp_kornia.api import file_priors, load_parser, shared_focal, with_orientation
+from ngp_kornia.api import file_priors, load_parser, not_shared_folders, shared_focal, with_orientation
 from ngp_kornia.data.folder import ImageFolder
-from ngp_kornia.errors import OutputError
+from ngp_kornia.errors import NGPWarning, OutputError
 from ngp_kornia.folder_items import FolderImages, FolderItem, collate_items, error_reason
 from ngp_kornia.pipeline import Calibration, NeuralGeometricParser, ParserConfig
 from ngp_kornia.pipeline.priors import Priors, checked_seed
@@ -422,7 +422,9 @@ def predict_folder(
 def folder_cameras(images: ImageFolder, weights, seed: int, config, priors, exif: bool) -> dict[str, SharedFocal]:
     """The focal length shared by the photos of each folder (:func:`ngp_kornia.api.shared_focal`), by the folder's
     path relative to the root (``"."`` for the root): estimated in this process before the run, whose every
-    photo then takes its folder's as known (``shared_photos`` in its row).
+    photo then takes its folder's as known (``shared_photos`` in its row). A folder where fewer than two photos
+    have lines shares nothing (its photos are calibrated alone) and is left out, with one
+    :class:`~ngp_kornia.errors.NGPWarning` naming such folders.
 
     Raises:
         ValueError: with ``exif`` (a focal length per photo, where one is shared), or a folder of photos of
@@ -434,7 +436,11 @@ def folder_cameras(images: ImageFolder, weights, seed: int, config, priors, exif
     groups: dict[str, list[Path]] = {}
     for path in images.paths:
         groups.setdefault(path.relative_to(images.root).parent.as_posix(), []).append(path)
-    return {name: shared_focal(paths, weights, seed, config, priors) for name, paths in groups.items()}
+    cameras = {name: shared_focal(paths, weights, seed, config, priors) for name, paths in groups.items()}
+    alone = sorted(name for name, camera in cameras.items() if camera.photos < 2)
+    if alone:  # said once for all such folders: a tree of one photo per folder would say it hundreds of times
+        warnings.warn(NGPWarning(not_shared_folders(alone, len(cameras))), stacklevel=3)
+    return {name: camera for name, camera in cameras.items() if camera.photos >= 2}
 
 
 def _check_counts(devices: int, batch_size: int) -> None:

@@ -29,6 +29,7 @@ from ngp_kornia.pipeline.shared_camera import (
     joint_focal,
     joint_k1,
     joint_principal_point,
+    not_shared_message,
     with_shared_focal,
 )
 from ngp_kornia.threads import Lookahead, pipeline_threads, resolve_num_threads
@@ -144,6 +145,7 @@ def calibrate(
     principal_point: tuple[float, float] | str | None = None,
     k1: float | str | None = None,
     shared_intrinsics: bool = False,
+    focal_35mm: float | None = None,
 ) -> Calibration | list[Calibration]:
     """Calibrate a camera from one photo (or a batch, or a list of photos) of a man-made scene.
 
@@ -159,9 +161,14 @@ def calibrate(
         seed: seed of the random candidate sampling; the same input and seed give the same result.
         config: a :class:`~ngp_kornia.pipeline.settings.ParserConfig`, or a mapping ``{"horizon.refine": False, ...}``.
         focal: a known focal length in pixels of the input image (a prior).
-        fov_v: a known vertical field of view in degrees (a prior; ``focal`` wins when both are given).
-        exif: for a file without ``focal`` / ``fov_v``, use the focal length its EXIF block records
-            (``FocalLengthIn35mmFilm``, or ``FocalLength`` with the sensor resolution); no prior when it has none.
+        fov_v: a known vertical field of view in degrees (the same prior in other units).
+        focal_35mm: a known 35 mm-equivalent focal length in millimetres, as cameras and EXIF give it (the same
+            prior again: ``focal = focal_35mm * hypot(W, H) / 43.27``). Give at most one of ``focal``, ``fov_v``
+            and ``focal_35mm``; on the image it must amount to a 35 mm equivalent in [8, 2000] mm (a field of view
+            no rectilinear lens has is refused, naming the likely mistake: millimetres given as pixels, say).
+        exif: for a file without a focal-length prior, use the focal length its EXIF block records
+            (``FocalLengthIn35mmFilm``, or ``FocalLength`` with the sensor resolution); no prior when it has none,
+            or when what it records is no camera's (outside the range above).
         num_threads: torch threads of the calling thread during the call (:mod:`ngp_kornia.threads`): None takes
             ``$NGP_NUM_THREADS`` or else 1; 0 keeps the caller's setting. The caller's count is restored after.
         gravity, gravity_std, principal_point, k1: a known ``(pitch, roll)`` and its standard deviation, degrees;
@@ -177,7 +184,8 @@ def calibrate(
 
     Raises:
         ImageReadError: unreadable, truncated, corrupt, too small (< 32 px), too large or NaN input.
-        InputError: a seed, prior or thread count that is not one (a bool as a focal length, say).
+        InputError: a seed, prior or thread count that is not one (a bool as a focal length, say), two focal-length
+            priors, or one that is no camera's on the image.
         ValueError: ``shared_intrinsics`` with photos of different sizes, or with ``exif``; a bad ``config``.
         WeightsError: a missing, corrupt or mismatched weights file.
         TypeError: an input type or dtype that is not supported.
@@ -190,7 +198,7 @@ def calibrate(
         [[64, 64], [48, 80]]
     """
     call = _Call(check_weights(weights), checked_config(config), checked_seed(seed),
-                 Priors(focal, fov_v, gravity, gravity_std, principal_point, k1), exif)
+                 Priors(focal, fov_v, gravity, gravity_std, principal_point, k1, focal_35mm), exif)
     return _calibrate_call(image, call, num_threads, shared_intrinsics)
 
 
@@ -227,7 +235,12 @@ def file_priors(image: object, height: int, width: int, priors: Priors, exif: bo
         500.0
     """
     if exif and not priors.known_focal and isinstance(image, (str, Path)):
-        return replace(priors, focal=exif_focal(image, height, width))
+        recorded = replace(priors, focal=exif_focal(image, height, width))
+        try:
+            recorded.check_image(height, width)
+        except NGPError:  # a damaged or odd tag (a focal length no camera has on this image): no prior
+            return priors
+        return recorded
     return priors
 
 
@@ -338,7 +351,7 @@ def calibrate_shared(image, call: _Call, num_threads: int | None) -> Calibration
         if alone and shared.photos < 2:  # one photo's lines, or none: nothing to share between photos
             warnings.warn(NGPWarning(not_shared_message(shared.photos, len(items))), stacklevel=4)
             return alone if isinstance(image, (list, tuple)) else alone[0]
-        priors = replace(call.priors, focal=shared.focal, fov_v=None)
+        priors = call.priors.with_focal(shared.focal)
         if shared.principal_point is not None:
             priors = replace(priors, principal_point=shared.principal_point)
         if shared.k1 is not None:
@@ -374,34 +387,6 @@ def shared_focal(
         raise ValueError("shared_focal() got no images")
     with pipeline_threads(None):
         return _first_pass(list(images), call, skip_unreadable=True)[1]
-
-
-def not_shared_message(photos: int, total: int) -> str:
-    """What is said where a camera was to be shared by ``total`` photos of which ``photos`` (fewer than two) have
-    lines to measure it by.
-
-    Example:
-        >>> not_shared_message(1, 2)
-        'only 1 of the 2 photos has lines to measure the camera by, so nothing is shared: each photo is ...'
-    """
-    if total == 1:
-        return "one photo cannot share a camera: it is calibrated alone (its own focal length and uncertainty)"
-    some = f"only {photos}" if photos else "none"
-    return (f"{some} of the {total} photos has lines to measure the camera by, so nothing is shared: each photo is "
-            "calibrated alone (its own focal length and uncertainty)")
-
-
-def not_shared_folders(folders: list[str], total: int) -> str:
-    """What is said where the photos of each folder were to share a camera, but in ``folders`` (of ``total``)
-    fewer than two photos have lines.
-
-    Example:
-        >>> not_shared_folders(["a", "b"], 3)
-        '2 of the 3 folders have fewer than two photos with lines (a, b), so their photos share nothing: ...'
-    """
-    named = ", ".join(folders[:3]) + (f" and {len(folders) - 3} more" if len(folders) > 3 else "")
-    return (f"{len(folders)} of the {total} folders have fewer than two photos with lines ({named}), so their photos "
-            "share nothing: each is calibrated alone (its own focal length and uncertainty)")
 
 
 def _first_pass(items: list, call: _Call, skip_unreadable: bool = False) -> tuple[list[tuple], SharedFocal, list]:
@@ -452,7 +437,7 @@ def _joint_camera(found: dict, call: _Call, photos: int, height: int, width: int
     """The shared camera of the photos' evidence (:mod:`ngp_kornia.pipeline.shared_camera`)."""
     if call.priors.known_focal:  # nothing to estimate: the known focal length is every photo's
         photos = int(torch.cat(found["valid"]).sum()) if found["valid"] else photos  # those that tell the rest
-        shared = SharedFocal(call.priors.focal_pixels(height), 0.0, photos)
+        shared = SharedFocal(call.priors.focal_pixels(height, width), 0.0, photos)
     else:
         grid = focal_grid(height, width, call.config.shared, call.config.sampling)
         shared = joint_focal(torch.cat(found["support"]), grid, torch.cat(found["valid"]), call.config.shared.bootstrap)

@@ -128,8 +128,11 @@ def _add_rectify(sub) -> None:
 
 
 def _add_prior_arguments(command: argparse.ArgumentParser, truth: bool = False) -> None:
-    command.add_argument("--focal", type=float, default=None, help="known focal length, pixels of the input image")
-    command.add_argument("--fov", type=float, default=None, help="known vertical field of view, degrees")
+    focal = command.add_mutually_exclusive_group()  # one prior in three units
+    focal.add_argument("--focal", type=float, default=None, help="known focal length, pixels of the input image")
+    focal.add_argument("--focal-35mm", type=float, default=None, metavar="MM",
+                       help="known focal length as a 35 mm equivalent, millimetres (as EXIF gives it)")
+    focal.add_argument("--fov", type=float, default=None, help="known vertical field of view, degrees")
     command.add_argument(
         "--exif", action="store_true", help="use the focal length in each file's EXIF, where it has one"
     )
@@ -147,8 +150,16 @@ def _prior(args: argparse.Namespace, image: str, rgb: np.ndarray) -> dict:
     from ngp_kornia.api import file_priors
     from ngp_kornia.pipeline.priors import Priors
 
-    priors = file_priors(image, *rgb.shape[:2], Priors(args.focal, args.fov), args.exif)
-    return {"focal": priors.focal, "fov_v": priors.fov_v, **camera_arguments(args)}
+    given = Priors(args.focal, args.fov, focal_35mm=args.focal_35mm)
+    priors = file_priors(image, *rgb.shape[:2], given, args.exif)
+    return {"focal": priors.focal, "fov_v": priors.fov_v, "focal_35mm": priors.focal_35mm, **camera_arguments(args)}
+
+
+def _prior_check(args: argparse.Namespace) -> None:
+    """The priors of the command line checked once, before any image is read (an error is said once, not per image)."""
+    from ngp_kornia.pipeline.priors import Priors
+
+    Priors(args.focal, args.fov, focal_35mm=args.focal_35mm, **camera_arguments(args))
 
 
 #: images read and calibrated together by ``ngp calibrate`` (one ``calibrate()`` call on a list)
@@ -236,6 +247,7 @@ def _calibrate(args: argparse.Namespace) -> int:
     from ngp_kornia.io import read_rgb_oriented
 
     many = len(args.images) > 1
+    _prior_check(args)
     if args.overlay:
         _check_overlays(args.overlay, args.images, args.force)
     failed, truth = 0, load_truth(args.truth)
@@ -325,7 +337,7 @@ def _predict(args: argparse.Namespace) -> int:
             batch_size=args.batch_size,
             seed=args.seed,
             config=_config(args),
-            priors=Priors(args.focal, args.fov, **camera_arguments(args)),
+            priors=Priors(args.focal, args.fov, focal_35mm=args.focal_35mm, **camera_arguments(args)),
             exif=args.exif,
             same_camera=args.same_camera,
             progress_bar=sys.stdout.isatty(),

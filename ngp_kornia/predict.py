@@ -30,7 +30,6 @@ import threading
 import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import replace
 from pathlib import Path
 from typing import IO
 
@@ -46,14 +45,14 @@ except ImportError as err:
         f"folder prediction needs Lightning ({err}); install it with: pip install 'ngp-kornia[train]'"
     ) from err
 
-from ngp_kornia.api import file_priors, load_parser, not_shared_folders, shared_focal, with_orientation
+from ngp_kornia.api import file_priors, load_parser, shared_focal, with_orientation
 from ngp_kornia.data.folder import ImageFolder
 from ngp_kornia.errors import NGPWarning, OutputError
 from ngp_kornia.folder_items import FolderImages, FolderItem, collate_items, error_reason
 from ngp_kornia.pipeline import Calibration, NeuralGeometricParser, ParserConfig
 from ngp_kornia.pipeline.priors import Priors, checked_seed
 from ngp_kornia.pipeline.segments import line_workers
-from ngp_kornia.pipeline.shared_camera import SharedFocal, with_shared_focal
+from ngp_kornia.pipeline.shared_camera import SharedFocal, not_shared_folders, with_shared_focal
 from ngp_kornia.preflight import check_folder, same_file
 from ngp_kornia.rowfiles import count_rows, merge_parts, open_locked, remove_stale_files
 from ngp_kornia.threads import pipeline_threads, usable_cores
@@ -116,7 +115,7 @@ class FolderPredictor(L.LightningModule):
             segments, mask = segments.to(self.device), mask.to(self.device)
         shared = None if self.cameras is None or name is None else self.cameras.get(Path(name).parent.as_posix())
         if shared is not None:  # the focal length of the photo's folder, estimated from all of them
-            priors = replace(priors, focal=shared.focal, fov_v=None)
+            priors = priors.with_focal(shared.focal)
         result = self.parser(image[None].to(self.device), segments, mask, seed=self.seed, priors=priors)[0]
         return result if shared is None else with_shared_focal(result, shared)
 

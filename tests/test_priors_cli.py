@@ -138,3 +138,21 @@ def test_cli_polish_frame_gives_the_polished_answer(capsys, tmp_path):
     out = tmp_path / "rows.jsonl"
     assert main(["predict", str(tmp_path), "--out", str(out), "--polish.enabled", "true"]) == 0
     assert json.loads(out.read_text().splitlines()[0])["pitch"] == pytest.approx(polished["pitch"], abs=1e-5)
+
+
+def test_cli_focal_priors_in_three_units_one_at_a_time(photos, capsys):
+    image = str(photos / "plain.jpg")
+    assert main(["calibrate", image, "--focal-35mm", "30"]) == 0
+    assert _rows(capsys)[0]["focal"] == pytest.approx(EXIF_FOCAL, rel=1e-5)
+    with pytest.raises(SystemExit) as stop:  # --fov was once dropped without a word
+        main(["calibrate", image, "--focal", "500", "--fov", "90"])
+    assert stop.value.code == 2 and "argument --fov: not allowed with argument --focal" in capsys.readouterr().err
+    assert main(["calibrate", image, "--focal", "5"]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "millimetres? give it as focal_35mm= (--focal-35mm)" in err
+
+
+def test_an_exif_focal_length_no_camera_has_is_no_prior(tmp_path):
+    path = tmp_path / "odd.jpg"
+    _scene_jpeg(path, 1)  # a 1 mm equivalent: a damaged tag, not a lens
+    assert float(calibrate(str(path), exif=True).focal) == pytest.approx(float(calibrate(str(path)).focal))

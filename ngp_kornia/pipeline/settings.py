@@ -21,6 +21,7 @@ Example:
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import math
 import numbers
 import re
@@ -416,7 +417,14 @@ def locate_setting(key: str) -> tuple[str, str]:
     """``(stage, field)`` of a setting named ``stage.field`` or by a field name that only one stage has.
 
     Raises:
-        ConfigError: no such setting; the message lists the stages.
+        ConfigError: no such setting, or a field name that several stages have; the message names the settings
+            meant, or lists the stages.
+
+    Example:
+        >>> locate_setting("enabled")
+        Traceback (most recent call last):
+        ...
+        ngp_kornia.errors.ConfigError: setting 'enabled' is ambiguous: did you mean evidence.enabled, ...?
     """
     if "." in key:
         stage, name = key.split(".", 1)
@@ -424,13 +432,24 @@ def locate_setting(key: str) -> tuple[str, str]:
         if kind is not None and name in {f.name for f in dataclasses.fields(kind)}:
             return stage, name
     else:
-        found = [(s, f.name) for s, f, _ in setting_fields() if f.name == key]
+        found = [f"{s}.{f.name}" for s, f, _ in setting_fields() if f.name == key]
         if len(found) == 1:
-            return found[0]
+            return tuple(found[0].split("."))
+        if found:
+            raise ConfigError(f"setting {key!r} is ambiguous: did you mean {_either(found)}?")
+    every = [f"{s}.{f.name}" for s, f, _ in setting_fields()]
+    close = difflib.get_close_matches(key, every, n=2, cutoff=0.85)
+    close += [name for name in every if "." not in key and difflib.get_close_matches(key, [name.split(".")[1]], 1, 0.8)]
+    hint = f"did you mean {_either(list(dict.fromkeys(close))[:3])}? " if close else ""
     raise ConfigError(
-        f"unknown setting {key!r}; settings are stage.field with stage one of {', '.join(_STAGES)} "
+        f"unknown setting {key!r}; {hint}settings are stage.field with stage one of {', '.join(_STAGES)} "
         "(e.g. horizon.refine, segments.working_size)"
     )
+
+
+def _either(names: list[str]) -> str:
+    """``a``, ``a or b``, ``a, b or c``."""
+    return names[0] if len(names) == 1 else f"{', '.join(names[:-1])} or {names[-1]}"
 
 
 def _attribute_docs(doc: str) -> dict[str, str]:

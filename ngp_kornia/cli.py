@@ -123,6 +123,8 @@ def _add_rectify(sub) -> None:
     rect.add_argument("--weights", default="default", help=WEIGHTS_HELP)
     rect.add_argument("--seed", type=int, default=0, help="seed of the candidate sampling")
     rect.add_argument("--force", action="store_true", help=FORCE_HELP)
+    rect.add_argument("--force-invalid", action="store_true",
+                      help="write the image even where no camera was found (valid false: the answer is a guess)")
     add_camera_arguments(rect)
     add_setting_options(rect)
 
@@ -376,6 +378,11 @@ def _rectify(args: argparse.Namespace) -> int:
         check_output(path, args.force, [args.image])
         rgb = read_image_file(args.image)
         result = calibrate(rgb, weights=args.weights, seed=args.seed, config=_config(args), **camera_arguments(args))
+        if not bool(result.valid) and not args.force_invalid:
+            print(f"ngp: error: {args.image}: no camera found (valid false, confidence 0: too few lines of man-made "
+                  "structure), so there is nothing to rectify; add --force-invalid to write it anyway (a level "
+                  "camera: the image as it is)", file=sys.stderr, flush=True)
+            return 1
         K, R = result.K[None].double(), result.R[None].double()
         if args.mode == "level":
             homography = level_homography(K, R)

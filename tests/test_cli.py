@@ -166,6 +166,18 @@ def test_rectify_keep_of_a_rendered_scene_keeps_the_pixels(tmp_path, capsys):
     assert written.shape[0] * written.shape[1] > 320 * 240  # the tilted frame needs a larger canvas
 
 
+def test_rectify_refuses_an_invalid_answer_unless_forced(tmp_path, capsys):
+    noise = tmp_path / "noise.png"  # no lines of structure: the answer is a guess (it was once written, exit 0)
+    cv2.imwrite(str(noise), np.random.default_rng(1).integers(0, 256, (480, 640, 3), dtype=np.uint8))
+    target = tmp_path / "out.png"
+    assert main(["rectify", str(noise), "-o", str(target)]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "no camera found (valid false" in err and "--force-invalid" in err
+    assert not target.exists()
+    assert main(["rectify", str(noise), "-o", str(target), "--force-invalid"]) == 0
+    assert np.array_equal(cv2.imread(str(target)), cv2.imread(str(noise)))  # a level camera: the image as it is
+
+
 def test_rectify_rejects_a_bad_mode(photo, tmp_path, capsys):
     with pytest.raises(SystemExit) as exit_info:
         main(["rectify", str(photo), "--mode", "sideways", "-o", str(tmp_path / "x.png")])

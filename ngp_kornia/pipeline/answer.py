@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import torch
 from torch import Tensor
@@ -29,7 +30,7 @@ from ngp_kornia.pipeline.constants import constant_tensors
 from ngp_kornia.pipeline.result import Calibration
 from ngp_kornia.pipeline.settings import ScoringSettings
 
-__all__ = ["calibration_from_camera", "topk_calibration"]
+__all__ = ["calibration_from_camera", "level_answer", "topk_calibration"]
 
 
 def topk_calibration(
@@ -102,6 +103,40 @@ def calibration_from_camera(
         image_size=size.expand(len(f), 2),
         exif_orientation=torch.ones(len(f), dtype=torch.long, device=K.device),  # tensors are taken as they are
     )
+
+
+#: the fields of a calibration that its camera ``K``, ``R`` makes (:func:`calibration_from_camera`)
+_CAMERA_FIELDS = ("K", "R", "focal", "fov_v", "fov_h", "pitch", "roll", "yaw", "up", "zenith", "horizon", "vps")
+
+
+def level_answer(result: Calibration, where: Tensor, fallback_fov: float) -> Calibration:
+    """The answer with the (batched) images ``where`` (B,) bool given the answer of an image without evidence: a
+    level camera (pitch, roll and yaw 0) with a known focal length (``fov_v_std`` 0) or else ``fallback_fov``
+    degrees on the long side, at the answer's principal point. What :func:`topk_calibration` gives an image
+    without a valid frame, for an image that another check finds without evidence.
+
+    Example:
+        >>> K = torch.tensor([[[500.0, 0, 319.5], [0, 500.0, 239.5], [0, 0, 1]]])
+        >>> R = torch.linalg.matrix_exp(torch.tensor([[[0.0, -0.2, 0.1], [0.2, 0, 0], [-0.1, 0, 0]]]))  # rolled
+        >>> answer = calibration_from_camera(K, R, torch.ones(1), torch.ones(1, dtype=torch.bool), 480, 640)
+        >>> level = level_answer(answer, torch.tensor([True]), 60.0)
+        >>> [round(float(v), 2) for v in (level.pitch, level.roll, level.yaw, level.fov_h)]
+        [0.0, 0.0, 0.0, 60.0]
+    """
+    if not bool(where.any()):
+        return result
+    height, width = (int(v) for v in result.image_size[0])
+    fallback = max(height, width) / 2.0 / math.tan(math.radians(fallback_fov) / 2.0)
+    known = torch.zeros_like(where) if result.fov_v_std is None else result.fov_v_std == 0
+    focal = torch.where(known, result.focal, torch.full_like(result.focal, fallback))
+    K = intrinsics_matrix(focal, result.K[:, :2, 2])
+    R = torch.eye(3, dtype=result.R.dtype, device=result.R.device).expand_as(result.R)
+    level = calibration_from_camera(K, R, result.score, result.valid, height, width)
+    fields = {}
+    for name in _CAMERA_FIELDS:
+        new, old = getattr(level, name), getattr(result, name)
+        fields[name] = torch.where(where.view(-1, *[1] * (new.dim() - 1)), new, old)
+    return replace(result, **fields)
 
 
 def _weighted_zenith_tensor(zenith: Tensor, weights: Tensor, k: int) -> Tensor:

@@ -152,9 +152,9 @@ def calibrate(
     Args:
         image: a file path (decoded as displayed: the EXIF orientation is applied, and reported in the result's
             ``exif_orientation``, which is 1 for arrays and tensors; files over the pixel limit of :mod:`ngp_kornia.io`
-            are refused), an HxWx3 uint8 RGB array (HxW greyscale, RGBA and uint16 are converted), or a float
-            tensor (3, H, W) or (B, 3, H, W) in [0, 1] on any device; or a list (or tuple) of any of these, of any
-            sizes, mixed freely.
+            are refused), an HxWx3 uint8 RGB array (HxW greyscale, RGBA and uint16 are converted; transparency is
+            composited over grey, so hidden pixels never count), or a float tensor (3, H, W) or (B, 3, H, W) in
+            [0, 1] on any device; or a list (or tuple) of any of these, of any sizes, mixed freely.
         weights: ``"default"`` (the best path shipped), ``"none"`` (the untrained geometric path), ``"zsnet"`` (zenith
             candidates scored by the shipped ZSNet), ``"fsnet"`` (frames rescored by the shipped FSNet), ``"full"``
             (both), or the path of a weights file (or a list of paths: one ZSNet and one FSNet file).

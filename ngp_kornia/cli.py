@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import warnings
@@ -13,6 +12,7 @@ from typing import TYPE_CHECKING
 
 from ngp_kornia.cli_camera import add_camera_arguments, camera_arguments, images_after_the_point, load_truth
 from ngp_kornia.cli_options import add_setting_options, config_from_args, short_usage, subcommand
+from ngp_kornia.cli_output import Table, print_result, warn_if_turned
 from ngp_kornia.cli_render import add_render_command, render_command
 from ngp_kornia.errors import ConfigError, NGPError, NGPWarning, OutputError
 from ngp_kornia.preflight import check_extra, check_folder, same_file
@@ -71,7 +71,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--version", action=_VersionAction, help="print the version and exit")
     sub = p.add_subparsers(dest="command", required=True)
-    cal = sub.add_parser("calibrate", help="calibrate photos; prints one JSON object per image")
+    cal = sub.add_parser("calibrate", help="calibrate photos: a table on a terminal, JSON lines otherwise")
     cal.add_argument("images", nargs="*", help="image files (at least one)")
     cal.add_argument("--weights", default="default", help=WEIGHTS_HELP)
     cal.add_argument("--seed", type=int, default=0, help="seed of the candidate sampling")
@@ -79,6 +79,8 @@ def _parser() -> argparse.ArgumentParser:
         "--overlay", help="write an overlay PNG here (for several images: a folder, one <name>_overlay.png each)"
     )
     cal.add_argument("--force", action="store_true", help=FORCE_HELP)
+    cal.add_argument("--json", action="store_true",
+                     help="print one JSON object per image (the default when the output is not a terminal)")
     _add_prior_arguments(cal, truth=True)
     pred = sub.add_parser("predict", help="calibrate every image of a folder into a JSON Lines file")
     pred.add_argument("folder", help="folder of images")
@@ -253,6 +255,7 @@ def _calibrate(args: argparse.Namespace) -> int:
     if args.overlay:
         _check_overlays(args.overlay, args.images, args.force)
     failed, truth = 0, load_truth(args.truth)
+    table = Table(args.images) if not args.json and sys.stdout.isatty() else None  # people read, programs parse
     chunk = len(args.images) if args.same_camera else _CHUNK  # one camera: its photos are calibrated together
     for start in range(0, len(args.images), chunk):  # a few images at a time, so results come as they are done
         loaded = []
@@ -275,8 +278,8 @@ def _calibrate(args: argparse.Namespace) -> int:
                 failed += 1
                 continue
             result = with_orientation(result, orientation)
-            print(json.dumps({"image": image, **result.to_dict()}), flush=True)
-            _warn_if_turned(image, result, _config(args).upright.sure)
+            print_result(image, result, table, _config(args).upright.sure)
+            warn_if_turned(image, result, _config(args).upright.sure)
             try:
                 if args.overlay:
                     given = truth.get(Path(image).resolve())
@@ -285,20 +288,6 @@ def _calibrate(args: argparse.Namespace) -> int:
                 failed += 1
                 print(f"ngp: error: {_one_line(err)}", file=sys.stderr, flush=True)
     return 1 if failed else 0
-
-
-def _warn_if_turned(image: str, result, sure: float) -> None:
-    """One line on stderr where the orientation check is sure enough that the photo is turned to act on it (its
-    upright probability below ``1 - sure``): either the answer is the turned camera's (its roll beyond 45 degrees,
-    ``upright.turn_back``), or it is that of a camera rolled the other way and its confidence was scaled."""
-    turned = 0 if result.turned is None else int(result.turned)
-    if turned and bool(result.valid) and float(result.upright) < 1.0 - sure:
-        head = f"ngp: warning: {image} looks turned by {turned} degrees counter-clockwise"
-        if abs(float(result.roll)) > 45.0:
-            tail = f"answered as the camera of a turned photo (roll {float(result.roll):.1f})"
-        else:
-            tail = "turn it back or give it an orientation tag, then calibrate it again"
-        print(f"{head} (upright probability {float(result.upright):.2f}): {tail}", file=sys.stderr, flush=True)
 
 
 def _calibrate_or_none(image: str, rgb: np.ndarray, args: argparse.Namespace):

@@ -55,6 +55,7 @@ from ngp_kornia.pipeline.segments import line_workers
 from ngp_kornia.pipeline.shared_camera import SharedFocal, not_shared_folders, with_shared_focal
 from ngp_kornia.preflight import check_folder, same_file
 from ngp_kornia.rowfiles import count_rows, merge_parts, open_locked, remove_stale_files
+from ngp_kornia.rows import result_row
 from ngp_kornia.threads import pipeline_threads, usable_cores
 
 __all__ = [
@@ -71,7 +72,7 @@ __all__ = [
 
 class FolderPredictor(L.LightningModule):
     """The parser as a LightningModule whose ``predict_step`` turns a batch of :class:`FolderItem` into
-    ``(index, row)`` pairs, ``row`` being ``{"image": name, **Calibration.to_dict()}`` or
+    ``(index, row)`` pairs, ``row`` being :func:`~ngp_kornia.rows.result_row` (``ngp calibrate --json``'s) or
     ``{"image": name, "error": reason}``.
 
     Args:
@@ -129,7 +130,7 @@ class FolderPredictor(L.LightningModule):
                 result = self.calibrate(item.image, item.name, item.segments, item.mask)
                 if item.orientation is not None:
                     result = with_orientation(result, item.orientation)
-                rows.append((item.index, {"image": item.name, **result.to_dict()}))
+                rows.append((item.index, result_row(item.name, result)))
             except Exception as err:  # one image's failure is its row, never the end of the run
                 rows.append((item.index, {"image": item.name, "error": error_reason(err, item.name)}))
         return rows
@@ -373,7 +374,8 @@ def predict_folder(
 ) -> dict | None:
     """Calibrate every image of a folder into a JSON Lines file, one row per image in sorted path order.
 
-    A row is ``{"image": <path relative to folder>, **Calibration.to_dict()}`` (with ``exif_orientation``), or
+    A row is :func:`~ngp_kornia.rows.result_row` of the image's path relative to folder (with
+    ``exif_orientation``; floats rounded to 6 significant digits, as ``ngp calibrate --json`` gives them), or
     ``{"image": ..., "error": <reason>}`` for a file that cannot be read or calibrated, whatever the reason. An
     interrupted run (Ctrl+C or SIGTERM; the caller's handlers are back after) leaves ``out`` holding the rows of the
     images finished so far and returns with ``"interrupted": True``; it does not resume. What killed runs left

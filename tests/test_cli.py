@@ -34,6 +34,43 @@ def test_calibrate_prints_one_json_object_per_image(photo, capsys):
         assert key in record
 
 
+def _floats(value):
+    if isinstance(value, float):
+        yield value
+    elif isinstance(value, dict):
+        for item in value.values():
+            yield from _floats(item)
+    elif isinstance(value, list):
+        for item in value:
+            yield from _floats(item)
+
+
+def test_piped_output_is_json_lines_with_six_significant_digits(photo):
+    # one long line with float noise (660.2574462890625) once; rounded at output, the result keeps every digit
+    run = subprocess.run([sys.executable, "-m", "ngp_kornia.cli", "calibrate", str(photo), str(photo)],
+                         capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    rows = [json.loads(line) for line in run.stdout.splitlines()]
+    floats = list(_floats(rows))
+    assert len(rows) == 2 and len(floats) > 40
+    assert all(float(f"{v:.6g}") == v for v in floats)
+    assert any(float(f"{v:.5g}") != v for v in floats)  # six digits, not fewer
+
+
+def test_a_terminal_gets_a_short_table_and_json_on_request(photo, tmp_path, capsys, monkeypatch):
+    noise = tmp_path / "noise.png"
+    cv2.imwrite(str(noise), np.random.default_rng(1).integers(0, 256, (120, 160, 3), dtype=np.uint8))
+    monkeypatch.setattr(sys.stdout, "isatty", lambda: True)
+    assert main(["calibrate", str(photo), str(noise)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert len(lines) == 3 and lines[0].split()[1:] == [
+        "focal", "px", "FoV", "v", "deg", "pitch", "deg", "roll", "deg", "confidence", "warning"]
+    assert lines[1].split()[0].endswith("scene.png") and len(lines[1].split()) >= 6  # a long path keeps its end
+    assert lines[2].endswith("0.00  no camera found (valid false)")
+    assert main(["calibrate", str(photo), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["image"] == str(photo)
+
+
 def test_bad_image_is_one_line_on_stderr_and_the_rest_still_run(photo, tmp_path, capsys):
     missing = tmp_path / "missing.jpg"
     code = main(["calibrate", str(missing), str(photo)])

@@ -9,6 +9,7 @@ import pytest
 
 import ngp_kornia
 from ngp_kornia import calibrate, cli
+from ngp_kornia.rows import result_row
 from ngp_kornia.training.synth.render import render_scene
 
 
@@ -80,7 +81,7 @@ def test_several_images_give_what_the_list_api_gives(scenes, tmp_path, capsys, m
     assert [r["image"] for r in rows] == [str(p) for p in scenes]
     expected = calibrate([str(p) for p in scenes], weights="none")
     for row, cal in zip(rows, expected, strict=True):
-        assert row == {"image": row["image"], **json.loads(json.dumps(cal.to_dict()))}
+        assert row == json.loads(json.dumps(result_row(row["image"], cal)))
     assert err.count("\n") == 1 and "missing.jpg: file not found" in err
 
 

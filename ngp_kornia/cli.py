@@ -11,11 +11,12 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ngp_kornia.cli_camera import add_camera_arguments, camera_arguments, images_after_the_point, load_truth
+from ngp_kornia.cli_files import check_output, check_overlays, overlay_path, write_image, write_overlay
 from ngp_kornia.cli_options import add_setting_options, config_from_args, short_usage, subcommand
 from ngp_kornia.cli_output import Table, print_result, warn_if_turned
 from ngp_kornia.cli_render import add_render_command, render_command
-from ngp_kornia.errors import ConfigError, NGPError, NGPWarning, OutputError
-from ngp_kornia.preflight import check_extra, check_folder, same_file
+from ngp_kornia.errors import ConfigError, NGPError, NGPWarning
+from ngp_kornia.preflight import check_extra, check_folder
 
 if TYPE_CHECKING:
     import numpy as np
@@ -170,68 +171,6 @@ def _prior_check(args: argparse.Namespace) -> None:
 _CHUNK = 8
 
 
-def _overlay_path(target: str, image: str, many: bool) -> Path:
-    if not many:
-        return Path(target)
-    return Path(target) / f"{Path(image).stem}_overlay.png"
-
-
-def _check_overlays(target: str, images: list[str], force: bool) -> None:
-    """Refuse ``--overlay`` where it names a file for several images, or where two images would write one overlay
-    (the same name in two folders): the second would replace the first within the run."""
-    if len(images) == 1:
-        return check_output(Path(target), force, images)
-    if Path(target).is_file() or (not Path(target).is_dir() and Path(target).suffix.lower() in (".png", ".jpg")):
-        raise OutputError(f"--overlay {target} names a file, but {len(images)} images were given; give a folder")
-    first: dict[Path, str] = {}
-    for image in images:
-        other = first.setdefault(_overlay_path(target, image, True), image)
-        if other != image:
-            raise OutputError(
-                f"{other} and {image} would both write {_overlay_path(target, image, True)}; calibrate them in "
-                "separate runs, or give one of them another name"
-            )
-    return None
-
-
-def check_output(path: Path, force: bool, inputs: list[str] = ()) -> None:
-    """Refuse an output image path that OpenCV cannot write (no or unknown extension), that is one of the inputs,
-    or that exists already (unless ``force``).
-
-    Raises:
-        OutputError: with the fix in the message.
-    """
-    import cv2
-
-    if path.is_dir():
-        raise OutputError(f"{path} is a folder; give the image file to write, e.g. {path / 'out.png'}")
-    if not cv2.haveImageWriter(str(path)):
-        raise OutputError(f"{path}: cannot tell the image format from the extension; end the name with .png or .jpg")
-    if path.exists():
-        if any(same_file(path, i) for i in inputs):
-            raise OutputError(f"{path} is one of the input images; write the output to another file")
-        if not force:
-            raise OutputError(f"{path} exists; add --force to overwrite it, or choose another name")
-
-
-def _write_image(path: Path, rgb: np.ndarray) -> None:
-    import cv2
-    import numpy as np
-
-    path.parent.mkdir(parents=True, exist_ok=True)
-    if not cv2.imwrite(str(path), cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2BGR)):
-        raise OutputError(f"could not write {path}")
-
-
-def _write_overlay(path: Path, rgb: np.ndarray, calibration, config: ParserConfig | None = None, truth=None) -> None:
-    from ngp_kornia.pipeline.segments import detect_segments
-    from ngp_kornia.viz import draw_calibration
-
-    settings = None if config is None else config.segments
-    segments = detect_segments(rgb, settings)[0][0].numpy()  # the lines the calibration saw (same settings)
-    _write_image(path, draw_calibration(rgb, calibration, segments, truth=truth))
-
-
 def _calibrate_loaded(loaded: list, args: argparse.Namespace) -> list:
     """calibrate() on the (image, rgb, orientation) items read: one call on the list when every item has the same
     prior (always, unless --exif finds different focal lengths), else one call per item."""
@@ -253,7 +192,7 @@ def _calibrate(args: argparse.Namespace) -> int:
     many = len(args.images) > 1
     _prior_check(args)
     if args.overlay:
-        _check_overlays(args.overlay, args.images, args.force)
+        check_overlays(args.overlay, args.images, args.force)
     failed, truth = 0, load_truth(args.truth)
     table = Table(args.images) if not args.json and sys.stdout.isatty() else None  # people read, programs parse
     chunk = len(args.images) if args.same_camera else _CHUNK  # one camera: its photos are calibrated together
@@ -262,7 +201,7 @@ def _calibrate(args: argparse.Namespace) -> int:
         for image in args.images[start : start + chunk]:
             try:
                 if args.overlay and many:
-                    check_output(_overlay_path(args.overlay, image, True), args.force, args.images)
+                    check_output(overlay_path(args.overlay, image, True), args.force, args.images)
                 loaded.append((image, *read_rgb_oriented(image)))
             except _user_errors() as err:
                 failed += 1
@@ -283,7 +222,7 @@ def _calibrate(args: argparse.Namespace) -> int:
             try:
                 if args.overlay:
                     given = truth.get(Path(image).resolve())
-                    _write_overlay(_overlay_path(args.overlay, image, many), rgb, result, _config(args), given)
+                    write_overlay(overlay_path(args.overlay, image, many), rgb, result, _config(args), given)
             except _user_errors() as err:
                 failed += 1
                 print(f"ngp: error: {_one_line(err)}", file=sys.stderr, flush=True)
@@ -384,7 +323,7 @@ def _rectify(args: argparse.Namespace) -> int:
         lens = {} if result.k1 is None else {"k1": result.k1[None].double(), "K": K}  # undistorted on the way
         warped, _ = rectify(image, homography, crop=crop, **lens)  # too oblique for keep: the error names --crop
         out = warped[0].permute(1, 2, 0).mul(255.0).round().clamp(0, 255).to(torch.uint8).numpy()
-        _write_image(path, out)
+        write_image(path, out)
     except _user_errors() as err:
         print(f"ngp: error: {_one_line(err)}", file=sys.stderr, flush=True)
         return 1
@@ -405,7 +344,7 @@ def _demo(args: argparse.Namespace) -> int:
         print(f"{key:8}{result[key]:10.2f}{truth[key]:10.2f}")
     if args.overlay:
         check_output(Path(args.overlay), force=True)
-        _write_overlay(Path(args.overlay), scene.image, calibration)
+        write_overlay(Path(args.overlay), scene.image, calibration)
         print(f"overlay written to {args.overlay}")
     return 0
 

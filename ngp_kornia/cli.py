@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 
 from ngp_kornia.cli_camera import add_camera_arguments, camera_arguments, images_after_the_point, load_truth
 from ngp_kornia.cli_files import check_output, check_overlays, overlay_path, write_image, write_overlay
-from ngp_kornia.cli_options import add_setting_options, config_from_args, short_usage, subcommand
+from ngp_kornia.cli_options import add_setting_options, closest_option, config_from_args, short_usage, subcommand
 from ngp_kornia.cli_output import Table, print_result, warn_if_turned
 from ngp_kornia.cli_render import add_render_command, render_command
 from ngp_kornia.errors import ConfigError, NGPError, NGPWarning
@@ -30,21 +30,27 @@ __all__ = ["main", "parse", "run"]
 #: what the commands report as one line ``ngp: error: <message>`` instead of a traceback (with kornia's check
 #: errors, see _user_errors)
 USER_ERRORS = (NGPError, ValueError, TypeError, OSError)
-FORCE_HELP = "overwrite an existing output file (never one of the input images)"
-
-WEIGHTS_HELP = (
-    "'default' (the best shipped), 'none' (geometric path), 'zsnet', 'fsnet', 'full' (both networks), or a .pt "
-    "weights file written by ngp-train export"
-)
+FORCE_HELP = "overwrite an output file (never an input)"
+WEIGHTS_HELP = "default, none, zsnet, fsnet, full, or a .pt file"
+#: the last lines of the help of a command with pipeline settings
+SETTINGS_EPILOG = "Every pipeline setting (e.g. --segments.working_size 640, --horizon.refine false): --help-all."
 
 
 class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
-    """Shows an option's default where it has one worth showing (not None, False or already in the help)."""
+    """Shows an option's default where it has one worth showing (not None, False or already in the help), and the
+    options' help from the 26th column, so that a command's everyday options fit a screen."""
+
+    def __init__(self, prog: str) -> None:
+        super().__init__(prog, max_help_position=26)
 
     def _get_help_string(self, action: argparse.Action) -> str:
         if action.default is None or action.default is False:
             return action.help or ""
         return super()._get_help_string(action)
+
+    def _format_args(self, action: argparse.Action, default_metavar: str) -> str:
+        shown = getattr(action, "shown_args", None)  # "CX CY | estimate" rather than argparse's "X [X ...]"
+        return shown if shown is not None else super()._format_args(action, default_metavar)
 
 
 class _VersionAction(argparse.Action):
@@ -72,29 +78,28 @@ def _parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--version", action=_VersionAction, help="print the version and exit")
     sub = p.add_subparsers(dest="command", required=True)
-    cal = sub.add_parser("calibrate", help="calibrate photos: a table on a terminal, JSON lines otherwise")
+    cal = sub.add_parser("calibrate", help="calibrate photos: a table on a terminal, JSON lines otherwise",
+                         description="Focal length, field of view, pitch and roll of photos of man-made scenes: a "
+                         "table on a terminal, JSON lines with --json or in a pipe.", epilog=SETTINGS_EPILOG)
     cal.add_argument("images", nargs="*", help="image files (at least one)")
-    cal.add_argument("--weights", default="default", help=WEIGHTS_HELP)
-    cal.add_argument("--seed", type=int, default=0, help="seed of the candidate sampling")
-    cal.add_argument(
-        "--overlay", help="write an overlay PNG here (for several images: a folder, one <name>_overlay.png each)"
-    )
+    cal.add_argument("--weights", metavar="NAME", default="default", help=WEIGHTS_HELP)
+    cal.add_argument("--seed", metavar="N", type=int, default=0, help="seed of the random sampling")
+    cal.add_argument("--json", action="store_true", help="one JSON object per image, also on a terminal")
+    cal.add_argument("--overlay", metavar="PNG", help="draw the answer over the photo (a folder for several)")
+    cal.add_argument("--truth", metavar="FILE", help="also draw the true horizon: a CSV or an ngp render folder")
     cal.add_argument("--force", action="store_true", help=FORCE_HELP)
-    cal.add_argument("--json", action="store_true",
-                     help="print one JSON object per image (the default when the output is not a terminal)")
-    _add_prior_arguments(cal, truth=True)
-    pred = sub.add_parser("predict", help="calibrate every image of a folder into a JSON Lines file")
+    _add_prior_arguments(cal, "one camera took them all: one focal length")
+    pred = sub.add_parser("predict", help="calibrate every image of a folder into a JSON Lines file",
+                          epilog=SETTINGS_EPILOG)
     pred.add_argument("folder", help="folder of images")
-    pred.add_argument(
-        "-o", "--out", required=True,
-        help="the .jsonl file to write: one JSON object per image (an existing file only if it holds such rows)",
-    )
-    pred.add_argument("--devices", type=int, default=1, help="CPU processes (DDP, gloo), at most one per core")
-    pred.add_argument("--weights", default="default", help="a weight set as for calibrate, or a weights file")
+    pred.add_argument("-o", "--out", metavar="JSONL", required=True,
+                      help="the file of rows to write (replaces only a file of such rows)")
+    pred.add_argument("--devices", metavar="N", type=int, default=1, help="CPU processes, at most one per core")
+    pred.add_argument("--weights", metavar="NAME", default="default", help=WEIGHTS_HELP)
     pred.add_argument("--recursive", action="store_true", help="also calibrate the images of sub-folders")
-    pred.add_argument("--batch-size", type=int, default=1, help="images per loader batch")
-    pred.add_argument("--seed", type=int, default=0, help="seed of the candidate sampling")
-    _add_prior_arguments(pred)
+    pred.add_argument("--batch-size", metavar="N", type=int, default=1, help="images per loader batch")
+    pred.add_argument("--seed", metavar="N", type=int, default=0, help="seed of the random sampling")
+    _add_prior_arguments(pred, "one camera per folder: one focal length each")
     _add_rectify(sub)
     demo = sub.add_parser("demo", help="calibrate a built-in rendered example and print the estimate and the truth")
     demo.add_argument("--overlay", help="write the overlay PNG here")
@@ -107,41 +112,39 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _add_rectify(sub) -> None:
-    rect = sub.add_parser("rectify", help="calibrate a photo and write it rectified (level, upright or frontal)")
+    rect = sub.add_parser("rectify", help="calibrate a photo and write it rectified (level, upright or frontal)",
+                          epilog=SETTINGS_EPILOG)
     rect.add_argument("image", help="image file")
     rect.add_argument(
         "--mode",
         choices=("level", "upright", "frontal"),
         default="upright",
-        help="level: remove the roll; upright: remove roll and pitch; frontal: face a facade",
+        help="level: no roll; upright: no roll nor pitch; frontal: face a facade",
     )
-    rect.add_argument("--axis", choices=("x", "z"), default="z", help="frontal mode: the world axis to look along")
-    rect.add_argument("-o", "--output", required=True, help="the rectified PNG to write")
+    rect.add_argument("--axis", choices=("x", "z"), default="z", help="--mode frontal: the scene axis to face")
+    rect.add_argument("-o", "--output", metavar="PNG", required=True, help="the rectified image to write")
     rect.add_argument(
         "--crop",
         choices=("keep", "valid"),
-        help="keep every pixel, or only the valid centre (default: keep; valid for --mode frontal, whose views are "
-        "too oblique to keep whole)",
+        help="keep every pixel, or crop to the valid centre (default: keep; valid for frontal)",
     )
-    rect.add_argument("--weights", default="default", help=WEIGHTS_HELP)
-    rect.add_argument("--seed", type=int, default=0, help="seed of the candidate sampling")
+    rect.add_argument("--weights", metavar="NAME", default="default", help=WEIGHTS_HELP)
+    rect.add_argument("--seed", metavar="N", type=int, default=0, help="seed of the random sampling")
     rect.add_argument("--force", action="store_true", help=FORCE_HELP)
-    rect.add_argument("--force-invalid", action="store_true",
-                      help="write the image even where no camera was found (valid false: the answer is a guess)")
-    add_camera_arguments(rect)
-    add_setting_options(rect)
+    rect.add_argument("--force-invalid", action="store_true", help="write it even where no camera was found")
+    _add_prior_arguments(rect)
 
 
-def _add_prior_arguments(command: argparse.ArgumentParser, truth: bool = False) -> None:
-    focal = command.add_mutually_exclusive_group()  # one prior in three units
-    focal.add_argument("--focal", type=float, default=None, help="known focal length, pixels of the input image")
-    focal.add_argument("--focal-35mm", type=float, default=None, metavar="MM",
-                       help="known focal length as a 35 mm equivalent, millimetres (as EXIF gives it)")
-    focal.add_argument("--fov", type=float, default=None, help="known vertical field of view, degrees")
-    command.add_argument(
-        "--exif", action="store_true", help="use the focal length in each file's EXIF, where it has one"
-    )
-    add_camera_arguments(command, truth)
+def _add_prior_arguments(command: argparse.ArgumentParser, same_camera: str | None = None) -> None:
+    """What is known of the camera (``--focal``, ..., ``--same-camera`` with its help where the command takes it)
+    and the pipeline settings (listed by ``--help-all``)."""
+    group = command.add_argument_group("what you know of the camera (all optional)")
+    focal = group.add_mutually_exclusive_group()  # one prior in three units
+    focal.add_argument("--focal", type=float, metavar="PX", help="focal length in pixels of the image")
+    focal.add_argument("--focal-35mm", type=float, metavar="MM", help="focal length as a 35 mm equivalent (as EXIF)")
+    focal.add_argument("--fov", type=float, metavar="DEG", help="vertical field of view in degrees")
+    group.add_argument("--exif", action="store_true", help="each file's EXIF focal length, where it has one")
+    add_camera_arguments(group, same_camera)
     add_setting_options(command)
 
 
@@ -303,9 +306,11 @@ def _rectify(args: argparse.Namespace) -> int:
 
     path = Path(args.output)
     try:
+        _prior_check(args)
         check_output(path, args.force, [args.image])
         rgb = read_image_file(args.image)
-        result = calibrate(rgb, weights=args.weights, seed=args.seed, config=_config(args), **camera_arguments(args))
+        result = calibrate(rgb, weights=args.weights, seed=args.seed, config=_config(args),
+                           **_prior(args, args.image, rgb))
         if not bool(result.valid) and not args.force_invalid:
             print(f"ngp: error: {args.image}: no camera found (valid false, confidence 0: too few lines of man-made "
                   "structure), so there is nothing to rectify; add --force-invalid to write it anyway (a level "
@@ -360,6 +365,17 @@ def _check_weights(parser: argparse.ArgumentParser, command: str, weights: str) 
         subcommands.choices[command].error(f"--weights: {err}")
 
 
+def _unrecognized(command: argparse.ArgumentParser, extras: list[str]) -> None:
+    """A usage error for words the command does not know: its usage, and for a mistyped option the closest one
+    (``--focla``: ``did you mean --focal?``). Exits with status 2."""
+    for word in extras:
+        if word.startswith("-"):
+            close = closest_option(command, word)
+            hint = f"did you mean {close}?" if close else f"see {command.prog} --help"
+            command.error(f"unrecognized option {word}: {hint}")
+    command.error(f"unrecognized arguments: {' '.join(extras)}")
+
+
 def parse(argv: list[str] | None = None) -> argparse.Namespace | int:
     """The command line, checked without importing torch, OpenCV or Lightning.
 
@@ -371,7 +387,9 @@ def parse(argv: list[str] | None = None) -> argparse.Namespace | int:
         the arguments for :func:`run`, or the exit status.
     """
     parser = _parser()
-    args = parser.parse_args(argv)
+    args, extras = parser.parse_known_args(argv)
+    if extras:
+        _unrecognized(subcommand(parser, args.command), extras)
     if args.command == "calibrate":
         images_after_the_point(args, subcommand(parser, "calibrate"))
     if hasattr(args, "setting:segments.working_size"):

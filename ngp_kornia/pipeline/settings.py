@@ -153,10 +153,11 @@ class SamplingSettings:
     """Zenith, horizontal-VP and Manhattan-frame candidates (:mod:`ngp_kornia.pipeline.candidates`).
 
     Attributes:
-        num_zenith_lines: |L_z|, the near-vertical lines ZSNet reads (Eq. 3).
-        num_zenith: |Z|, zenith candidates (Eq. 4).
-        vertical_threshold: delta_z of Eq. 4, degrees.
-        zenith_threshold: delta_c of Eq. 12, the ZSNet score a candidate needs.
+        num_zenith_lines: near-vertical lines the zenith network reads (the paper's |L_z|, Eq. 3).
+        num_zenith: zenith candidates drawn from pairs of near-vertical lines (|Z|, Eq. 4).
+        vertical_threshold: lines steeper than this, in degrees from the horizontal, count as near-vertical
+            (delta_z, Eq. 4).
+        zenith_threshold: the zenith network's score a candidate needs to count (delta_c, Eq. 12).
         vertical_tol: a segment within this angle (degrees) of the ray to the zenith estimate counts as vertical in
             the junction filter.
         junction_radius: endpoint distance for a junction, in units of half the image's long side.
@@ -191,9 +192,10 @@ class ScoringSettings:
 
     Attributes:
         kernel_angle: width of the sharp closeness kernel of the Manhattan score, degrees.
-        top_k: k of Eq. 23.
+        top_k: the answer averages this many best frames (k, Eq. 23).
         num_scored: frames FSNet scores per image, the best by Manhattan score (unused without FSNet).
-        use_manhattan: with FSNet, the final score is ``s_vh * m_i`` (Eq. 22); False uses ``s_vh`` alone.
+        use_manhattan: with FSNet, a frame's score is FSNet's times its Manhattan score ``s_vh * m_i`` (Eq. 22);
+            False uses FSNet's alone.
         fallback_fov: long-side field of view (degrees) reported when an image has no valid frame.
     """
 

@@ -84,7 +84,7 @@ def test_overlay_is_written_as_an_image(photo, tmp_path, capsys):
     target = tmp_path / "out" / "overlay.png"
     assert main(["calibrate", str(photo), "--overlay", str(target)]) == 0
     drawn = cv2.imread(str(target))
-    assert drawn is not None and drawn.shape == (120, 160, 3)
+    assert drawn is not None and drawn.shape[1:] == (160, 3) and drawn.shape[0] > 120  # the key strip below
 
 
 def test_overlay_folder_for_several_images(photo, tmp_path, capsys):

@@ -150,42 +150,32 @@ def calibrate(
     """Calibrate a camera from one photo (or a batch, or a list of photos) of a man-made scene.
 
     Args:
-        image: a file path (decoded as displayed: the EXIF orientation is applied, and reported in the result's
-            ``exif_orientation``, which is 1 for arrays and tensors; files over the pixel limit of :mod:`ngp_kornia.io`
-            are refused), an HxWx3 uint8 RGB array (HxW greyscale, RGBA and uint16 are converted; transparency is
-            composited over grey, so hidden pixels never count), or a float tensor (3, H, W) or (B, 3, H, W) in
-            [0, 1] on any device; or a list (or tuple) of any of these, of any sizes, mixed freely.
+        image: a file path (decoded as displayed, :func:`ngp_kornia.io.read_image`: its EXIF orientation applied,
+            transparency over grey), an HxWx3 uint8 RGB array (HxW greyscale, RGBA and uint16 converted), or a float
+            tensor (3, H, W) or (B, 3, H, W) in [0, 1] on any device; or a list (or tuple) of any of these, mixed.
         weights: ``"default"`` (the best path shipped), ``"none"`` (the untrained geometric path), ``"zsnet"`` (zenith
             candidates scored by the shipped ZSNet), ``"fsnet"`` (frames rescored by the shipped FSNet), ``"full"``
             (both), or the path of a weights file (or a list of paths: one ZSNet and one FSNet file).
         seed: seed of the random candidate sampling; the same input and seed give the same result.
         config: a :class:`~ngp_kornia.pipeline.settings.ParserConfig`, or a mapping ``{"horizon.refine": False, ...}``.
-        focal: a known focal length in pixels of the input image (a prior).
-        fov_v: a known vertical field of view in degrees (the same prior in other units).
-        focal_35mm: a known 35 mm-equivalent focal length in millimetres, as cameras and EXIF give it (the same
-            prior again: ``focal = focal_35mm * hypot(W, H) / 43.27``). Give at most one of ``focal``, ``fov_v``
-            and ``focal_35mm``; on the image it must amount to a 35 mm equivalent in [8, 2000] mm (a field of view
-            no rectilinear lens has is refused, naming the likely mistake: millimetres given as pixels, say).
-        exif: for a file without a focal-length prior, use the focal length its EXIF block records
-            (``FocalLengthIn35mmFilm``, or ``FocalLength`` with the sensor resolution); no prior when it has none,
-            or when what it records is no camera's (outside the range above).
-        num_threads: torch threads of the calling thread during the call (:mod:`ngp_kornia.threads`): None takes
-            ``$NGP_NUM_THREADS`` or else 1; 0 keeps the caller's setting. The caller's count is restored after.
+        focal, fov_v, focal_35mm: a known focal length (one of them, :class:`Priors`): pixels of the input, the
+            vertical field of view in degrees, or millimetres of a 35 mm equivalent as EXIF gives it. One that no
+            camera has on the image (millimetres given as pixels, say) is refused with the likely mistake.
+        exif: for a file without such a prior, the focal length its EXIF block records, where it records a
+            plausible one (``FocalLengthIn35mmFilm``, or ``FocalLength`` with the sensor resolution).
+        num_threads: torch threads during the call, then restored (:mod:`ngp_kornia.threads`; 0: the caller's).
         gravity, gravity_std, principal_point, k1: a known ``(pitch, roll)`` and its standard deviation, degrees;
             the principal point ``(cx, cy)`` and radial distortion, known or ``"estimate"`` (:class:`Priors`).
-        shared_intrinsics: the photos (of one size) are one camera's (:mod:`ngp_kornia.pipeline.shared_camera`).
-            Where fewer than two of them have lines to measure the camera by, nothing is shared: each photo is
-            calibrated alone (its own focal length and uncertainty, ``shared_photos`` None) and an
-            :class:`~ngp_kornia.errors.NGPWarning` says so.
+        shared_intrinsics: the photos (of one size) are one camera's (:mod:`ngp_kornia.pipeline.shared_camera`;
+            with fewer than two that have lines, each is calibrated alone and an ``NGPWarning`` says so).
 
     Returns:
-        a :class:`Calibration` in the input's pixels (documented there), batched for batched tensor input; for a list,
-        a list of results, one per item, each what that item gives alone (same seed) unless ``shared_intrinsics``.
+        a :class:`Calibration` in the input's pixels (``exif_orientation`` says how a file was turned), batched for
+        batched tensor input; for a list, one per item, each what that item gives alone unless ``shared_intrinsics``.
 
     Raises:
         ImageReadError: unreadable, truncated, corrupt, too small (< 32 px), too large or NaN input.
-        InputError: a seed, prior or thread count that is not one (a bool as a focal length, say), two focal-length
-            priors, or one that is no camera's on the image.
+        InputError: a seed, prior or thread count that is not one (a bool as a focal length, say), or two priors.
         ValueError: ``shared_intrinsics`` with photos of different sizes, or with ``exif``; a bad ``config``.
         WeightsError: a missing, corrupt or mismatched weights file.
         TypeError: an input type or dtype that is not supported.

@@ -374,8 +374,7 @@ def predict_folder(
 ) -> dict | None:
     """Calibrate every image of a folder into a JSON Lines file, one row per image in sorted path order.
 
-    A row is :func:`~ngp_kornia.rows.result_row` of the image's path relative to folder (with
-    ``exif_orientation``; floats rounded to 6 significant digits, as ``ngp calibrate --json`` gives them), or
+    A row is :func:`~ngp_kornia.rows.result_row` of its path relative to folder (``ngp calibrate --json``'s), or
     ``{"image": ..., "error": <reason>}`` for a file that cannot be read or calibrated, whatever the reason. An
     interrupted run (Ctrl+C or SIGTERM; the caller's handlers are back after) leaves ``out`` holding the rows of the
     images finished so far and returns with ``"interrupted": True``; it does not resume. What killed runs left

@@ -21,7 +21,6 @@ Example:
 from __future__ import annotations
 
 import dataclasses
-import difflib
 import math
 import numbers
 import re
@@ -29,6 +28,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 from ngp_kornia.errors import ConfigError, shown
+from ngp_kornia.suggest import did_you_mean, either
 
 __all__ = [
     "DETECTORS",
@@ -155,8 +155,7 @@ class SamplingSettings:
     Attributes:
         num_zenith_lines: near-vertical lines the zenith network reads (the paper's |L_z|, Eq. 3).
         num_zenith: zenith candidates drawn from pairs of near-vertical lines (|Z|, Eq. 4).
-        vertical_threshold: lines steeper than this, in degrees from the horizontal, count as near-vertical
-            (delta_z, Eq. 4).
+        vertical_threshold: lines steeper than this many degrees count as near-vertical (delta_z, Eq. 4).
         zenith_threshold: the zenith network's score a candidate needs to count (delta_c, Eq. 12).
         vertical_tol: a segment within this angle (degrees) of the ray to the zenith estimate counts as vertical in
             the junction filter.
@@ -194,8 +193,7 @@ class ScoringSettings:
         kernel_angle: width of the sharp closeness kernel of the Manhattan score, degrees.
         top_k: the answer averages this many best frames (k, Eq. 23).
         num_scored: frames FSNet scores per image, the best by Manhattan score (unused without FSNet).
-        use_manhattan: with FSNet, a frame's score is FSNet's times its Manhattan score ``s_vh * m_i`` (Eq. 22);
-            False uses FSNet's alone.
+        use_manhattan: a frame's score is FSNet's times its Manhattan score (``s_vh * m_i``, Eq. 22), else FSNet's.
         fallback_fov: long-side field of view (degrees) reported when an image has no valid frame.
     """
 
@@ -419,14 +417,7 @@ def locate_setting(key: str) -> tuple[str, str]:
     """``(stage, field)`` of a setting named ``stage.field`` or by a field name that only one stage has.
 
     Raises:
-        ConfigError: no such setting, or a field name that several stages have; the message names the settings
-            meant, or lists the stages.
-
-    Example:
-        >>> locate_setting("enabled")
-        Traceback (most recent call last):
-        ...
-        ngp_kornia.errors.ConfigError: setting 'enabled' is ambiguous: did you mean evidence.enabled, ...?
+        ConfigError: no such setting, or a field name of several stages; the message names the settings meant.
     """
     if "." in key:
         stage, name = key.split(".", 1)
@@ -438,20 +429,10 @@ def locate_setting(key: str) -> tuple[str, str]:
         if len(found) == 1:
             return tuple(found[0].split("."))
         if found:
-            raise ConfigError(f"setting {key!r} is ambiguous: did you mean {_either(found)}?")
-    every = [f"{s}.{f.name}" for s, f, _ in setting_fields()]
-    close = difflib.get_close_matches(key, every, n=2, cutoff=0.85)
-    close += [name for name in every if "." not in key and difflib.get_close_matches(key, [name.split(".")[1]], 1, 0.8)]
-    hint = f"did you mean {_either(list(dict.fromkeys(close))[:3])}? " if close else ""
-    raise ConfigError(
-        f"unknown setting {key!r}; {hint}settings are stage.field with stage one of {', '.join(_STAGES)} "
-        "(e.g. horizon.refine, segments.working_size)"
-    )
-
-
-def _either(names: list[str]) -> str:
-    """``a``, ``a or b``, ``a, b or c``."""
-    return names[0] if len(names) == 1 else f"{', '.join(names[:-1])} or {names[-1]}"
+            raise ConfigError(f"setting {key!r} is ambiguous: did you mean {either(found)}?")
+    hint = did_you_mean(key, [f"{s}.{f.name}" for s, f, _ in setting_fields()])
+    raise ConfigError(f"unknown setting {key!r}; {hint}settings are stage.field with stage one of "
+                      f"{', '.join(_STAGES)} (e.g. horizon.refine, segments.working_size)")
 
 
 def _attribute_docs(doc: str) -> dict[str, str]:

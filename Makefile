@@ -3,7 +3,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 PYTHON ?= python3
 
-.PHONY: setup demo test test-fast bench clean
+.PHONY: setup demo test test-fast test-gpu docs bench clean
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -26,6 +26,22 @@ test: setup
 test-fast: setup
 	$(VENV)/bin/ruff check ngp_kornia tests benchmarks
 	$(PY) -m pytest -m "not slow"
+
+# the tests that need a CUDA device (the batch path and one training step of each LightningModule on the GPU); they
+# skip without one. Install a CUDA build of torch in the venv first: setup installs the CPU wheel.
+test-gpu: setup
+	$(PY) -m pytest -m gpu -p no:cacheprovider -rs
+
+$(VENV)/.docs: $(VENV)/.installed
+	$(PY) -m pip install -q -e '.[docs]'
+	touch $@
+
+# the API reference from the docstrings (pdoc, Google style) in docs/api: open docs/api/index.html. A pdoc warning
+# (a module that does not import, an __all__ name that does not exist) or a malformed docstring section (ruff's
+# pydocstyle rules, which make test checks too) fails it
+docs: $(VENV)/.docs
+	$(VENV)/bin/ruff check ngp_kornia docs
+	$(PY) docs/build_api.py docs/api
 
 $(VENV)/.bench: $(VENV)/.installed
 	$(PY) -m pip install -q -e '.[train,test,bench]'

@@ -16,6 +16,7 @@ import torch
 from torch import Tensor
 
 from ngp_kornia.errors import NGPError, NGPWarning, WeightsError, shown
+from ngp_kornia.geometry import image_center
 from ngp_kornia.io import as_batch, exif_focal, read_rgb_oriented
 from ngp_kornia.nets.weights import load_network, network_name, shipped_weights
 from ngp_kornia.pipeline import Calibration, NeuralGeometricParser, ParserConfig
@@ -432,7 +433,7 @@ def _joint_camera(found: dict, call: _Call, photos: int, height: int, width: int
         grid = focal_grid(height, width, call.config.shared, call.config.sampling)
         shared = joint_focal(torch.cat(found["support"]), grid, torch.cat(found["valid"]), call.config.shared.bootstrap)
     if found["point"]:
-        centre = torch.tensor([(width - 1) / 2.0, (height - 1) / 2.0])
+        centre = image_center(height, width)
         prior = call.config.trust.principal_point_std * height
         point, std = joint_principal_point(torch.cat(found["point"]), torch.cat(found["point_std"]), centre, prior)
         shared = shared._replace(principal_point=point, principal_point_std=std)

@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ngp_kornia.cli_camera import add_camera_arguments, camera_arguments, images_after_the_point, load_truth
+from ngp_kornia.cli_colmap import add_colmap_argument, check_colmap, write_colmap
 from ngp_kornia.cli_files import check_output, check_overlays, overlay_path, write_image, write_overlay
 from ngp_kornia.cli_options import add_setting_options, closest_option, config_from_args, short_usage, subcommand
 from ngp_kornia.cli_output import Table, print_result, warn_if_turned
@@ -99,6 +100,7 @@ def _parser() -> argparse.ArgumentParser:
     pred.add_argument("--recursive", action="store_true", help="also calibrate the images of sub-folders")
     pred.add_argument("--batch-size", metavar="N", type=int, default=1, help="images per loader batch")
     pred.add_argument("--seed", metavar="N", type=int, default=0, help="seed of the random sampling")
+    add_colmap_argument(pred)
     _add_prior_arguments(pred, "one camera per folder: one focal length each")
     _add_rectify(sub)
     demo = sub.add_parser("demo", help="calibrate a built-in rendered example and print the estimate and the truth")
@@ -287,6 +289,8 @@ def _predict(args: argparse.Namespace) -> int:
         )
         return 130
     print(f"{counts['images']} rows written to {args.out}")
+    if args.colmap:
+        write_colmap(args.colmap, args.out)
     if counts["errors"]:
         print(
             f"ngp: error: {counts['errors']} of {counts['images']} images could not be read; "
@@ -405,6 +409,7 @@ def parse(argv: list[str] | None = None) -> argparse.Namespace | int:
         try:
             check_extra(["lightning"], "ngp predict", "train")
             check_folder(args.folder, args.recursive)
+            check_colmap(args)
         except (ImportError, OSError, ValueError) as err:
             print(f"ngp: error: {_one_line(err)}", file=sys.stderr)
             return 1

@@ -1,6 +1,6 @@
 """Checks the ``ngp`` and ``ngp-train`` commands make before they import torch, OpenCV or Lightning (seconds): an
-optional dependency that is not installed, a folder that holds no image. They import nothing but the standard
-library, so a wrong argument is answered at once.
+optional dependency that is not installed, a folder that holds no image, a file that is not a COLMAP database. They
+import nothing but the standard library (and the package's errors), so a wrong argument is answered at once.
 
 Example:
     >>> from ngp_kornia.preflight import check_extra
@@ -11,14 +11,20 @@ from __future__ import annotations
 
 import importlib.util
 import os
+import sqlite3
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
-__all__ = ["IMAGE_EXTENSIONS", "check_extra", "check_folder", "image_files", "same_file"]
+from ngp_kornia.errors import OutputError
+
+__all__ = ["COLMAP_TABLES", "IMAGE_EXTENSIONS", "check_database", "check_extra", "check_folder", "image_files",
+           "same_file"]
 
 #: the file endings of a folder's images: those of :class:`ngp_kornia.data.folder.ImageFolder`, which imports torch
 #: (a test keeps the two the same)
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")
+#: the tables a COLMAP database has (an existing file without them is not one, and is refused)
+COLMAP_TABLES = ("cameras", "images")
 
 
 def check_extra(modules: Iterable[str], needed_by: str, extra: str) -> None:
@@ -91,3 +97,46 @@ def same_file(a: str | Path, b: str | Path) -> bool:
         return Path(a).resolve() == Path(b).resolve() or os.path.samefile(a, b)
     except OSError:
         return False
+
+
+def check_database(database: str | Path) -> Path:
+    """Refuse a path that is not a COLMAP database and would be changed by opening it as one.
+
+    A missing or empty file is fine (a new database is made); an existing file must be an SQLite database with
+    COLMAP's tables (``cameras``, ``images``): anything else (a photo, a results file, another program's SQLite file,
+    a folder) is refused, never written to.
+
+    Args:
+        database: the path given for the database.
+
+    Returns:
+        the path, as a :class:`~pathlib.Path`.
+
+    Raises:
+        OutputError: with the fix in the message.
+
+    Example:
+        >>> check_database(getfixture("tmp_path") / "new.db").name
+        'new.db'
+    """
+    path = Path(database)
+    if path.is_dir():
+        raise OutputError(f"{path} is a folder; give the COLMAP database file, e.g. {path / 'database.db'}")
+    if not path.exists() or path.stat().st_size == 0:
+        return path
+    refused = OutputError(f"{path} exists and is not a COLMAP database, so it would be changed; give another file "
+                          "or a database COLMAP made")
+    try:
+        with path.open("rb") as file:
+            if file.read(16) != b"SQLite format 3\x00":
+                raise refused
+        connection = sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True)
+        try:
+            tables = {r[0] for r in connection.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+        finally:
+            connection.close()
+    except (OSError, sqlite3.Error) as err:
+        raise OutputError(f"{path} cannot be read as a COLMAP database ({err}); give another file") from None
+    if not set(COLMAP_TABLES) <= tables:
+        raise refused
+    return path

@@ -11,8 +11,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 #: the top-level modules of the extras: train (lightning, jsonargparse), plot and notebooks (matplotlib),
-#: tensorboard
-EXTRAS = ("lightning", "pytorch_lightning", "lightning_fabric", "jsonargparse", "matplotlib", "tensorboard")
+#: tensorboard, colmap (pycolmap)
+EXTRAS = ("lightning", "pytorch_lightning", "lightning_fabric", "jsonargparse", "matplotlib", "tensorboard", "pycolmap")
 
 SITECUSTOMIZE = textwrap.dedent(
     """

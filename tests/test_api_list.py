@@ -1,12 +1,10 @@
 """calibrate() on a list: paths, arrays and tensors of different sizes, each result exactly what the item gets alone."""
 
-from dataclasses import fields
-
 import cv2
 import pytest
 import torch
 
-from ngp_kornia import ImageReadError, calibrate
+from ngp_kornia import Calibration, ImageReadError, calibrate
 from ngp_kornia.training.synth.render import render_scene
 
 
@@ -24,7 +22,7 @@ def _same(a, b) -> bool:
     def same(x, y):
         return (x is None and y is None) or (x is not None and y is not None and torch.equal(x, y))
 
-    return all(same(getattr(a, f.name), getattr(b, f.name)) for f in fields(a))
+    return all(same(getattr(a, name), getattr(b, name)) for name in Calibration.FIELDS)
 
 
 @pytest.mark.parametrize("weights", ["none", "default"])

@@ -41,5 +41,7 @@ def test_extras_for_notebooks_plots_and_tensorboard():
     assert any(r.startswith("matplotlib") for r in extras["notebooks"])
     assert any(r.startswith("matplotlib") for r in extras["plot"])
     assert any(r.startswith("tensorboard") for r in extras["tensorboard"])
-    # make test installs [test]: it must bring what the notebooks and the plot tests use
-    assert any(r.startswith("ngp-kornia[") and "notebooks" in r and "plot" in r for r in extras["test"])
+    assert any(r.startswith("pycolmap") for r in extras["colmap"])
+    # make test installs [test]: it must bring what the notebooks, the plot and the COLMAP tests use
+    assert any(r.startswith("ngp-kornia[") and {"notebooks", "plot", "colmap"} <= set(r[11:-1].split(","))
+               for r in extras["test"])

@@ -1,12 +1,10 @@
 """Overlays: the virtual box and axes follow the Manhattan frame of a known camera, and drawing never mutates."""
 
-from dataclasses import fields
-
 import numpy as np
 import pytest
 import torch
 
-from ngp_kornia.geometry import segment_vp_angle
+from ngp_kornia.geometry import Camera, segment_vp_angle
 from ngp_kornia.pipeline.result import Calibration
 from ngp_kornia.training.synth.render import camera_ground_truth
 from ngp_kornia.viz import AXIS_COLOURS, BOX_EDGES, draw_axes, draw_calibration, draw_frame_box, frame_box_points
@@ -17,15 +15,8 @@ SIZE = (320, 240)  # (W, H)
 def _calibration(pitch: float = 0.0, roll: float = 0.0, yaw: float = 0.0, fov_v: float = 60.0) -> Calibration:
     """The exact calibration of a camera with these angles (degrees)."""
     gt = camera_ground_truth(fov_v, pitch, roll, yaw, SIZE)
-    zenith = gt["zenith"] / gt["zenith"].norm()
-    return Calibration(
-        **{k: gt[k] for k in ("K", "R", "focal", "fov_v", "fov_h", "pitch", "roll", "yaw", "horizon", "vps")},
-        up=-gt["R"][:, 1],
-        zenith=zenith,
-        score=torch.tensor(1.0),
-        valid=torch.tensor(True),
-        image_size=torch.tensor([SIZE[1], SIZE[0]]),
-    )
+    camera = Camera.from_matrix(gt["K"], gt["R"], torch.tensor([SIZE[1], SIZE[0]]))
+    return Calibration(camera=camera, score=torch.tensor(1.0), valid=torch.tensor(True))
 
 
 def _edges(points: np.ndarray, axis: int) -> torch.Tensor:
@@ -100,8 +91,7 @@ def test_corners_behind_the_camera_are_clipped_not_drawn():
 
 def test_batched_calibration_is_refused():
     cal = _calibration()
-    given = [f.name for f in fields(cal) if getattr(cal, f.name) is not None]  # trust fields are optional
-    batch = Calibration(**{name: torch.stack([getattr(cal, name)] * 2) for name in given})
+    batch = cal.apply(lambda t: torch.stack([t] * 2))
     image = np.zeros((SIZE[1], SIZE[0], 3), np.uint8)
     for draw in (draw_frame_box, draw_axes, draw_calibration):
         with pytest.raises(ValueError, match="index the batch"):

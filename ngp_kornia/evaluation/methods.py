@@ -19,7 +19,7 @@ import torch
 from torch import Tensor
 
 from ngp_kornia.evaluation.datasets import LabelledImage
-from ngp_kornia.geometry.camera import horizon_from_zenith, pitch_roll_from_up, zenith_from_up
+from ngp_kornia.geometry.camera import horizon_from_zenith, image_center, pitch_roll_from_up, zenith_from_up
 from ngp_kornia.pipeline import Calibration, ParserConfig
 from ngp_kornia.pipeline.settings import locate_setting
 
@@ -331,7 +331,8 @@ def lu_vp_detect_method() -> Method:
 def level_centre(image: LabelledImage) -> Estimate:
     """The trivial baseline: a level camera, up = (0, -1, 0), horizon y = (H - 1) / 2 (through the image centre)."""
     up = torch.tensor([0.0, -1.0, 0.0], dtype=torch.float64)
-    horizon = torch.tensor([0.0, 1.0, -(image.height - 1) / 2.0], dtype=torch.float64)
+    centre = image_center(image.height, image.width, like=up)
+    horizon = torch.cat([up.new_tensor([0.0, 1.0]), -centre[1:]])
     return Estimate(up, horizon, 0.0, 0.0, None)
 
 

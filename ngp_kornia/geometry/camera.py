@@ -24,11 +24,15 @@ from __future__ import annotations
 
 import torch
 from kornia.core.check import KORNIA_CHECK, KORNIA_CHECK_SHAPE
-from kornia.geometry.conversions import angle_to_rotation_matrix
+from kornia.geometry.liegroup import So3
+from kornia.geometry.linalg import batched_dot_product
+from kornia.image import ImageSize
+from kornia.sensors.camera import PinholeModel
 from torch import Tensor
 
 __all__ = [
     "angles_from_rotation",
+    "axis_rotations",
     "canonical_manhattan_rotation",
     "focal_from_fov",
     "focal_from_orthogonal_vps",
@@ -38,8 +42,10 @@ __all__ = [
     "image_center",
     "intrinsics_matrix",
     "normalize",
+    "pinhole_model",
     "pitch_roll_from_up",
     "rotation_from_angles",
+    "rotation_from_up",
     "rotation_from_vps",
     "up_from_rotation",
     "up_from_zenith",
@@ -54,16 +60,22 @@ def _eps(x: Tensor) -> float:
 
 
 def normalize(v: Tensor, dim: int = -1) -> Tensor:
-    """Unit vectors along ``dim``; a zero vector stays zero instead of becoming NaN.
+    """Unit vectors along ``dim``; a zero vector stays zero instead of becoming NaN. The package's one normaliser.
 
     Ours: kornia keeps its normalisation private; ``torch.nn.functional.normalize`` with the dtype's eps gives the
     same values with more overhead a call, and this runs in the parser's hot path.
+
+    Example:
+        >>> normalize(torch.tensor([[3.0, 4.0], [0.0, 0.0]]))
+        tensor([[0.6000, 0.8000],
+                [0.0000, 0.0000]])
     """
     return v / torch.linalg.vector_norm(v, dim=dim, keepdim=True).clamp_min(_eps(v))
 
 
 def image_center(height: int, width: int, like: Tensor | None = None) -> Tensor:
-    """The image centre ``((W - 1) / 2, (H - 1) / 2)`` in the pixel-centre convention, shape (2,).
+    """The image centre ``((W - 1) / 2, (H - 1) / 2)`` in the pixel-centre convention, shape (2,). The package's one
+    image-centre formula.
 
     Ours: kornia has no image-centre helper of its own.
 
@@ -75,11 +87,13 @@ def image_center(height: int, width: int, like: Tensor | None = None) -> Tensor:
     return torch.tensor([(width - 1) / 2.0, (height - 1) / 2.0], **kw)
 
 
-def intrinsics_matrix(focal: Tensor, principal_point: Tensor) -> Tensor:
-    """Pinhole intrinsics with square pixels and no skew.
+#: the image size handed to kornia's ``PinholeModel`` where only its matrix is wanted (``K`` does not depend on it)
+_ANY_SIZE = ImageSize(1, 1)
 
-    Ours: kornia builds ``K`` only inside its camera classes (``PinholeModel`` needs an image size,
-    ``PinholeCamera`` holds 4x4 matrices).
+
+def intrinsics_matrix(focal: Tensor, principal_point: Tensor) -> Tensor:
+    """Pinhole intrinsics with square pixels and no skew: kornia's ``PinholeModel`` matrix, the package's one
+    ``K`` builder.
 
     Args:
         focal: (B,) focal length in pixels.
@@ -96,13 +110,19 @@ def intrinsics_matrix(focal: Tensor, principal_point: Tensor) -> Tensor:
     """
     KORNIA_CHECK_SHAPE(focal, ["B"])
     pp = principal_point.to(focal).expand(focal.shape[0], 2)
-    zero, one = torch.zeros_like(focal), torch.ones_like(focal)
-    rows = [
-        torch.stack([focal, zero, pp[:, 0]], -1),
-        torch.stack([zero, focal, pp[:, 1]], -1),
-        torch.stack([zero, zero, one], -1),
-    ]
-    return torch.stack(rows, -2)
+    return pinhole_model(torch.stack([focal, focal, pp[:, 0], pp[:, 1]], -1)).matrix()
+
+
+def pinhole_model(params: Tensor, image_size: ImageSize | None = None) -> PinholeModel:
+    """kornia's :class:`~kornia.sensors.camera.PinholeModel` of parameters ``(f_x, f_y, c_x, c_y)`` (..., 4); its
+    ``matrix()`` is ``K``. ``image_size``: kornia's ``ImageSize``, any when only ``K`` is wanted.
+
+    Example:
+        >>> pinhole_model(torch.tensor([500.0, 500.0, 319.5, 239.5])).matrix()[0]
+        tensor([500.0000,   0.0000, 319.5000])
+    """
+    KORNIA_CHECK_SHAPE(params, ["*", "4"])
+    return PinholeModel(_ANY_SIZE if image_size is None else image_size, params)
 
 
 def fov_from_focal(focal: Tensor, size: float | Tensor) -> Tensor:
@@ -129,39 +149,30 @@ def focal_from_fov(fov_deg: Tensor, size: float | Tensor) -> Tensor:
     return torch.as_tensor(size).to(fov_deg) / (2.0 * torch.tan(torch.deg2rad(fov_deg) / 2.0))
 
 
-#: per camera axis: the F.pad widths that put a 2x2 rotation on the plane of the two other axes, and the order of
-#: rows and columns that then brings it into place (the y axis's plane, (z, x), is not a block of the 3x3 matrix)
-_PLANES = {0: ((1, 0, 1, 0), None), 1: ((1, 0, 1, 0), [2, 0, 1]), 2: ((0, 1, 0, 1), None)}
+def axis_rotations(*factors: tuple[int, Tensor]) -> So3:
+    """The product, left to right, of right-handed rotations about the camera axes, as kornia's
+    :class:`~kornia.geometry.liegroup.So3`: ``(axis, degrees)`` pairs, axis 0 = x, 1 = y, 2 = z, the angles all of one
+    shape ``(...)`` (``So3.rot_x`` / ``rot_y`` / ``rot_z``); ``.matrix()`` gives the (..., 3, 3) matrix.
 
-
-def _axis_rotations(*factors: tuple[int, Tensor]) -> Tensor:
-    """The product, left to right, of right-handed rotations about the camera axes: ``(axis, degrees)`` pairs,
-    axis 0 = x, 1 = y, 2 = z, the angles all of one shape ``(...)`` -> (..., 3, 3).
-
-    Each factor is kornia's 2D rotation (:func:`kornia.geometry.conversions.angle_to_rotation_matrix`, all factors
-    in one call) turning the plane of the two other axes, taken in cyclic order: (y, z), (z, x), (x, y). Its 3D
-    axis-angle rotations give the same matrices (to an ulp) at three times the cost, evaluating both branches of
-    their formula, and :func:`angles_from_rotation` runs once per parser call.
+    Example:
+        >>> axis_rotations((2, torch.tensor(90.0))).matrix().round(decimals=6) + 0.0  # x turns towards y
+        tensor([[ 0., -1.,  0.],
+                [ 1.,  0.,  0.],
+                [ 0.,  0.,  1.]])
     """
-    # kornia's matrix is [[cos, sin], [-sin, cos]] of its angle, a turn by minus the angle from the plane's first
-    # axis towards its second
-    planes = angle_to_rotation_matrix(-torch.stack([angle for _, angle in factors]))
+    turns = (So3.rot_x, So3.rot_y, So3.rot_z)
     product = None
-    for (axis, _), plane in zip(factors, planes, strict=True):
-        pad, order = _PLANES[axis]
-        rotation = torch.nn.functional.pad(plane, pad)
-        if order is not None:
-            rotation = rotation[..., order, :][..., order]
-        rotation[..., axis, axis] = 1.0
-        product = rotation if product is None else product @ rotation
+    for axis, angle in factors:
+        rotation = turns[axis](torch.deg2rad(angle))
+        product = rotation if product is None else product * rotation
     return product
 
 
 def rotation_from_angles(pitch: Tensor, roll: Tensor, yaw: Tensor | None = None) -> Tensor:
     """World-to-camera rotation ``R_z(roll) @ R_x(-pitch) @ R_y(-yaw)`` from angles in degrees.
 
-    The three factors are kornia's rotations; the order is ours: kornia's Euler angles (``quaternion_from_euler``)
-    compose ``R_z R_y R_x`` with the roll about x, another order and other axes.
+    The three factors are kornia's ``So3`` rotations (:func:`axis_rotations`); the order is ours: kornia's Euler
+    angles (``quaternion_from_euler``) compose ``R_z R_y R_x`` with the roll about x, another order and other axes.
 
     Args:
         pitch: (B,) degrees, > 0 looking up.
@@ -179,7 +190,7 @@ def rotation_from_angles(pitch: Tensor, roll: Tensor, yaw: Tensor | None = None)
     """
     KORNIA_CHECK_SHAPE(pitch, ["B"])
     yaw = torch.zeros_like(pitch) if yaw is None else yaw
-    return _axis_rotations((2, roll), (0, -pitch), (1, -yaw))
+    return axis_rotations((2, roll), (0, -pitch), (1, -yaw)).matrix()
 
 
 def up_from_rotation(R: Tensor) -> Tensor:
@@ -228,8 +239,7 @@ def angles_from_rotation(R: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     """
     KORNIA_CHECK_SHAPE(R, ["*", "3", "3"])
     pitch, roll = pitch_roll_from_up(up_from_rotation(R))
-    tilt = _axis_rotations((2, roll), (0, -pitch))
-    yaw_only = tilt.transpose(-1, -2) @ R
+    yaw_only = axis_rotations((2, roll), (0, -pitch)).inverse().matrix() @ R
     yaw = torch.rad2deg(torch.atan2(yaw_only[..., 2, 0], yaw_only[..., 0, 0]))
     return pitch, roll, yaw
 
@@ -399,9 +409,30 @@ def rotation_from_vps(K: Tensor, zenith: Tensor, horizontal: Tensor) -> Tensor:
     Returns:
         (B, 3, 3) rotation matrices.
     """
-    up = up_from_zenith(K, zenith)
-    h = torch.linalg.solve(K, horizontal.unsqueeze(-1)).squeeze(-1)
-    h = normalize(h - (h * up).sum(-1, keepdim=True) * up)
+    return rotation_from_up(up_from_zenith(K, zenith), torch.linalg.solve(K, horizontal.unsqueeze(-1)).squeeze(-1))
+
+
+def rotation_from_up(up: Tensor, horizontal: Tensor) -> Tensor:
+    """World-to-camera rotation of a Manhattan frame from its up vector and a horizontal direction, both in camera
+    coordinates: world y = down exactly, world x = the horizontal direction made orthogonal to up (so a slightly
+    non-orthogonal pair still yields a rotation), world z = x cross y.
+
+    Args:
+        up: (B, 3) unit up vectors.
+        horizontal: (B, 3) horizontal directions (any length).
+
+    Returns:
+        (B, 3, 3) rotation matrices.
+
+    Example:
+        >>> rotation_from_up(torch.tensor([[0.0, -1.0, 0.0]]), torch.tensor([[2.0, 0.1, 0.0]]))
+        tensor([[[1., 0., 0.],
+                 [0., 1., 0.],
+                 [0., 0., 1.]]])
+    """
+    KORNIA_CHECK_SHAPE(up, ["*", "3"])
+    KORNIA_CHECK_SHAPE(horizontal, ["*", "3"])
+    h = normalize(horizontal - batched_dot_product(horizontal, up, keepdim=True) * up)
     down = -up
     return torch.stack([h, down, torch.linalg.cross(h, down)], -1)
 

@@ -18,16 +18,11 @@ from __future__ import annotations
 
 import torch
 from kornia.core.check import KORNIA_CHECK_SHAPE
+from kornia.geometry.conversions import denormalize_points_with_intrinsics, normalize_points_with_intrinsics
+from kornia.geometry.linalg import squared_norm
 from torch import Tensor
 
 __all__ = ["distort_points", "opencv_radial", "undistort_points"]
-
-
-def _rays(points: Tensor, K: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-    """Ray coordinates (B, N, 2) of pixels (B, N, 2), the focal lengths (B, 1, 1) and principal points (B, 1, 2)."""
-    f = K[:, None, 0:1, 0]  # (B, 1, 1)
-    c = K[:, None, :2, 2]  # (B, 1, 2)
-    return (points - c) / f, f, c
 
 
 def undistort_points(points: Tensor, K: Tensor, k1: Tensor) -> Tensor:
@@ -49,9 +44,9 @@ def undistort_points(points: Tensor, K: Tensor, k1: Tensor) -> Tensor:
     """
     KORNIA_CHECK_SHAPE(points, ["B", "N", "2"])
     KORNIA_CHECK_SHAPE(K, ["B", "3", "3"])
-    x, f, c = _rays(points, K)
-    scale = 1.0 + k1.to(x)[:, None, None] * x.square().sum(-1, keepdim=True)
-    return c + f * x / scale.clamp_min(1e-6)
+    x = normalize_points_with_intrinsics(points, K)
+    scale = 1.0 + k1.to(x)[:, None, None] * squared_norm(x, keepdim=True)
+    return denormalize_points_with_intrinsics(x / scale.clamp_min(1e-6), K)
 
 
 def distort_points(points: Tensor, K: Tensor, k1: Tensor) -> Tensor:
@@ -75,10 +70,10 @@ def distort_points(points: Tensor, K: Tensor, k1: Tensor) -> Tensor:
     """
     KORNIA_CHECK_SHAPE(points, ["B", "N", "2"])
     KORNIA_CHECK_SHAPE(K, ["B", "3", "3"])
-    x, f, c = _rays(points, K)
-    r2 = x.square().sum(-1, keepdim=True)
+    x = normalize_points_with_intrinsics(points, K)
+    r2 = squared_norm(x, keepdim=True)
     root = (1.0 - 4.0 * k1.to(x)[:, None, None] * r2).clamp_min(0.0).sqrt()
-    return c + f * x * (2.0 / (1.0 + root))
+    return denormalize_points_with_intrinsics(x * (2.0 / (1.0 + root)), K)
 
 
 def opencv_radial(
@@ -109,7 +104,7 @@ def opencv_radial(
     K64, k = K.detach().double(), k1.detach().double()
     corners = torch.tensor([[0.0, 0.0], [float(width) - 1, 0.0], [0.0, float(height) - 1]], dtype=torch.float64)
     corners = torch.cat([corners, torch.tensor([[float(width) - 1, float(height) - 1]], dtype=torch.float64)])
-    rays, _, _ = _rays(corners.to(K64.device).expand(len(K64), 4, 2), K64)
+    rays = normalize_points_with_intrinsics(corners.to(K64.device).expand(len(K64), 4, 2), K64)
     reach = torch.linalg.vector_norm(rays, dim=-1).amax(-1)  # (B,) the farthest corner, distorted rays
     r_d = reach[:, None] * torch.linspace(0.0, 1.0, samples + 1, dtype=torch.float64, device=K64.device)[1:]
     scale = 1.0 + k[:, None] * r_d.square()

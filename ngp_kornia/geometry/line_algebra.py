@@ -15,7 +15,7 @@ from kornia.geometry.conversions import convert_points_to_homogeneous, normalize
 from kornia.geometry.linalg import euclidean_distance
 from torch import Tensor
 
-from ngp_kornia.geometry.camera import image_center, normalize
+from ngp_kornia.geometry.camera import image_center, intrinsics_matrix, normalize
 
 #: the largest cross product of u and v taken for rounding residue, in units of eps * |u| |v|
 _RESIDUE = 64.0
@@ -25,6 +25,7 @@ __all__ = [
     "intersect_lines",
     "is_near_vertical",
     "pseudo_focal",
+    "pseudo_intrinsics",
     "segment_lengths",
     "segments_to_lines",
     "homogeneous_to_pseudo_camera",
@@ -32,15 +33,18 @@ __all__ = [
 ]
 
 
-def segment_lengths(segments: Tensor) -> Tensor:
-    """Euclidean length of each segment: (B, N, 2, 2) -> (B, N).
+def segment_lengths(segments: Tensor, mask: Tensor | None = None) -> Tensor:
+    """Euclidean length of each segment (kornia's ``euclidean_distance``): (B, N, 2, 2) -> (B, N), zero where the
+    (B, N) bool ``mask`` is False (padding) when one is given.
 
     Example:
-        >>> segment_lengths(torch.tensor([[[[0.0, 0.0], [3.0, 4.0]]]]))
-        tensor([[5.]])
+        >>> segment_lengths(torch.tensor([[[[0.0, 0.0], [3.0, 4.0]], [[1.0, 1.0], [2.0, 2.0]]]]),
+        ...                 torch.tensor([[True, False]]))
+        tensor([[5., 0.]])
     """
     KORNIA_CHECK_SHAPE(segments, ["*", "2", "2"])
-    return euclidean_distance(segments[..., 1, :], segments[..., 0, :])
+    lengths = euclidean_distance(segments[..., 1, :], segments[..., 0, :])
+    return lengths if mask is None else lengths * mask.to(lengths)
 
 
 def segments_to_lines(segments: Tensor) -> Tensor:
@@ -180,13 +184,19 @@ def to_pseudo_camera(points: Tensor, height: int, width: int) -> Tensor:
         tensor([[1., 0.]])
     """
     KORNIA_CHECK_SHAPE(points, ["*", "2"])
-    return normalize_points_with_intrinsics(points, _pseudo_intrinsics(height, width, points))
+    return normalize_points_with_intrinsics(points, pseudo_intrinsics(height, width, points)[0])
 
 
-def _pseudo_intrinsics(height: int, width: int, like: Tensor) -> Tensor:
-    """The pseudo camera's (3, 3) ``K_p``, with the dtype and device of ``like``."""
-    f, (cx, cy) = pseudo_focal(height, width), ((width - 1) / 2.0, (height - 1) / 2.0)  # as image_center
-    return torch.tensor([[f, 0.0, cx], [0.0, f, cy], [0.0, 0.0, 1.0]], dtype=like.dtype, device=like.device)
+def pseudo_intrinsics(height: int, width: int, like: Tensor, principal_point: Tensor | None = None) -> Tensor:
+    """The pseudo camera's ``K_p`` (B, 3, 3): focal length :func:`pseudo_focal`, principal point (B, 2) (the image
+    centre when omitted, B = 1), in the dtype and device of ``like``.
+
+    Example:
+        >>> pseudo_intrinsics(480, 640, torch.zeros(()))[0, 0]
+        tensor([320.0000,   0.0000, 319.5000])
+    """
+    point = image_center(height, width, like=like)[None] if principal_point is None else principal_point.to(like)
+    return intrinsics_matrix(point.new_full(point.shape[:1], pseudo_focal(height, width)), point)
 
 
 def homogeneous_to_pseudo_camera(v: Tensor, height: int, width: int) -> Tensor:

@@ -16,6 +16,8 @@ import torch
 from kornia.core.check import KORNIA_CHECK, KORNIA_CHECK_SHAPE
 from torch import Tensor
 
+from ngp_kornia.geometry.camera import image_center
+
 __all__ = [
     "DrawnPixels",
     "closeness_maps",
@@ -276,7 +278,7 @@ def _segment_pixels(segments: Tensor, mask: Tensor, height: int, width: int) -> 
 def _outside(xy: Tensor, height: int, width: int) -> Tensor:
     """(..., 2) rounded pixel coordinates -> (...) bool: outside a ``height`` x ``width`` map."""
     # whole numbers: inside iff within half the map's size (less one) of its middle
-    half = torch.tensor([(width - 1) / 2, (height - 1) / 2], device=xy.device, dtype=xy.dtype)
+    half = image_center(height, width, like=xy)
     return ((xy - half).abs_() > half).any(-1)
 
 

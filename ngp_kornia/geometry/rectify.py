@@ -18,10 +18,12 @@ import math
 
 import torch
 from kornia.core.check import KORNIA_CHECK, KORNIA_CHECK_SHAPE
+from kornia.geometry import create_meshgrid
 from kornia.geometry.conversions import convert_points_to_homogeneous
 from kornia.geometry.transform import remap, warp_perspective
 from torch import Tensor
 
+from ngp_kornia.geometry.camera import image_center
 from ngp_kornia.geometry.lens import distort_points, undistort_points
 
 __all__ = ["frontal_homography", "level_homography", "rectify", "upright_homography"]
@@ -282,12 +284,7 @@ def _undistorting_warp(images: Tensor, applied: Tensor, size: tuple[int, int], K
     """The images sampled at every output pixel taken back through ``applied`` and distorted (bilinear, zeros
     outside)."""
     B, (out_h, out_w) = images.shape[0], size
-    ys, xs = torch.meshgrid(
-        torch.arange(out_h, dtype=images.dtype, device=images.device),
-        torch.arange(out_w, dtype=images.dtype, device=images.device),
-        indexing="ij",
-    )
-    grid = torch.stack([xs, ys], -1).reshape(1, -1, 2).expand(B, -1, 2)
+    grid = create_meshgrid(out_h, out_w, False, images.device, images.dtype).reshape(1, -1, 2).expand(B, -1, 2)
     back, _ = _project(torch.linalg.inv(applied), grid)
     source = distort_points(back, K, k1).reshape(B, out_h, out_w, 2)
     return remap(images, source[..., 0], source[..., 1], align_corners=True)
@@ -318,7 +315,8 @@ def _output_frame(
         out_h, out_w = int(size[0]), int(size[1])
         scale = torch.minimum(out_w / box[:, 0], out_h / box[:, 1])
     z, o = torch.zeros_like(scale), torch.ones_like(scale)
-    tx = (out_w - 1) / 2.0 - scale * centre[:, 0]
-    ty = (out_h - 1) / 2.0 - scale * centre[:, 1]
+    middle = image_center(out_h, out_w, like=scale)
+    tx = middle[0] - scale * centre[:, 0]
+    ty = middle[1] - scale * centre[:, 1]
     frame = torch.stack([scale, z, tx, z, scale, ty, z, z, o], -1).reshape(-1, 3, 3)
     return frame, out_h, out_w

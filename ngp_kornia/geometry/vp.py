@@ -22,7 +22,6 @@ __all__ = [
     "frame_manhattan_scores",
     "manhattan_score",
     "segment_vp_angle",
-    "sharp_closeness",
     "sharp_kernel",
     "structure_tensor",
     "symmetric_dominant_eigenvector",
@@ -172,55 +171,52 @@ def segment_vp_angle(segments: Tensor, vps: Tensor) -> Tensor:
     return angle.reshape(*vps.shape[:-1], segments.shape[1])
 
 
-def closeness(lines: Tensor, vps: Tensor) -> Tensor:
-    r"""The paper's closeness of a line to a VP, :math:`1 - |l \cdot v| / (\|l\| \|v\|)` (Eq. 14).
+def closeness(lines: Tensor, vps: Tensor, angle_deg: float | None = None) -> Tensor:
+    r"""Closeness of every line to every VP, from :func:`line_vp_cosine`: the package's line-to-VP closeness.
+
+    With ``angle_deg=None`` it is the paper's Eq. 14, :math:`1 - |l \cdot v| / (\|l\| \|v\|)`, linear in the cosine.
+    With an angle it is the sharp kernel (:func:`sharp_kernel`), :math:`\exp(-\cos^2 / (2 \cos^2 lpha))`, so a
+    line counts only when its vector is within about ``90 - angle_deg`` degrees of orthogonal to the VP: the
+    kernel of the Manhattan score (Eq. 21), where Eq. 14 cannot tell a line that points at the VP from one a few
+    degrees off. (The horizon search's closeness, :mod:`ngp_kornia.pipeline.line_kernel`, measures another angle:
+    the image angle at a segment's midpoint.)
 
     Args:
         lines: (B, N, 3) homogeneous lines.
         vps: (B, ..., 3) homogeneous VPs.
+        angle_deg: the sharp kernel's width as an angle (89 degrees keeps lines within about a degree), or None for
+            Eq. 14.
 
     Returns:
-        (B, ..., N) values in [0, 1]; 1 when the line passes through the VP.
+        (B, ..., N) values in [0, 1]; 1 when the line passes through the VP (the sharp kernel underflows to 0 far
+        from it).
 
     Example:
-        >>> closeness(torch.tensor([[[1.0, 0.0, -2.0]]]), torch.tensor([[[2.0, 5.0, 1.0]]]))
-        tensor([[[1.]]])
+        >>> lines, vps = torch.tensor([[[1.0, 0.0, -2.0]]]), torch.tensor([[[2.0, 5.0, 1.0], [0.0, 0.0, 1.0]]])
+        >>> closeness(lines, vps), closeness(lines, vps, 89.0)
+        (tensor([[[1.0000],
+                 [0.1056]]]), tensor([[[1.],
+                 [0.]]]))
     """
-    return 1.0 - line_vp_cosine(lines, vps)
+    cosine = line_vp_cosine(lines, vps)
+    return 1.0 - cosine if angle_deg is None else sharp_kernel(cosine, angle_deg)
 
 
-def sharp_closeness(lines: Tensor, vps: Tensor, angle_deg: float = 89.0) -> Tensor:
-    r"""A sharp closeness kernel, :math:`\exp(-\cos^2 / (2 \cos^2 \alpha))` with :math:`\cos` from
-    :func:`line_vp_cosine` and :math:`\alpha` = ``angle_deg``: a line counts only when its vector is within about
-    ``90 - angle_deg`` degrees of orthogonal to the VP. Used for the Manhattan score of Eq. 21, where Eq. 14's
-    linear closeness cannot tell a line that points at the VP from one a few degrees off.
-
-    Args:
-        lines: (B, N, 3) homogeneous lines.
-        vps: (B, ..., 3) homogeneous VPs.
-        angle_deg: kernel width as an angle; 89 degrees keeps lines within about a degree.
-
-    Returns:
-        (B, ..., N) values in [0, 1] (the exponential underflows to 0 far from the VP).
-
-    Example:
-        >>> sharp_closeness(torch.tensor([[[1.0, 0.0, -2.0]]]), torch.tensor([[[2.0, 5.0, 1.0]]]))
-        tensor([[[1.]]])
-    """
-    return sharp_kernel(line_vp_cosine(lines, vps), angle_deg)
-
-
-def sharp_kernel(cosine: Tensor, angle_deg: float = 89.0) -> Tensor:
-    r"""The kernel of :func:`sharp_closeness` applied to precomputed :func:`line_vp_cosine` values.
+def sharp_kernel(cosine: Tensor, angle_deg: float = 89.0, floor: float | None = None) -> Tensor:
+    r"""The sharp closeness kernel :math:`\exp(-\cos^2 / (2 \cos^2 \alpha))` of precomputed
+    :func:`line_vp_cosine` values (:func:`closeness` with an angle).
 
     It decreases with the cosine, so the best closeness to several VPs is the kernel of the smallest cosine: taking
-    the minimum first saves evaluating the exponential per VP.
+    the minimum first saves evaluating the exponential per VP. ``floor``, when given, bounds the exponent from
+    below (e.g. -30): far from the VP the exponential then stays a normal float instead of underflowing to the
+    subnormals CPUs compute slowly.
 
     Example:
         >>> sharp_kernel(torch.tensor([0.0, 1.0]))
         tensor([1., 0.])
     """
-    return torch.exp(-(cosine**2) / (2.0 * math.cos(math.radians(angle_deg)) ** 2))
+    exponent = -(cosine**2) / (2.0 * math.cos(math.radians(angle_deg)) ** 2)
+    return (exponent if floor is None else exponent.clamp_min(floor)).exp()
 
 
 def manhattan_score(closeness_to_vps: Tensor, lengths: Tensor, mask: Tensor) -> Tensor:
@@ -264,9 +260,10 @@ def true_positions(mask: Tensor, count: int) -> Tensor:
 def frame_manhattan_scores(
     lines: Tensor, vps: Tensor, lengths: Tensor, mask: Tensor, angle_deg: float = 89.0, valid: Tensor | None = None
 ) -> Tensor:
-    """Manhattan score (Eq. 21) of many frames at once with the sharp kernel: the same values as
+    """Manhattan score (Eq. 21) of many frames at once with the sharp kernel: the values (to rounding) of
     ``manhattan_score(sharp_kernel(line_vp_cosine(lines, vps).amin(-2, keepdim=True), angle_deg), lengths, mask)``
-    with fewer passes over the (B, F, 3, N) cosines, which dominate the parser's cost.
+    with fewer passes over the (B, F, 3, N) cosines, which dominate the parser's cost: :func:`sharp_kernel` is
+    evaluated in place, its exponent as the squared cosine times ``-1 / (2 cos^2 a)``.
 
     Kernel values below ``exp(-80)`` (lines more than about 13 degrees off every VP at 89 degrees) are clamped
     there instead of underflowing to subnormal floats, which CPUs handle slowly; they add less than 1e-34 per

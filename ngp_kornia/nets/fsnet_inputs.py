@@ -5,7 +5,6 @@ functions of the image, the segments and the frames; :mod:`ngp_kornia.nets.fsnet
 
 from __future__ import annotations
 
-import math
 from typing import NamedTuple
 
 import cv2
@@ -18,6 +17,7 @@ from torch import Tensor
 from ngp_kornia.geometry import (
     DrawnPixels,
     canonical_manhattan_rotation,
+    closeness,
     drawn_pixels,
     line_vp_cosine,
     normalize,
@@ -25,6 +25,7 @@ from ngp_kornia.geometry import (
     rasterize_segments,
     segment_lengths,
     segments_to_lines,
+    sharp_kernel,
     to_pseudo_camera,
 )
 from ngp_kornia.geometry.frames import FrameCandidates
@@ -329,7 +330,7 @@ def frame_closeness(lines: Tensor, vps: Tensor, kernel_angle: float | None = 88.
     lines spread over all of [0, 1] (median about 0.5 for random frames), so the maps mostly encode line
     directions rather than which lines vanish at the VP, and the shared variant's average pooling (before any
     non-linearity) loses the small difference. The default is therefore the sharp kernel of
-    :func:`~ngp_kornia.geometry.sharp_closeness` at 88 degrees (lines within about two degrees of the VP count):
+    :func:`~ngp_kornia.geometry.closeness` at 88 degrees (lines within about two degrees of the VP count):
     the kernel the parser uses for Eq. 21, a little wider for LSD's angular noise on short segments. A network is
     trained for one choice (:attr:`FSNet.kernel_angle`). Closeness below 1e-6 is set to 0: the kernel's tail is
     full of subnormal floats, which make CPU arithmetic on the maps many times slower.
@@ -347,14 +348,12 @@ def frame_closeness(lines: Tensor, vps: Tensor, kernel_angle: float | None = 88.
         >>> frame_closeness(lines, torch.eye(3)[[1, 0, 2]].expand(1, 1, 3, 3)).squeeze()
         tensor([1., 0., 0.])
     """
-    cosine = line_vp_cosine(lines, vps)  # (B, F, 3, N)
     if kernel_angle is None:
-        values = 1.0 - cosine
+        values = closeness(lines, vps)
     else:
-        # sharp_kernel's exponent, floored where the kernel is far below _MIN_CLOSENESS anyway: the exponential of
-        # large negative numbers underflows to subnormals, which the CPU computes slowly
-        exponent = cosine.square() / (-2.0 * math.cos(math.radians(kernel_angle)) ** 2)  # -(c^2) / (2 cos^2 a)
-        values = exponent.clamp_min(_MIN_EXPONENT).exp()
+        # the exponent floored where the kernel is far below _MIN_CLOSENESS anyway: the exponential of large
+        # negative numbers underflows to subnormals, which the CPU computes slowly
+        values = sharp_kernel(line_vp_cosine(lines, vps), kernel_angle, _MIN_EXPONENT)  # (B, F, 3, N)
     return values.masked_fill(values < _MIN_CLOSENESS, 0.0)
 
 

@@ -21,9 +21,10 @@ from __future__ import annotations
 import math
 
 import torch
+from kornia.geometry.conversions import pol2cart
 from torch import Tensor
 
-from ngp_kornia.geometry import pseudo_focal, segment_vp_angle
+from ngp_kornia.geometry import image_center, pseudo_focal, segment_vp_angle
 
 __all__ = [
     "FEATURE_NAMES",
@@ -119,7 +120,7 @@ def _neighbourhood(segments: Tensor, mask: Tensor, height: int, width: int) -> T
     same = _around(valid.new_zeros(b * _ORIENTATIONS * gh * gw).index_add_(0, cell.flatten(), valid), cell, gw) - 1.0
     # the Hough grid: the normal's angle in 2 degree bins, the distance from the image centre in 4 pixel bins
     span = int(math.ceil(math.hypot(height, width) / 8.0)) + 2
-    centre = torch.tensor([(width - 1) / 2.0, (height - 1) / 2.0], dtype=mid.dtype, device=mid.device)
+    centre = image_center(height, width, like=mid)
     rho = ((mid - centre) * normal).sum(-1)
     rho = torch.where(raw < 0, -rho, rho)  # the same for both directions of a segment
     r_bin = (rho / 4.0).round().long().clamp(1 - span, span - 1) + span
@@ -144,7 +145,7 @@ def sphere_directions(count: int = _SPHERE_BINS) -> Tensor:
     z = 1.0 - k / count
     phi = k * math.pi * (3.0 - math.sqrt(5.0))
     r = (1.0 - z * z).sqrt()
-    return torch.stack([r * phi.cos(), r * phi.sin(), z], -1).float()
+    return torch.stack([*pol2cart(r, phi), z], -1).float()
 
 
 _BINS = sphere_directions()
@@ -189,7 +190,7 @@ def _vanishing_features(segments: Tensor, mask: Tensor, height: int, width: int)
     """Angle (degrees / 10, at most 1) to the nearest and the second nearest dominant VP, the nearest one's support
     and how vertical it is in the pseudo camera (|y| of its unit vector): (B, N, 4)."""
     f = pseudo_focal(height, width)
-    centre = torch.tensor([(width - 1) / 2.0, (height - 1) / 2.0], dtype=segments.dtype, device=segments.device)
+    centre = image_center(height, width, like=segments)
     x0, y0, x1, y1 = ((segments - centre) / f).flatten(-2).unbind(-1)
     lines = torch.stack([y0 - y1, x1 - x0, x0 * y1 - x1 * y0], -1)  # the cross product of the two ends
     lines = lines / lines.norm(dim=-1, keepdim=True).clamp_min(1e-12)

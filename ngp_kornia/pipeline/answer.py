@@ -10,12 +10,10 @@ import torch
 from torch import Tensor
 
 from ngp_kornia.geometry import (
+    Camera,
     FrameCandidates,
-    angles_from_rotation,
     canonical_manhattan_rotation,
     dominant_eigenvector,
-    fov_from_focal,
-    horizon_from_zenith,
     image_center,
     intrinsics_matrix,
     normalize,
@@ -23,8 +21,6 @@ from ngp_kornia.geometry import (
     rotation_from_vps,
     structure_tensor,
     topk_weighted_average,
-    vanishing_points_from_rotation,
-    zenith_from_up,
 )
 from ngp_kornia.pipeline.constants import constant_tensors
 from ngp_kornia.pipeline.result import Calibration
@@ -76,37 +72,20 @@ def calibration_from_camera(
     K: Tensor, R: Tensor, score: Tensor, valid: Tensor, height: int, width: int
 ) -> Calibration:
     """The :class:`Calibration` of cameras ``K`` (B, 3, 3), ``R`` (B, 3, 3) in an image of ``height`` x ``width``:
-    up, zenith, horizon, VPs, pitch / roll / yaw and both fields of view follow from ``K`` and ``R``; ``score``
-    (B,) and ``valid`` (B,) are carried as they are."""
-    up = -R[..., :, 1]
-    zenith = zenith_from_up(K, up)
-    zenith = zenith / torch.linalg.vector_norm(zenith, dim=-1, keepdim=True)
-    pitch, roll, yaw = angles_from_rotation(R)  # its pitch and roll are those of up = -R[:, :, 1]
-    f = K[:, 0, 0]
-    size = torch.tensor([height, width], device=K.device)
-    fov_v, fov_h = fov_from_focal(f[:, None], size).unbind(-1)  # both sides at once, the same values
-    return Calibration(
-        K=K,
-        R=R,
-        focal=f,
-        fov_v=fov_v,
-        fov_h=fov_h,
-        pitch=pitch,
-        roll=roll,
-        yaw=yaw,
-        up=up,
-        zenith=zenith,
-        horizon=horizon_from_zenith(K, zenith),
-        vps=vanishing_points_from_rotation(K, R),
-        score=score,
-        valid=valid,
-        image_size=size.expand(len(f), 2),
-        exif_orientation=torch.ones(len(f), dtype=torch.long, device=K.device),  # tensors are taken as they are
-    )
+    up, zenith, horizon, VPs, pitch / roll / yaw and both fields of view follow from ``K`` and ``R``
+    (:class:`~ngp_kornia.geometry.pinhole.Camera`); ``score`` (B,) and ``valid`` (B,) are carried as they are.
 
-
-#: the fields of a calibration that its camera ``K``, ``R`` makes (:func:`calibration_from_camera`)
-_CAMERA_FIELDS = ("K", "R", "focal", "fov_v", "fov_h", "pitch", "roll", "yaw", "up", "zenith", "horizon", "vps")
+    Example:
+        >>> K = torch.tensor([[[500.0, 0, 319.5], [0, 500, 239.5], [0, 0, 1]]])
+        >>> cal = calibration_from_camera(K, torch.eye(3)[None], torch.ones(1), torch.ones(1, dtype=torch.bool),
+        ...                               480, 640)
+        >>> cal.horizon.tolist(), round(float(cal.fov_v), 2)
+        ([[0.0, 1.0, -239.5]], 51.28)
+    """
+    size = torch.tensor([height, width], device=K.device).expand(len(K), 2)
+    camera = Camera.from_matrix(K, R, size)
+    exif = torch.ones(len(K), dtype=torch.long, device=K.device)  # tensors are taken as they are
+    return Calibration(camera=camera, score=score, valid=valid, exif_orientation=exif)
 
 
 def level_answer(result: Calibration, where: Tensor, fallback_fov: float) -> Calibration:
@@ -129,14 +108,12 @@ def level_answer(result: Calibration, where: Tensor, fallback_fov: float) -> Cal
     fallback = max(height, width) / 2.0 / math.tan(math.radians(fallback_fov) / 2.0)
     known = torch.zeros_like(where) if result.fov_v_std is None else result.fov_v_std == 0
     focal = torch.where(known, result.focal, torch.full_like(result.focal, fallback))
-    K = intrinsics_matrix(focal, result.K[:, :2, 2])
-    R = torch.eye(3, dtype=result.R.dtype, device=result.R.device).expand_as(result.R)
-    level = calibration_from_camera(K, R, result.score, result.valid, height, width)
-    fields = {}
-    for name in _CAMERA_FIELDS:
-        new, old = getattr(level, name), getattr(result, name)
-        fields[name] = torch.where(where.view(-1, *[1] * (new.dim() - 1)), new, old)
-    return replace(result, **fields)
+    params = result.camera.params
+    level = torch.stack([focal, focal, params[:, 2], params[:, 3]], -1)  # the principal point kept
+    eye = torch.eye(3, dtype=result.R.dtype, device=result.R.device).expand_as(result.R)
+    camera = result.camera.replace(params=torch.where(where[:, None], level, params),
+                                   R=torch.where(where[:, None, None], eye, result.R))
+    return replace(result, camera=camera)
 
 
 def _weighted_zenith_tensor(zenith: Tensor, weights: Tensor, k: int) -> Tensor:

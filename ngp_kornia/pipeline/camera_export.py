@@ -19,6 +19,7 @@ import torch
 from torch import Tensor
 
 from ngp_kornia.geometry.lens import opencv_radial
+from ngp_kornia.geometry.pinhole import Camera
 
 __all__ = [
     "COLMAP_MODELS",
@@ -43,7 +44,8 @@ COLMAP_PIXEL_OFFSET = 0.5
 
 
 def kornia_camera(K: Tensor, R: Tensor, image_size: Tensor):
-    """A batched :class:`kornia.geometry.camera.PinholeCamera` of intrinsics ``K`` and rotation ``R``.
+    """A batched :class:`kornia.geometry.camera.PinholeCamera` of intrinsics ``K`` and rotation ``R``
+    (:meth:`~ngp_kornia.geometry.pinhole.Camera.to_kornia`).
 
     The extrinsics are ``[R | 0]``: the camera sits at the world origin (a single image says nothing of where), and
     world directions are those of the Manhattan frame (world y down, see :class:`Calibration`).
@@ -57,16 +59,7 @@ def kornia_camera(K: Tensor, R: Tensor, image_size: Tensor):
         a ``PinholeCamera`` of batch size B (1 for unbatched input) with (B, 4, 4) intrinsics and extrinsics and
         (B,) height and width, in K's dtype and device.
     """
-    from kornia.geometry.camera import PinholeCamera
-
-    K, R, image_size = (K[None], R[None], image_size[None]) if K.dim() == 2 else (K, R, image_size)
-    batch = K.shape[0]
-    intrinsics = torch.eye(4, dtype=K.dtype, device=K.device).repeat(batch, 1, 1)
-    intrinsics[:, :3, :3] = K
-    extrinsics = torch.eye(4, dtype=K.dtype, device=K.device).repeat(batch, 1, 1)
-    extrinsics[:, :3, :3] = R.to(K.dtype)
-    size = image_size.to(device=K.device, dtype=K.dtype)
-    return PinholeCamera(intrinsics, extrinsics, size[:, 0].clone(), size[:, 1].clone())
+    return Camera.from_matrix(K, R.to(K), image_size).to_kornia()
 
 
 def opencv_distortion(K: Tensor, k1: Tensor | None = None, image_size: Tensor | None = None) -> np.ndarray:

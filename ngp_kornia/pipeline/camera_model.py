@@ -23,10 +23,11 @@ from collections.abc import Callable
 from dataclasses import replace
 
 import torch
+from kornia.geometry import create_meshgrid
 from kornia.geometry.transform import remap
 from torch import Tensor
 
-from ngp_kornia.geometry import distort_points, image_center, undistort_points
+from ngp_kornia.geometry import distort_points, image_center, pseudo_intrinsics, undistort_points
 from ngp_kornia.pipeline.distortion import estimate_distortion, k1_from_units, units_from_k1
 from ngp_kornia.pipeline.principal_point import estimate_principal_point
 from ngp_kornia.pipeline.priors import ESTIMATE, Priors
@@ -40,31 +41,20 @@ Stages = Callable[[Tensor, Tensor, Tensor, Priors, float], Calibration]
 
 
 def moved_calibration(cal: Calibration, offset: Tensor) -> Calibration:
-    """A batched calibration with its pixels moved by ``offset`` (B, 2): ``K``, zenith, VPs and horizon.
+    """A batched calibration with its pixels moved by ``offset`` (B, 2): the camera's principal point, so ``K``, the
+    zenith, VPs and horizon follow (points move as ``p + offset``).
 
-    Points move as ``p + offset``; lines ``l`` as ``T^-T l`` (their third coordinate less ``a dx + b dy``).
+    Example:
+        >>> from ngp_kornia.pipeline.answer import calibration_from_camera
+        >>> K = torch.tensor([[[500.0, 0, 319.5], [0, 500, 239.5], [0, 0, 1]]])
+        >>> level = calibration_from_camera(K, torch.eye(3)[None], torch.ones(1), torch.ones(1, dtype=torch.bool),
+        ...                                 480, 640)
+        >>> moved_calibration(level, torch.tensor([[2.0, -10.0]])).horizon.tolist()
+        [[0.0, 1.0, -229.5]]
     """
-    T = torch.eye(3, dtype=cal.K.dtype, device=cal.K.device).repeat(len(offset), 1, 1)
-    T[:, :2, 2] = offset.to(cal.K)
-    zenith = (T @ cal.zenith[..., None])[..., 0]
-    vps = cal.vps @ T.transpose(1, 2)
-    a, b, c = cal.horizon.unbind(-1)
-    horizon = torch.stack([a, b, c - a * offset[:, 0].to(a) - b * offset[:, 1].to(a)], -1)
-    return replace(
-        cal,
-        K=T @ cal.K,
-        zenith=zenith / torch.linalg.vector_norm(zenith, dim=-1, keepdim=True),
-        vps=vps / torch.linalg.vector_norm(vps, dim=-1, keepdim=True),
-        horizon=horizon,
-    )
-
-
-def _pseudo_K(centre: Tensor, height: int, width: int) -> Tensor:
-    """Intrinsics (B, 3, 3) whose focal length is half the long side: rays in pseudo-camera units about ``centre``."""
-    K = torch.eye(3, dtype=centre.dtype, device=centre.device).repeat(len(centre), 1, 1)
-    K[:, 0, 0] = K[:, 1, 1] = max(height, width) / 2.0
-    K[:, :2, 2] = centre
-    return K
+    params = cal.camera.params
+    shift = torch.cat([torch.zeros_like(offset), offset], -1).to(params)  # (0, 0, dx, dy): f stays
+    return replace(cal, camera=cal.camera.replace(params=params + shift))
 
 
 def _moved_segments(segments: Tensor, point: Tensor, lam: Tensor | None, height: int, width: int) -> Tensor:
@@ -73,7 +63,7 @@ def _moved_segments(segments: Tensor, point: Tensor, lam: Tensor | None, height:
     B, N = segments.shape[:2]
     flat = segments.reshape(B, 2 * N, 2)
     if lam is not None:
-        flat = undistort_points(flat, _pseudo_K(point.to(flat), height, width), lam.to(flat))
+        flat = undistort_points(flat, pseudo_intrinsics(height, width, flat, point), lam.to(flat))
     shift = image_center(height, width, like=flat) - point.to(flat)
     return (flat + shift[:, None]).reshape(segments.shape)
 
@@ -81,16 +71,11 @@ def _moved_segments(segments: Tensor, point: Tensor, lam: Tensor | None, height:
 def _moved_images(images: Tensor, point: Tensor, lam: Tensor | None) -> Tensor:
     """The images warped as :func:`_moved_segments` moves the segments (bilinear, zeros outside)."""
     B, _, height, width = images.shape
-    ys, xs = torch.meshgrid(
-        torch.arange(height, dtype=images.dtype, device=images.device),
-        torch.arange(width, dtype=images.dtype, device=images.device),
-        indexing="ij",
-    )
-    grid = torch.stack([xs, ys], -1).reshape(1, -1, 2).expand(B, -1, 2)
+    grid = create_meshgrid(height, width, False, images.device, images.dtype).reshape(1, -1, 2).expand(B, -1, 2)
     shift = image_center(height, width, like=grid) - point.to(grid)
     source = grid - shift[:, None]
     if lam is not None:
-        source = distort_points(source, _pseudo_K(point.to(grid), height, width), lam.to(grid))
+        source = distort_points(source, pseudo_intrinsics(height, width, grid, point), lam.to(grid))
     source = source.reshape(B, height, width, 2)
     return remap(images, source[..., 0], source[..., 1], align_corners=True)
 
@@ -142,9 +127,10 @@ def calibrate_camera_model(
     elif given:
         result = replace(result, principal_point_std=torch.zeros_like(result.K[:, :2, 2]))
     if priors.k1 == ESTIMATE:
-        result = replace(result, k1=k1_from_units(lam.to(result.focal), result.focal, height, width))
+        k1 = k1_from_units(lam.to(result.focal), result.focal, height, width)
+        result = replace(result, camera=result.camera.replace(k1=k1))
     elif priors.k1 is not None:  # given: reported as given (undistorted at the first run's focal length)
-        result = replace(result, k1=torch.full_like(result.focal, priors.k1))
+        result = replace(result, camera=result.camera.replace(k1=torch.full_like(result.focal, priors.k1)))
     return result
 
 

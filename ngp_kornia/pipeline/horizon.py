@@ -44,25 +44,21 @@ import torch
 from torch import Tensor
 
 from ngp_kornia.geometry import (
-    angles_from_rotation,
+    Camera,
     canonical_manhattan_rotation,
-    fov_from_focal,
-    horizon_from_zenith,
     pitch_roll_from_up,
-    vanishing_points_from_rotation,
-    zenith_from_up,
+    rotation_from_up,
+    segment_lengths,
 )
 from ngp_kornia.pipeline.constants import cached
 from ngp_kornia.pipeline.horizon_support import refine_up_on_camera, support_on_camera, up_from_pitch_roll
 from ngp_kornia.pipeline.line_kernel import (
     CameraSegments,
     camera_segments_at_scales,
-    masked_lengths,
     scale_constants,
     scaled_camera_segments,
     scaled_focal,
     total_length,
-    unit_vectors,
 )
 from ngp_kornia.pipeline.result import Calibration
 from ngp_kornia.pipeline.settings import HorizonSettings
@@ -172,7 +168,7 @@ def _search_horizon(
     seg = segments.to(cal.K.dtype)
     # the frame's focal length first; with a known focal length only that one
     scales = [1.0] + ([] if known_focal else [x for x in settings.focal_scales if x != 1.0])
-    (cam, cam_s), lengths = camera_segments_at_scales(seg, cal.K, scales), masked_lengths(seg, mask)
+    (cam, cam_s), lengths = camera_segments_at_scales(seg, cal.K, scales), segment_lengths(seg, mask)
     if weights is not None:
         lengths = lengths * weights.to(lengths)
     s = settings
@@ -331,31 +327,8 @@ def _fine_search(cam, lengths, total, grid: _Grid, coarse: _Coarse, pitch_step, 
 
 def _with_up(cal: Calibration, use: Tensor, K: Tensor, up: Tensor, horizontal: Tensor) -> Calibration:
     """The calibration with, where ``use``, the up vector ``up``, the rotation from it and the horizontal VP
-    direction, and ``K``; every other field follows, so the horizon is the polar of the zenith."""
-    if not bool(use.any()):  # every frame kept (the common case): the fields the choice below would give
-        return replace(cal, K=K, focal=K[:, 0, 0], up=-cal.R[..., :, 1])
-    down = -up
-    h = unit_vectors(horizontal - (horizontal * up).sum(-1, keepdim=True) * up)
-    R = canonical_manhattan_rotation(torch.stack([h, down, torch.linalg.cross(h, down)], -1))
-    R = torch.where(use[:, None, None], R, cal.R)
-    up = -R[..., :, 1]
-    zenith = unit_vectors(zenith_from_up(K, up))
-    pitch, roll = pitch_roll_from_up(up)
-    _, _, yaw = angles_from_rotation(R)
-    focal = K[:, 0, 0]
-    height, width = cal.image_size[:, 0].to(K), cal.image_size[:, 1].to(K)
-    return replace(
-        cal,
-        K=K,
-        focal=focal,
-        fov_v=torch.where(use, fov_from_focal(focal, height), cal.fov_v),
-        fov_h=torch.where(use, fov_from_focal(focal, width), cal.fov_h),
-        R=R,
-        up=up,
-        zenith=torch.where(use[:, None], zenith, cal.zenith),
-        horizon=torch.where(use[:, None], horizon_from_zenith(K, zenith), cal.horizon),
-        vps=torch.where(use[:, None, None], vanishing_points_from_rotation(K, R), cal.vps),
-        pitch=torch.where(use, pitch, cal.pitch),
-        roll=torch.where(use, roll, cal.roll),
-        yaw=torch.where(use, yaw, cal.yaw),
-    )
+    direction, and ``K``; every other field follows (the camera's), so the horizon is the polar of the zenith."""
+    if not bool(use.any()):  # every frame kept (the common case): K is the calibration's own
+        return cal
+    R = torch.where(use[:, None, None], canonical_manhattan_rotation(rotation_from_up(up, horizontal)), cal.R)
+    return replace(cal, camera=Camera.from_matrix(K, R, cal.image_size, cal.k1))

@@ -11,17 +11,17 @@ import math
 
 import torch
 import torch.nn.functional as F
+from kornia.geometry.conversions import pol2cart
 from torch import Tensor
 
+from ngp_kornia.geometry import normalize, segment_lengths
 from ngp_kornia.pipeline.constants import cached, numbers_like, rows_like
 from ngp_kornia.pipeline.line_kernel import (
     CameraSegments,
     camera_segments,
     closeness_kernel,
-    masked_lengths,
     near_direction,
     total_length,
-    unit_vectors,
 )
 
 __all__ = ["horizon_support", "refine_up", "refine_up_on_camera", "support_on_camera", "up_from_pitch_roll"]
@@ -70,7 +70,7 @@ def refine_up(
         ([[0.0, -1.0, 0.0]], [True])
     """
     return refine_up_on_camera(
-        up, camera_segments(segments, K), masked_lengths(segments, mask), mask, zenith_tol, iterations
+        up, camera_segments(segments, K), segment_lengths(segments, mask), mask, zenith_tol, iterations
     )
 
 
@@ -94,7 +94,7 @@ def refine_up_on_camera(
         good = (inlier.sum(-1) >= 3) & (dot.abs()[:, 0] > cos_tol) & finite  # |dot|: fit . up
         cur = torch.where(good[:, None], fit, cur)
         ok = good if ok is None else ok | good
-    return unit_vectors(cur), torch.zeros(len(up), dtype=torch.bool, device=up.device) if ok is None else ok
+    return normalize(cur), torch.zeros(len(up), dtype=torch.bool, device=up.device) if ok is None else ok
 
 
 def horizon_support(
@@ -126,7 +126,7 @@ def horizon_support(
         coordinates (unit, orthogonal to the hypothesis' up) and their histogram weights (B, H, P), strongest first
         (0 for an empty peak).
     """
-    lengths = masked_lengths(segments, mask)
+    lengths = segment_lengths(segments, mask)
     return support_on_camera(
         ups,
         camera_segments(segments, K),
@@ -219,7 +219,7 @@ def _bin_angles(bins: int, like: Tensor) -> Tensor:
 
     def build() -> Tensor:
         angle = (torch.arange(bins, device=like.device).to(like) + 0.5) * (math.pi / bins)
-        return torch.stack([torch.cos(angle), torch.sin(angle)], -1)
+        return torch.stack(pol2cart(torch.ones_like(angle), angle), -1)
 
     return cached(("bins", bins, like.dtype, like.device), build)
 
@@ -238,5 +238,5 @@ def _horizontal_basis(ups: Tensor) -> tuple[Tensor, Tensor]:
     if not bool((norm > numbers_like(norm, 1e-6)[0]).all()):
         e1 = torch.where(norm > 1e-6, e1, torch.linalg.cross(ups, alt))
         norm = torch.linalg.vector_norm(e1, dim=-1, keepdim=True)
-    e1 = e1 / norm.clamp_min(torch.finfo(e1.dtype).tiny ** 0.5)  # unit_vectors
+    e1 = normalize(e1)
     return e1, torch.linalg.cross(ups, e1)

@@ -13,8 +13,11 @@ import math
 from typing import NamedTuple
 
 import torch
+from kornia.geometry.conversions import convert_points_to_homogeneous
+from kornia.geometry.linalg import transform_points
 from torch import Tensor
 
+from ngp_kornia.geometry import normalize
 from ngp_kornia.pipeline.constants import cached, numbers_like
 
 __all__ = [
@@ -24,20 +27,13 @@ __all__ = [
     "camera_segments_at_scales",
     "camera_terms",
     "closeness_kernel",
-    "masked_lengths",
     "near_direction",
     "scale_constants",
     "scaled_camera_segments",
     "scaled_focal",
     "squared_sines",
     "total_length",
-    "unit_vectors",
 ]
-
-
-def unit_vectors(v: Tensor) -> Tensor:
-    """Unit vectors along the last dim; a zero vector stays zero (its norm is clamped to tiny^0.5)."""
-    return v / torch.linalg.vector_norm(v, dim=-1, keepdim=True).clamp_min(torch.finfo(v.dtype).tiny ** 0.5)
 
 
 class CameraSegments(NamedTuple):
@@ -81,14 +77,14 @@ def camera_segments(segments: Tensor, K: Tensor) -> CameraSegments:
 
 
 def camera_points(segments: Tensor, K: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-    """The midpoints, directions and unit plane normals of :func:`camera_segments`."""
-    ones = segments.new_ones(*segments.shape[:-1], 1)
-    pts = torch.cat([segments, ones], -1)  # (B, N, 2, 3)
-    cam = torch.bmm(pts.flatten(1, 2), torch.linalg.inv(K).transpose(-1, -2)).view_as(pts)
-    cam = cam / cam[..., 2:]  # (x, y, 1): z / z is exactly 1
-    xy = cam[..., :2]
+    """The midpoints, directions and unit plane normals of :func:`camera_segments`; a zero-length segment (padding)
+    has no plane, and its normal is 0 (its cross product is rounding residue that normalising would blow up)."""
+    # kornia's transform_points divides by K^-1's z, which is exactly 1 (K^-1's last row is exactly (0, 0, 1))
+    xy = transform_points(torch.linalg.inv(K), segments.flatten(1, 2)).view_as(segments)
+    cam = convert_points_to_homogeneous(xy)  # (B, N, 2, 3): (x, y, 1)
     mid, direction = xy.mean(-2), xy[..., 1, :] - xy[..., 0, :]
-    return mid, direction, unit_vectors(torch.linalg.cross(cam[..., 0, :], cam[..., 1, :]))
+    cross = torch.linalg.cross(cam[..., 0, :], cam[..., 1, :])
+    return mid, direction, normalize(torch.where((direction != 0).any(-1, keepdim=True), cross, 0.0))
 
 
 def _ratio(cam: CameraSegments, vps: Tensor, inplace: bool = False) -> tuple[Tensor, Tensor]:
@@ -175,10 +171,6 @@ def near_direction(cam: CameraSegments, up: Tensor, bound: float) -> Tensor:
         return (torch.div(num, den, out=num)[:, 0] <= bound_t) & (den[:, 0] > tiny)
 
 
-def masked_lengths(segments: Tensor, mask: Tensor) -> Tensor:
-    return torch.linalg.vector_norm(segments[..., 1, :] - segments[..., 0, :], dim=-1) * mask.to(segments)
-
-
 def total_length(lengths: Tensor) -> Tensor:
     """The total segment length (B, 1), at least tiny^0.5 (the support's denominator)."""
     return lengths.sum(-1, keepdim=True).clamp_min(torch.finfo(lengths.dtype).tiny ** 0.5)
@@ -202,7 +194,7 @@ def scaled_camera_segments(cam: CameraSegments, inv: Tensor, stretch: Tensor) ->
 
 def _scaled(mid: Tensor, direction: Tensor, normals: Tensor, inv: Tensor, stretch: Tensor) -> CameraSegments:
     mid_s, direction_s = (mid * inv).flatten(0, 1), (direction * inv).flatten(0, 1)
-    return camera_terms(mid_s, direction_s, unit_vectors((normals * stretch).flatten(0, 1)))
+    return camera_terms(mid_s, direction_s, normalize((normals * stretch).flatten(0, 1)))
 
 
 def camera_segments_at_scales(

@@ -363,7 +363,7 @@ def pseudo_lines(segments: Tensor, mask: Tensor, height: int, width: int) -> tup
     """(B, N, 2, 2) pixel segments -> the pseudo camera's segments, their (B, N, 3) lines and (B, N) pixel lengths
     (zero where the mask is False)."""
     seg = to_pseudo_camera(segments, height, width)
-    return seg, segments_to_lines(seg), segment_lengths(segments) * mask.to(segments)
+    return seg, segments_to_lines(seg), segment_lengths(segments, mask)
 
 
 def checked_segments(segments: Tensor, mask: Tensor | None, batch: int) -> tuple[Tensor, Tensor]:

@@ -22,11 +22,10 @@ import torch
 from kornia.geometry.conversions import axis_angle_to_rotation_matrix
 from torch import Tensor
 
-from ngp_kornia.geometry import canonical_manhattan_rotation
+from ngp_kornia.geometry import canonical_manhattan_rotation, segment_lengths
 from ngp_kornia.pipeline.line_kernel import (
     camera_segments,
     closeness_kernel,
-    masked_lengths,
     scaled_camera_segments,
     scaled_focal,
     squared_sines,
@@ -87,7 +86,7 @@ def polish_frame(
     """
     B, S = len(K), len(scales)
     seg = segments.to(K.dtype)
-    cam, lengths = camera_segments(seg, K), masked_lengths(seg, mask)
+    cam, lengths = camera_segments(seg, K), segment_lengths(seg, mask)
     scale = torch.tensor(scales, dtype=K.dtype, device=K.device)
     inv = (1.0 / scale)[:, None, None, None]
     stretch = torch.cat([1.0 / inv, 1.0 / inv, torch.ones_like(inv)], -1)

@@ -2,14 +2,22 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, fields
+from typing import ClassVar
 
 import torch
 from torch import Tensor
 
+from ngp_kornia.geometry.pinhole import Camera
 from ngp_kornia.pipeline import camera_export as cameras
 
 __all__ = ["Calibration"]
+
+
+def _from_camera(name: str) -> property:
+    """A read-only attribute of the calibration that is the camera's (:class:`~ngp_kornia.geometry.pinhole.Camera`)."""
+    return property(lambda self: getattr(self.camera, name), doc=f"The camera's ``{name}`` (see the class docstring).")
 
 
 @dataclass
@@ -21,7 +29,14 @@ class Calibration:
     pointing down; pitch > 0 looks up; roll > 0 when the scene's up direction leans right in the image; angles in
     degrees. See :mod:`ngp_kornia.geometry.camera`.
 
+    The camera is held as its parameters (:class:`~ngp_kornia.geometry.pinhole.Camera`: focal length, principal
+    point, ``k1``, rotation, image size); ``K``, ``R``, ``focal``, the fields of view, the angles, ``up``,
+    ``zenith``, ``horizon``, ``vps``, ``image_size``, ``k1`` and ``principal_point`` are read from it (computed once,
+    differentiable), the other attributes are the calibration's own. :data:`FIELDS` names them all.
+
     Attributes:
+        camera: the :class:`~ngp_kornia.geometry.pinhole.Camera`, batched as the calibration; ``camera.to_kornia()``
+            and ``camera.to_camera_model()`` give kornia's camera types.
         K: (B, 3, 3) intrinsics (principal point at the image centre unless it was given or estimated); with
             ``k1`` those of the undistorted image (the pinhole camera once the distortion is removed).
         R: (B, 3, 3) world-to-camera rotation of the Manhattan frame; world z is the horizontal scene axis closest
@@ -43,6 +58,7 @@ class Calibration:
             level camera (pitch, roll and yaw 0) with the known focal length or a 60 degree field of view on the
             long side, at confidence 0.
         image_size: (B, 2) ``(height, width)`` in pixels.
+        principal_point: (B, 2) ``(c_x, c_y)`` in pixels, ``K[:, :2, 2]``.
         exif_orientation: (B,) long: the EXIF orientation tag (1-8) of the file that was applied before
             calibrating, so every field is in the pixels of the image as displayed (6 and 8: a phone photo stored
             turned, ...); 1 when nothing was turned: files stored upright, and arrays and tensors, which are taken
@@ -70,85 +86,102 @@ class Calibration:
             nearest the image's vertical. None when not computed.
     """
 
-    K: Tensor
-    R: Tensor
-    focal: Tensor
-    fov_v: Tensor
-    fov_h: Tensor
-    pitch: Tensor
-    roll: Tensor
-    yaw: Tensor
-    up: Tensor
-    zenith: Tensor
-    horizon: Tensor
-    vps: Tensor
+    camera: Camera
     score: Tensor
     valid: Tensor
-    image_size: Tensor
     exif_orientation: Tensor | None = None
     confidence: Tensor | None = None
     pitch_std: Tensor | None = None
     roll_std: Tensor | None = None
     fov_v_std: Tensor | None = None
     principal_point_std: Tensor | None = None
-    k1: Tensor | None = None
     shared_photos: Tensor | None = None
     gravity: Tensor | None = None
     upright: Tensor | None = None
     turned: Tensor | None = None
 
+    #: every per-image value, in the order of :meth:`to_dict`: the camera's (parameters and derived geometry) and
+    #: the calibration's own
+    FIELDS: ClassVar[tuple[str, ...]] = (
+        "K", "R", "focal", "fov_v", "fov_h", "pitch", "roll", "yaw", "up", "zenith", "horizon", "vps", "score",
+        "valid", "image_size", "exif_orientation", "confidence", "pitch_std", "roll_std", "fov_v_std",
+        "principal_point_std", "k1", "shared_photos", "gravity", "upright", "turned",
+    )  # fmt: skip
+
     def __post_init__(self) -> None:
         if self.exif_orientation is None:  # made without it: nothing was turned
             self.exif_orientation = torch.ones_like(self.focal, dtype=torch.long)
 
+    # --- the camera's values (Camera: parameters and what follows from them) ---
+
+    K = _from_camera("K")
+    R = _from_camera("R")
+    focal = _from_camera("focal")
+    fov_v = _from_camera("fov_v")
+    fov_h = _from_camera("fov_h")
+    pitch = _from_camera("pitch")
+    roll = _from_camera("roll")
+    yaw = _from_camera("yaw")
+    up = _from_camera("up")
+    zenith = _from_camera("zenith")
+    horizon = _from_camera("horizon")
+    vps = _from_camera("vps")
+    image_size = _from_camera("image_size")
+    k1 = _from_camera("k1")
+    principal_point = _from_camera("principal_point")
+
     @property
     def batched(self) -> bool:
-        return self.focal.dim() == 1
+        return self.camera.batched
 
     def __len__(self) -> int:
         if not self.batched:
             raise TypeError("an unbatched Calibration has no length")
-        return self.focal.shape[0]
+        return len(self.camera)
 
     def __getitem__(self, index: int) -> Calibration:
         """The calibration of one image of a batch, without the batch dim."""
         if not self.batched:
             raise TypeError("an unbatched Calibration cannot be indexed")
-        return Calibration(**{f.name: _index(getattr(self, f.name), index) for f in fields(self)})
+        values = {name: _index(value, index) for name, value in self._own().items()}
+        return Calibration(camera=self.camera[index], **values)
+
+    def apply(self, fn: Callable[[Tensor], Tensor]) -> Calibration:
+        """A calibration of ``fn`` applied to every tensor, the camera's parameters included (None stays None)."""
+        values = {name: None if value is None else fn(value) for name, value in self._own().items()}
+        return Calibration(camera=self.camera.apply(fn), **values)
 
     def to(self, *args, **kwargs) -> Calibration:
-        """Move or cast every floating-point tensor, like :meth:`torch.Tensor.to`."""
-        out = {}
-        for f in fields(self):
-            t = getattr(self, f.name)
-            if t is None:
-                out[f.name] = None
-                continue
-            out[f.name] = t.to(*args, **kwargs) if t.is_floating_point() else t.to(device=t.device)
-        return Calibration(**out)
+        """Move or cast like :meth:`torch.Tensor.to`: floating-point tensors take the dtype, all the device."""
+        device = torch._C._nn._parse_to(*args, **kwargs)[0]
+        return self.apply(lambda t: t.to(*args, **kwargs) if t.is_floating_point() else t.to(device or t.device))
 
     def clone(self) -> Calibration:
         """A copy with every tensor cloned, like :meth:`torch.Tensor.clone`."""
-        values = {f.name: getattr(self, f.name) for f in fields(self)}
-        return Calibration(**{name: None if t is None else t.clone() for name, t in values.items()})
+        return self.apply(torch.clone)
+
+    def _own(self) -> dict[str, Tensor | None]:
+        """The values besides the camera, by name."""
+        return {f.name: getattr(self, f.name) for f in fields(self) if f.name != "camera"}
 
     def to_dict(self) -> dict | list[dict]:
         """Plain JSON-able values: a dict for one image, a list of dicts for a batch.
 
-        Besides the fields: ``height``, ``width``, the principal point ``cx``, ``cy`` (our pixels) and
-        ``distortion``, OpenCV's ``(k1, k2, p1, p2, k3)``: all zero for a distortion-free pinhole, else the
-        polynomial closest to the division model's ``k1`` over the image (:func:`~ngp_kornia.geometry.lens.
-        opencv_radial`); with ``shared_photos``, ``shared`` names the intrinsics the photos share (``focal``, and
-        ``principal_point`` and ``k1`` where modelled); ``gravity`` becomes ``{"pitch", "roll", "std"}``.
+        The :data:`FIELDS` (those not None), but ``height`` and ``width`` for the image size; then the principal point
+        ``cx``, ``cy`` (our pixels) and ``distortion``, OpenCV's ``(k1, k2, p1, p2, k3)``: all zero for a
+        distortion-free pinhole, else the polynomial closest to the division model's ``k1`` over the image
+        (:func:`~ngp_kornia.geometry.lens.opencv_radial`); with ``shared_photos``, ``shared`` names the intrinsics the
+        photos share (``focal``, and ``principal_point`` and ``k1`` where modelled); ``gravity`` becomes
+        ``{"pitch", "roll", "std"}``.
         """
         if self.batched:
             return [self[i].to_dict() for i in range(len(self))]
         out = {}
-        for f in fields(self):
-            if getattr(self, f.name) is None:
+        for name in self.FIELDS:
+            if getattr(self, name) is None:
                 continue
-            value = getattr(self, f.name).detach().cpu()
-            out[f.name] = value.tolist() if value.dim() else value.item()
+            value = getattr(self, name).detach().cpu()
+            out[name] = value.tolist() if value.dim() else value.item()
         out["height"], out["width"] = (int(v) for v in out.pop("image_size"))
         out.update(cameras.pinhole_keys(self.K, self.k1, self.image_size))  # cx, cy and OpenCV's distortion
         if self.shared_photos is not None:
@@ -176,7 +209,7 @@ class Calibration:
 
         Intrinsics are ``K`` and extrinsics ``[R | 0]`` as (B, 4, 4) (B = 1 for an unbatched calibration), height
         and width are (B,). kornia shares our pixel convention (origin at the top-left pixel's centre), so
-        ``to_kornia().project(X)`` for world points ``X`` (B, 3) gives the pixels ``K R X`` in the input image.
+        ``to_kornia().project(X)`` for world points ``X`` (B, N, 3) gives the pixels ``K R X`` in the input image.
 
         Example:
             >>> import torch
@@ -185,7 +218,22 @@ class Calibration:
             >>> camera.intrinsics.shape, camera.extrinsics.shape, camera.width.tolist()
             (torch.Size([1, 4, 4]), torch.Size([1, 4, 4]), [64.0])
         """
-        return cameras.kornia_camera(self.K, self.R, self.image_size)
+        return self.camera.to_kornia()
+
+    def to_camera_model(self):
+        """This calibration's intrinsics as kornia's :class:`~kornia.sensors.camera.CameraModel`: ``PINHOLE``
+        without ``k1``, else ``BROWN_CONRADY`` with the radial polynomial closest to the division model over the
+        image (:meth:`~ngp_kornia.geometry.pinhole.Camera.to_camera_model`). Its ``project`` takes camera-frame
+        points to pixels of the photo.
+
+        Example:
+            >>> import torch
+            >>> from ngp_kornia import calibrate
+            >>> model = calibrate(torch.rand(3, 48, 64)).to_camera_model()
+            >>> type(model._model).__name__, model.params[2:].tolist()
+            ('PinholeModel', [31.5, 23.5])
+        """
+        return self.camera.to_camera_model()
 
     def to_opencv(self):
         """OpenCV's ``(K, dist)``: float64 numpy arrays, (3, 3) and (5,) (batched: (B, 3, 3) and (B, 5)); ``dist``

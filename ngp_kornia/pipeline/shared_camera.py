@@ -34,11 +34,10 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
-from ngp_kornia.geometry import intrinsics_matrix
+from ngp_kornia.geometry import intrinsics_matrix, segment_lengths
 from ngp_kornia.pipeline.line_kernel import (
     camera_segments,
     closeness_kernel,
-    masked_lengths,
     scaled_camera_segments,
 )
 from ngp_kornia.pipeline.polish import refit_rotation
@@ -144,7 +143,7 @@ def _support_at(K: Tensor, R: Tensor, segments: Tensor, mask: Tensor, focals: Te
     inv = (K[0, 0] / focals)[:, None, None, None]
     stretch = torch.cat([1.0 / inv, 1.0 / inv, torch.ones_like(inv)], -1)
     cam = scaled_camera_segments(camera_segments(segments[None], K[None]), inv, stretch)
-    keep, lengths = mask.expand(G, -1), masked_lengths(segments[None], mask[None]).expand(G, -1)
+    keep, lengths = mask.expand(G, -1), segment_lengths(segments[None], mask[None]).expand(G, -1)
     fitted = refit_rotation(cam, lengths, keep, start, settings.inlier_deg, settings.iterations)
     close = closeness_kernel(cam, fitted.transpose(1, 2)[:, None], settings.kernel_deg, keep)[:, 0]
     return (close * lengths).sum(-1) / lengths.sum(-1).clamp_min(1e-12)

@@ -14,12 +14,13 @@ import torch
 from torch import Tensor
 
 from ngp_kornia.geometry import (
+    closeness,
     fov_from_focal,
+    image_center,
     pitch_roll_from_up,
     pseudo_focal,
     segment_lengths,
     segments_to_lines,
-    sharp_closeness,
     to_pseudo_camera,
     topk_weighted_average,
 )
@@ -110,7 +111,7 @@ def _frame_horizons(frames: FrameCandidates, height: int, width: int) -> Tensor:
     z = frames.zenith
     ab = z[..., :2] / (f**2)[..., None]
     pf = pseudo_focal(height, width)
-    cx, cy = (width - 1) / 2.0, (height - 1) / 2.0
+    cx, cy = image_center(height, width, like=ab)
     a, b = ab.unbind(-1)
     return torch.cat([ab / pf, (z[..., 2] - (cx * a + cy * b) / pf)[..., None]], -1)
 
@@ -265,10 +266,10 @@ def _line_support(
     """Line-length shares (B, 3) of each of the (B, 3, 3) VPs, and (B,) the Manhattan share of all three."""
     if shared is None:
         lines = segments_to_lines(to_pseudo_camera(segments, height, width))
-        lengths = segment_lengths(segments) * mask.to(segments)
+        lengths = segment_lengths(segments, mask)
     else:
         lines, lengths = shared.lines, shared.lengths
-    close = sharp_closeness(lines, vps, kernel_angle)  # (B, 3, N)
+    close = closeness(lines, vps, kernel_angle)  # (B, 3, N)
     total = lengths.sum(-1).clamp_min(1e-9)
     shares = (close * lengths[:, None]).sum(-1) / total[:, None]
     return shares, (close.amax(1) * lengths).sum(-1) / total

@@ -23,7 +23,7 @@ import torch
 from torch import Tensor, nn
 
 from ngp_kornia.geometry.camera import canonical_manhattan_rotation
-from ngp_kornia.pipeline.answer import calibration_from_camera, level_answer
+from ngp_kornia.pipeline.answer import level_answer
 from ngp_kornia.pipeline.result import Calibration
 from ngp_kornia.pipeline.segments import strip_threads
 
@@ -125,14 +125,8 @@ def turned_answer(result: Calibration, turns: Tensor, use: Tensor) -> Calibratio
     up = axes[rows, pick]
     others = axes[rows[:, None], (pick[:, None] % 3 + torch.arange(1, 3, device=R.device)) % 3]  # (B, 2, 3)
     frame = canonical_manhattan_rotation(torch.stack([others[:, 0], -up, others[:, 1]], -1))
-    height, width = (int(v) for v in result.image_size[0])
-    turned = calibration_from_camera(result.K, frame, result.score, result.valid, height, width)
-    fields = {
-        name: torch.where(use.reshape(-1, *[1] * (value.dim() - 1)), value, getattr(result, name))
-        for name, value in vars(turned).items()
-        if name in ("R", "pitch", "roll", "yaw", "up", "zenith", "horizon", "vps")
-    }
-    return replace(result, **fields)
+    R = torch.where(use[:, None, None], frame, result.R)
+    return replace(result, camera=result.camera.replace(R=R))
 
 
 def apply_upright(

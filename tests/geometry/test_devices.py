@@ -62,7 +62,7 @@ CASES = {
     "cossim": lambda x: G.cossim(x["points"], x["points"].flip(1)),
     "homogeneous_to_pseudo_camera": lambda x: G.homogeneous_to_pseudo_camera(x["points"], H, W),
     "structure_tensor": lambda x: G.dominant_eigenvector(G.weighted_structure_tensor(x["points"], x["weights"])),
-    "closeness": lambda x: torch.stack([G.closeness(_lines(x), x["vps"]), G.sharp_closeness(_lines(x), x["vps"])]),
+    "closeness": lambda x: torch.stack([G.closeness(_lines(x), x["vps"]), G.closeness(_lines(x), x["vps"], 89.0)]),
     "segment_vp_angle": lambda x: G.segment_vp_angle(G.to_pseudo_camera(x["segments"], H, W), x["vps"][:, :, 0]),
     "frame_manhattan_scores": lambda x: G.frame_manhattan_scores(
         _lines(x), x["vps"], G.segment_lengths(x["segments"]), x["mask"]
@@ -70,7 +70,7 @@ CASES = {
     "topk_weighted_average": lambda x: G.topk_weighted_average(x["scores"], x["vps"], 2)[0],
     "line_maps": lambda x: G.manhattan_score_maps(
         G.line_map(x["segments"], x["mask"], H // 8, W // 8),
-        G.closeness_maps(x["segments"] / 8, x["mask"], G.sharp_closeness(_lines(x), x["vps"][:, 0]), H // 8, W // 8),
+        G.closeness_maps(x["segments"] / 8, x["mask"], G.closeness(_lines(x), x["vps"][:, 0], 89.0), H // 8, W // 8),
     ),
     "pooled_maps": lambda x: G.line_map_and_pooled_maps(
         x["segments"] / 8, x["mask"], x["weights"][..., None], H // 8, W // 8, 4

@@ -16,7 +16,6 @@ from ngp_kornia.geometry.vp import (
     line_vp_cosine,
     manhattan_score,
     segment_vp_angle,
-    sharp_closeness,
     sharp_kernel,
     structure_tensor,
     symmetric_dominant_eigenvector,
@@ -198,7 +197,7 @@ def test_dominant_eigenvector_exception_and_gradcheck():
 
 
 # ---------------------------------------------------------------------------------------------------------------
-# line_vp_cosine, closeness, sharp_closeness
+# line_vp_cosine, closeness (Eq. 14 and the sharp kernel)
 
 
 def _lines_through(vp_xy, angles_deg, dtype=torch.float64):
@@ -222,7 +221,7 @@ def test_line_vp_cosine_and_closeness_shapes(b, n, dtype):
     torch.testing.assert_close(cos[:, 1, 2], cossim(lines, vps[:, 1, 2, None]))
     c = closeness(lines, vps)
     torch.testing.assert_close(c, 1 - cos)
-    s = sharp_closeness(lines, vps)
+    s = closeness(lines, vps, 89.0)
     assert s.shape == (b, 2, 3, n) and s.dtype == dtype
     assert ((s >= 0) & (s <= 1)).all()  # (0, 1] mathematically; exp underflows to 0 far from the VP
     # a single VP per batch: (B, 3) -> (B, N)
@@ -235,7 +234,7 @@ def test_closeness_known_answers():
     lines = segments_to_lines(seg)
     v = torch.tensor([[vp[0], vp[1], 1.0]], dtype=torch.float64)
     torch.testing.assert_close(closeness(lines, v), torch.ones(1, 3, dtype=torch.float64))
-    torch.testing.assert_close(sharp_closeness(lines, v), torch.ones(1, 3, dtype=torch.float64))
+    torch.testing.assert_close(closeness(lines, v, 89.0), torch.ones(1, 3, dtype=torch.float64))
     torch.testing.assert_close(line_vp_cosine(lines, -5 * v), torch.zeros(1, 3, dtype=torch.float64))
     # a point at infinity: lines parallel to its direction pass through it
     seg = torch.tensor([[[[0.0, 0.0], [1.0, 1.0]], [[5.0, 0.0], [7.0, 2.0]], [[0.0, 0.0], [1.0, 0.0]]]])
@@ -255,22 +254,26 @@ def test_sharp_closeness_known_kernel(angle_deg):
     lines = torch.tensor([[[math.cos(a), math.sin(a), 0.0]]], dtype=torch.float64)
     vp = torch.tensor([[1.0, 0.0, 0.0]], dtype=torch.float64)
     torch.testing.assert_close(
-        sharp_closeness(lines, vp, angle_deg=angle_deg), torch.tensor([[math.exp(-0.5)]], dtype=torch.float64)
+        closeness(lines, vp, angle_deg), torch.tensor([[math.exp(-0.5)]], dtype=torch.float64)
     )
 
 
 def test_sharp_kernel():
     torch.testing.assert_close(sharp_kernel(torch.tensor([0.0, 1.0])), torch.tensor([1.0, 0.0]))
+    # a floor on the exponent keeps the tail a normal float: exp(-30) instead of an underflow to 0
+    far = torch.tensor([1.0], dtype=torch.float64)
+    torch.testing.assert_close(sharp_kernel(far, 89.0, -30.0), torch.tensor([math.exp(-30.0)], dtype=torch.float64))
+    assert float(sharp_kernel(far, 89.0)) < 1e-300
     c89 = math.cos(math.radians(89.0))
     torch.testing.assert_close(
         sharp_kernel(torch.tensor([c89], dtype=torch.float64)), torch.tensor([math.exp(-0.5)], dtype=torch.float64)
     )
-    # sharp_closeness is the kernel of line_vp_cosine; the best closeness over VPs is the kernel of the smallest cosine
+    # closeness with an angle is the kernel of line_vp_cosine; the best over VPs is the kernel of the smallest cosine
     lines = _randn(2, 6, 3, seed=3)
     vps = normalize(torch.linalg.cross(lines[:, :3], _randn(2, 3, 3, seed=4)))  # VP i lies on line i
     cos = line_vp_cosine(lines, vps)
-    torch.testing.assert_close(sharp_closeness(lines, vps, 85.0), sharp_kernel(cos, 85.0))
-    torch.testing.assert_close(sharp_closeness(lines, vps).amax(1), sharp_kernel(cos.amin(1)))
+    torch.testing.assert_close(closeness(lines, vps, 85.0), sharp_kernel(cos, 85.0))
+    torch.testing.assert_close(closeness(lines, vps, 89.0).amax(1), sharp_kernel(cos.amin(1)))
     x = torch.tensor([0.001, 0.01, 0.02], dtype=torch.float64, requires_grad=True)
     assert gradcheck(sharp_kernel, (x,))
 
@@ -283,7 +286,7 @@ def test_sharp_closeness_vs_closeness_ordering():
     lines = torch.stack([torch.ones_like(offsets), torch.zeros_like(offsets), -offsets], -1)  # x = offset
     lines = normalize(lines)[None]
     c = closeness(lines, vp)[0, 0]
-    s = sharp_closeness(lines, vp)[0, 0]
+    s = closeness(lines, vp, 89.0)[0, 0]
     assert (c[1:] < c[:-1]).all() and (s[1:] < s[:-1]).all()
     assert torch.equal(torch.argsort(c), torch.argsort(s))
     assert c[4] > 0.9 and s[4] < 0.05  # about 3 degrees off: still "close" for Eq. 14, not for the sharp kernel
@@ -306,7 +309,7 @@ def test_closeness_gradcheck():
     v = normalize(_randn(2, 3, 3, seed=6))
     near = torch.linalg.cross(v[:, :, None].expand(2, 3, 4, 3), _randn(2, 3, 4, 3, seed=7)).reshape(2, 12, 3)
     near = (near + 1e-3 * _randn(2, 12, 3, seed=8)).requires_grad_()
-    assert gradcheck(sharp_closeness, (near, v.clone().requires_grad_()))
+    assert gradcheck(lambda lines, vps: closeness(lines, vps, 89.0), (near, v.clone().requires_grad_()))
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -410,7 +413,7 @@ def test_manhattan_score_true_frame_beats_wrong_frame():
     vps = torch.stack([torch.linalg.solve(Kp, K @ R), torch.linalg.solve(Kp, K @ wrong)], 1).transpose(-1, -2)
     lengths = segment_lengths(seg)
     mask = torch.ones(1, 12, dtype=torch.bool)
-    score = manhattan_score(sharp_closeness(lines, vps), lengths, mask)
+    score = manhattan_score(closeness(lines, vps, 89.0), lengths, mask)
     assert score.shape == (1, 2)
     assert score[0, 0] > 0.999 and score[0, 1] < 0.5
     score_lin = manhattan_score(closeness(lines, vps), lengths, mask)

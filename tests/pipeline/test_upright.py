@@ -22,7 +22,7 @@ def _answer():
 
 
 def _batched(result):
-    return type(result)(**{k: None if v is None else v[None] for k, v in result.__dict__.items()})
+    return result.apply(lambda t: t[None])
 
 
 def test_confidence_is_scaled_by_the_upright_probability():

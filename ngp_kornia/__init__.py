@@ -16,6 +16,7 @@ if TYPE_CHECKING:
         InputError,
         ManifestError,
         NGPError,
+        NGPWarning,
         OutputError,
         WeightsError,
     )
@@ -40,7 +41,9 @@ _PIPELINE = (
     "Calibration EvidenceSettings HorizonSettings NeuralGeometricParser ParserConfig PolishSettings Priors "
     "SamplingSettings ScoringSettings SegmentSettings TrustSettings"
 )
-_ERRORS = "CheckpointError ConfigError ImageReadError InputError ManifestError NGPError OutputError WeightsError"
+_ERRORS = (
+    "CheckpointError ConfigError ImageReadError InputError ManifestError NGPError NGPWarning OutputError WeightsError"
+)
 _HOMES = {
     "calibrate": "ngp_kornia.api",
     "ImageError": "ngp_kornia.io",
@@ -60,6 +63,7 @@ __all__ = [
     "InputError",
     "ManifestError",
     "NGPError",
+    "NGPWarning",
     "NeuralGeometricParser",
     "OutputError",
     "ParserConfig",

@@ -3,6 +3,7 @@ length) are read."""
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 from copy import deepcopy
 from dataclasses import replace
@@ -14,7 +15,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ngp_kornia.errors import NGPError, WeightsError, shown
+from ngp_kornia.errors import NGPError, NGPWarning, WeightsError, shown
 from ngp_kornia.geometry import image_center
 from ngp_kornia.io import as_batch, exif_focal, read_rgb_oriented
 from ngp_kornia.nets.weights import load_network, network_name, shipped_weights
@@ -29,6 +30,7 @@ from ngp_kornia.pipeline.shared_camera import (
     joint_focal,
     joint_k1,
     joint_principal_point,
+    not_shared_message,
     with_shared_focal,
 )
 from ngp_kornia.threads import Lookahead, pipeline_threads, resolve_num_threads
@@ -144,37 +146,37 @@ def calibrate(
     principal_point: tuple[float, float] | str | None = None,
     k1: float | str | None = None,
     shared_intrinsics: bool = False,
+    focal_35mm: float | None = None,
 ) -> Calibration | list[Calibration]:
     """Calibrate a camera from one photo (or a batch, or a list of photos) of a man-made scene.
 
     Args:
-        image: a file path (decoded as displayed: the EXIF orientation is applied, and reported in the result's
-            ``exif_orientation``, which is 1 for arrays and tensors; files over the pixel limit of :mod:`ngp_kornia.io`
-            are refused), an HxWx3 uint8 RGB array (HxW greyscale, RGBA and uint16 are converted), or a float
-            tensor (3, H, W) or (B, 3, H, W) in [0, 1] on any device; or a list (or tuple) of any of these, of any
-            sizes, mixed freely.
+        image: a file path (decoded as displayed, :func:`ngp_kornia.io.read_image`: its EXIF orientation applied,
+            transparency over grey), an HxWx3 uint8 RGB array (HxW greyscale, RGBA and uint16 converted), or a float
+            tensor (3, H, W) or (B, 3, H, W) in [0, 1] on any device; or a list (or tuple) of any of these, mixed.
         weights: ``"default"`` (the best path shipped), ``"none"`` (the untrained geometric path), ``"zsnet"`` (zenith
             candidates scored by the shipped ZSNet), ``"fsnet"`` (frames rescored by the shipped FSNet), ``"full"``
             (both), or the path of a weights file (or a list of paths: one ZSNet and one FSNet file).
         seed: seed of the random candidate sampling; the same input and seed give the same result.
         config: a :class:`~ngp_kornia.pipeline.settings.ParserConfig`, or a mapping ``{"horizon.refine": False, ...}``.
-        focal: a known focal length in pixels of the input image (a prior).
-        fov_v: a known vertical field of view in degrees (a prior; ``focal`` wins when both are given).
-        exif: for a file without ``focal`` / ``fov_v``, use the focal length its EXIF block records
-            (``FocalLengthIn35mmFilm``, or ``FocalLength`` with the sensor resolution); no prior when it has none.
-        num_threads: torch threads of the calling thread during the call (:mod:`ngp_kornia.threads`): None takes
-            ``$NGP_NUM_THREADS`` or else 1; 0 keeps the caller's setting. The caller's count is restored after.
+        focal, fov_v, focal_35mm: a known focal length (one of them, :class:`Priors`): pixels of the input, the
+            vertical field of view in degrees, or millimetres of a 35 mm equivalent as EXIF gives it. One that no
+            camera has on the image (millimetres given as pixels, say) is refused with the likely mistake.
+        exif: for a file without such a prior, the focal length its EXIF block records, where it records a
+            plausible one (``FocalLengthIn35mmFilm``, or ``FocalLength`` with the sensor resolution).
+        num_threads: torch threads during the call, then restored (:mod:`ngp_kornia.threads`; 0: the caller's).
         gravity, gravity_std, principal_point, k1: a known ``(pitch, roll)`` and its standard deviation, degrees;
             the principal point ``(cx, cy)`` and radial distortion, known or ``"estimate"`` (:class:`Priors`).
-        shared_intrinsics: the photos (of one size) are one camera's (:mod:`ngp_kornia.pipeline.shared_camera`).
+        shared_intrinsics: the photos (of one size) are one camera's (:mod:`ngp_kornia.pipeline.shared_camera`;
+            with fewer than two that have lines, each is calibrated alone and an ``NGPWarning`` says so).
 
     Returns:
-        a :class:`Calibration` in the input's pixels (documented there), batched for batched tensor input; for a list,
-        a list of results, one per item, each what that item gives alone (same seed) unless ``shared_intrinsics``.
+        a :class:`Calibration` in the input's pixels (``exif_orientation`` says how a file was turned), batched for
+        batched tensor input; for a list, one per item, each what that item gives alone unless ``shared_intrinsics``.
 
     Raises:
         ImageReadError: unreadable, truncated, corrupt, too small (< 32 px), too large or NaN input.
-        InputError: a seed, prior or thread count that is not one (a bool as a focal length, say).
+        InputError: a seed, prior or thread count that is not one (a bool as a focal length, say), or two priors.
         ValueError: ``shared_intrinsics`` with photos of different sizes, or with ``exif``; a bad ``config``.
         WeightsError: a missing, corrupt or mismatched weights file.
         TypeError: an input type or dtype that is not supported.
@@ -187,7 +189,7 @@ def calibrate(
         [[64, 64], [48, 80]]
     """
     call = _Call(check_weights(weights), checked_config(config), checked_seed(seed),
-                 Priors(focal, fov_v, gravity, gravity_std, principal_point, k1), exif)
+                 Priors(focal, fov_v, gravity, gravity_std, principal_point, k1, focal_35mm), exif)
     return _calibrate_call(image, call, num_threads, shared_intrinsics)
 
 
@@ -224,7 +226,12 @@ def file_priors(image: object, height: int, width: int, priors: Priors, exif: bo
         500.0
     """
     if exif and not priors.known_focal and isinstance(image, (str, Path)):
-        return replace(priors, focal=exif_focal(image, height, width))
+        recorded = replace(priors, focal=exif_focal(image, height, width))
+        try:
+            recorded.check_image(height, width)
+        except NGPError:  # a damaged or odd tag (a focal length no camera has on this image): no prior
+            return priors
+        return recorded
     return priors
 
 
@@ -331,8 +338,11 @@ def calibrate_shared(image, call: _Call, num_threads: int | None) -> Calibration
     if not items:
         raise ValueError("calibrate() got an empty list; give at least one image (path, array or tensor)")
     with pipeline_threads(num_threads):
-        kept, shared = _first_pass(items, call)
-        priors = replace(call.priors, focal=shared.focal, fov_v=None)
+        kept, shared, alone = _first_pass(items, call)
+        if alone and shared.photos < 2:  # one photo's lines, or none: nothing to share between photos
+            warnings.warn(NGPWarning(not_shared_message(shared.photos, len(items))), stacklevel=4)
+            return alone if isinstance(image, (list, tuple)) else alone[0]
+        priors = call.priors.with_focal(shared.focal)
         if shared.principal_point is not None:
             priors = replace(priors, principal_point=shared.principal_point)
         if shared.k1 is not None:
@@ -370,11 +380,12 @@ def shared_focal(
         return _first_pass(list(images), call, skip_unreadable=True)[1]
 
 
-def _first_pass(items: list, call: _Call, skip_unreadable: bool = False) -> tuple[list[tuple], SharedFocal]:
+def _first_pass(items: list, call: _Call, skip_unreadable: bool = False) -> tuple[list[tuple], SharedFocal, list]:
     """Each photo calibrated alone and scored on the common focal grid: what is kept of each photo's inputs (its
-    pixels only where they are the caller's tensor or a stand-in) and the joint camera. With ``skip_unreadable``
-    a photo that cannot be read or calibrated is left out (and nothing is kept of any)."""
-    kept, found, sizes = [], {"support": [], "valid": [], "point": [], "point_std": [], "k1": []}, []
+    pixels only where they are the caller's tensor or a stand-in), the joint camera and the photos' own results
+    (none where nothing is estimated jointly). With ``skip_unreadable`` a photo that cannot be read or calibrated
+    is left out (and nothing is kept of any)."""
+    kept, found, sizes, alone = [], {"support": [], "valid": [], "point": [], "point_std": [], "k1": []}, [], []
     estimates = call.priors.principal_point == ESTIMATE or call.priors.k1 == ESTIMATE
     with Lookahead(lambda i: _with_segments(_inputs(items[i], call), call)) as ahead:
         for i, item in enumerate(items):
@@ -387,12 +398,13 @@ def _first_pass(items: list, call: _Call, skip_unreadable: bool = False) -> tupl
             sizes.append(tuple(given[0].shape[-2:]))
             height, width = _one_size(sizes, call.priors.principal_point == ESTIMATE)
             if not call.priors.known_focal or estimates:
-                _evidence(found, _calibrate_inputs(item, given, call), given, call, height, width)
+                alone.append(_calibrate_inputs(item, given, call))
+                _evidence(found, alone[-1], given, call, height, width)
             keep_pixels = isinstance(item, Tensor) or given[0].stride() == (0, 0, 0, 0)  # the caller's, or a stand-in
             kept.append((given[0] if keep_pixels else None, *given[1:]) if not skip_unreadable else (None, given[1]))
     if not kept:
         raise ValueError("no photo could be read, so no focal length can be shared")
-    return kept, _joint_camera(found, call, sum(len(given[1]) for given in kept), height, width)
+    return kept, _joint_camera(found, call, len(kept), height, width), alone
 
 
 def _evidence(found: dict, alone: Calibration, given: tuple, call: _Call, height: int, width: int) -> None:
@@ -400,10 +412,10 @@ def _evidence(found: dict, alone: Calibration, given: tuple, call: _Call, height
     and distortion (where estimated), appended to ``found``."""
     K, R, ok = (t if alone.batched else t[None] for t in (alone.K, alone.R, alone.valid))
     settings = call.config.shared
+    found["valid"].append(ok.cpu())  # the photos with lines to measure the camera by
     if not call.priors.known_focal:
         grid = focal_grid(height, width, settings, call.config.sampling)
         found["support"].append(focal_support(K, R, given[1].to(K), given[2], grid, settings))
-        found["valid"].append(ok.cpu())
     if call.priors.principal_point == ESTIMATE:
         std = alone.principal_point_std
         found["point"].append(K[:, :2, 2].cpu())
@@ -415,7 +427,8 @@ def _evidence(found: dict, alone: Calibration, given: tuple, call: _Call, height
 def _joint_camera(found: dict, call: _Call, photos: int, height: int, width: int) -> SharedFocal:
     """The shared camera of the photos' evidence (:mod:`ngp_kornia.pipeline.shared_camera`)."""
     if call.priors.known_focal:  # nothing to estimate: the known focal length is every photo's
-        shared = SharedFocal(call.priors.focal_pixels(height), 0.0, photos)
+        photos = int(torch.cat(found["valid"]).sum()) if found["valid"] else photos  # those that tell the rest
+        shared = SharedFocal(call.priors.focal_pixels(height, width), 0.0, photos)
     else:
         grid = focal_grid(height, width, call.config.shared, call.config.sampling)
         shared = joint_focal(torch.cat(found["support"]), grid, torch.cat(found["valid"]), call.config.shared.bootstrap)

@@ -4,18 +4,20 @@
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
+import warnings
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ngp_kornia.cli_camera import add_camera_arguments, camera_arguments, images_after_the_point, load_truth
 from ngp_kornia.cli_colmap import add_colmap_argument, check_colmap, write_colmap
-from ngp_kornia.cli_options import add_setting_options, config_from_args, short_usage, subcommand
+from ngp_kornia.cli_files import check_output, check_overlays, overlay_path, write_image, write_overlay
+from ngp_kornia.cli_options import add_setting_options, closest_option, config_from_args, short_usage, subcommand
+from ngp_kornia.cli_output import Table, print_result, warn_if_turned
 from ngp_kornia.cli_render import add_render_command, render_command
-from ngp_kornia.errors import ConfigError, NGPError, OutputError
-from ngp_kornia.preflight import check_extra, check_folder, same_file
+from ngp_kornia.errors import ConfigError, NGPError, NGPWarning
+from ngp_kornia.preflight import check_extra, check_folder
 
 if TYPE_CHECKING:
     import numpy as np
@@ -29,21 +31,27 @@ __all__ = ["main", "parse", "run"]
 #: what the commands report as one line ``ngp: error: <message>`` instead of a traceback (with kornia's check
 #: errors, see _user_errors)
 USER_ERRORS = (NGPError, ValueError, TypeError, OSError)
-FORCE_HELP = "overwrite an existing output file (never one of the input images)"
-
-WEIGHTS_HELP = (
-    "'default' (the best shipped), 'none' (geometric path), 'zsnet', 'fsnet', 'full' (both networks), or a .pt "
-    "weights file written by ngp-train export"
-)
+FORCE_HELP = "overwrite an output file (never an input)"
+WEIGHTS_HELP = "default, none, zsnet, fsnet, full, or a .pt file"
+#: the last lines of the help of a command with pipeline settings
+SETTINGS_EPILOG = "Every pipeline setting (e.g. --segments.working_size 640, --horizon.refine false): --help-all."
 
 
 class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
-    """Shows an option's default where it has one worth showing (not None, False or already in the help)."""
+    """Shows an option's default where it has one worth showing (not None, False or already in the help), and the
+    options' help from the 26th column, so that a command's everyday options fit a screen."""
+
+    def __init__(self, prog: str) -> None:
+        super().__init__(prog, max_help_position=26)
 
     def _get_help_string(self, action: argparse.Action) -> str:
         if action.default is None or action.default is False:
             return action.help or ""
         return super()._get_help_string(action)
+
+    def _format_args(self, action: argparse.Action, default_metavar: str) -> str:
+        shown = getattr(action, "shown_args", None)  # "CX CY | estimate" rather than argparse's "X [X ...]"
+        return shown if shown is not None else super()._format_args(action, default_metavar)
 
 
 class _VersionAction(argparse.Action):
@@ -71,28 +79,29 @@ def _parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--version", action=_VersionAction, help="print the version and exit")
     sub = p.add_subparsers(dest="command", required=True)
-    cal = sub.add_parser("calibrate", help="calibrate photos; prints one JSON object per image")
+    cal = sub.add_parser("calibrate", help="calibrate photos: a table on a terminal, JSON lines otherwise",
+                         description="Focal length, field of view, pitch and roll of photos of man-made scenes: a "
+                         "table on a terminal, JSON lines with --json or in a pipe.", epilog=SETTINGS_EPILOG)
     cal.add_argument("images", nargs="*", help="image files (at least one)")
-    cal.add_argument("--weights", default="default", help=WEIGHTS_HELP)
-    cal.add_argument("--seed", type=int, default=0, help="seed of the candidate sampling")
-    cal.add_argument(
-        "--overlay", help="write an overlay PNG here (for several images: a folder, one <name>_overlay.png each)"
-    )
+    cal.add_argument("--weights", metavar="NAME", default="default", help=WEIGHTS_HELP)
+    cal.add_argument("--seed", metavar="N", type=int, default=0, help="seed of the random sampling")
+    cal.add_argument("--json", action="store_true", help="one JSON object per image, also on a terminal")
+    cal.add_argument("--overlay", metavar="PNG", help="draw the answer over the photo (a folder for several)")
+    cal.add_argument("--truth", metavar="FILE", help="also draw the true horizon: a CSV or an ngp render folder")
     cal.add_argument("--force", action="store_true", help=FORCE_HELP)
-    _add_prior_arguments(cal, truth=True)
-    pred = sub.add_parser("predict", help="calibrate every image of a folder into a JSON Lines file")
+    _add_prior_arguments(cal, "one camera took them all: one focal length")
+    pred = sub.add_parser("predict", help="calibrate every image of a folder into a JSON Lines file",
+                          epilog=SETTINGS_EPILOG)
     pred.add_argument("folder", help="folder of images")
-    pred.add_argument(
-        "-o", "--out", required=True,
-        help="the .jsonl file to write: one JSON object per image (an existing file only if it holds such rows)",
-    )
-    pred.add_argument("--devices", type=int, default=1, help="CPU processes (DDP, gloo), at most one per core")
-    pred.add_argument("--weights", default="default", help="a weight set as for calibrate, or a weights file")
+    pred.add_argument("-o", "--out", metavar="JSONL", required=True,
+                      help="the file of rows to write (replaces only a file of such rows)")
+    pred.add_argument("--devices", metavar="N", type=int, default=1, help="CPU processes, at most one per core")
+    pred.add_argument("--weights", metavar="NAME", default="default", help=WEIGHTS_HELP)
     pred.add_argument("--recursive", action="store_true", help="also calibrate the images of sub-folders")
-    pred.add_argument("--batch-size", type=int, default=1, help="images per loader batch")
-    pred.add_argument("--seed", type=int, default=0, help="seed of the candidate sampling")
+    pred.add_argument("--batch-size", metavar="N", type=int, default=1, help="images per loader batch")
+    pred.add_argument("--seed", metavar="N", type=int, default=0, help="seed of the random sampling")
     add_colmap_argument(pred)
-    _add_prior_arguments(pred)
+    _add_prior_arguments(pred, "one camera per folder: one focal length each")
     _add_rectify(sub)
     demo = sub.add_parser("demo", help="calibrate a built-in rendered example and print the estimate and the truth")
     demo.add_argument("--overlay", help="write the overlay PNG here")
@@ -105,36 +114,39 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _add_rectify(sub) -> None:
-    rect = sub.add_parser("rectify", help="calibrate a photo and write it rectified (level, upright or frontal)")
+    rect = sub.add_parser("rectify", help="calibrate a photo and write it rectified (level, upright or frontal)",
+                          epilog=SETTINGS_EPILOG)
     rect.add_argument("image", help="image file")
     rect.add_argument(
         "--mode",
         choices=("level", "upright", "frontal"),
         default="upright",
-        help="level: remove the roll; upright: remove roll and pitch; frontal: face a facade",
+        help="level: no roll; upright: no roll nor pitch; frontal: face a facade",
     )
-    rect.add_argument("--axis", choices=("x", "z"), default="z", help="frontal mode: the world axis to look along")
-    rect.add_argument("-o", "--output", required=True, help="the rectified PNG to write")
+    rect.add_argument("--axis", choices=("x", "z"), default="z", help="--mode frontal: the scene axis to face")
+    rect.add_argument("-o", "--output", metavar="PNG", required=True, help="the rectified image to write")
     rect.add_argument(
         "--crop",
         choices=("keep", "valid"),
-        help="keep every pixel, or only the valid centre (default: keep; valid for --mode frontal, whose views are "
-        "too oblique to keep whole)",
+        help="keep every pixel, or crop to the valid centre (default: keep; valid for frontal)",
     )
-    rect.add_argument("--weights", default="default", help=WEIGHTS_HELP)
-    rect.add_argument("--seed", type=int, default=0, help="seed of the candidate sampling")
+    rect.add_argument("--weights", metavar="NAME", default="default", help=WEIGHTS_HELP)
+    rect.add_argument("--seed", metavar="N", type=int, default=0, help="seed of the random sampling")
     rect.add_argument("--force", action="store_true", help=FORCE_HELP)
-    add_camera_arguments(rect)
-    add_setting_options(rect)
+    rect.add_argument("--force-invalid", action="store_true", help="write it even where no camera was found")
+    _add_prior_arguments(rect)
 
 
-def _add_prior_arguments(command: argparse.ArgumentParser, truth: bool = False) -> None:
-    command.add_argument("--focal", type=float, default=None, help="known focal length, pixels of the input image")
-    command.add_argument("--fov", type=float, default=None, help="known vertical field of view, degrees")
-    command.add_argument(
-        "--exif", action="store_true", help="use the focal length in each file's EXIF, where it has one"
-    )
-    add_camera_arguments(command, truth)
+def _add_prior_arguments(command: argparse.ArgumentParser, same_camera: str | None = None) -> None:
+    """What is known of the camera (``--focal``, ..., ``--same-camera`` with its help where the command takes it)
+    and the pipeline settings (listed by ``--help-all``)."""
+    group = command.add_argument_group("what you know of the camera (all optional)")
+    focal = group.add_mutually_exclusive_group()  # one prior in three units
+    focal.add_argument("--focal", type=float, metavar="PX", help="focal length in pixels of the image")
+    focal.add_argument("--focal-35mm", type=float, metavar="MM", help="focal length as a 35 mm equivalent (as EXIF)")
+    focal.add_argument("--fov", type=float, metavar="DEG", help="vertical field of view in degrees")
+    group.add_argument("--exif", action="store_true", help="each file's EXIF focal length, where it has one")
+    add_camera_arguments(group, same_camera)
     add_setting_options(command)
 
 
@@ -148,74 +160,20 @@ def _prior(args: argparse.Namespace, image: str, rgb: np.ndarray) -> dict:
     from ngp_kornia.api import file_priors
     from ngp_kornia.pipeline.priors import Priors
 
-    priors = file_priors(image, *rgb.shape[:2], Priors(args.focal, args.fov), args.exif)
-    return {"focal": priors.focal, "fov_v": priors.fov_v, **camera_arguments(args)}
+    given = Priors(args.focal, args.fov, focal_35mm=args.focal_35mm)
+    priors = file_priors(image, *rgb.shape[:2], given, args.exif)
+    return {"focal": priors.focal, "fov_v": priors.fov_v, "focal_35mm": priors.focal_35mm, **camera_arguments(args)}
+
+
+def _prior_check(args: argparse.Namespace) -> None:
+    """The priors of the command line checked once, before any image is read (an error is said once, not per image)."""
+    from ngp_kornia.pipeline.priors import Priors
+
+    Priors(args.focal, args.fov, focal_35mm=args.focal_35mm, **camera_arguments(args))
 
 
 #: images read and calibrated together by ``ngp calibrate`` (one ``calibrate()`` call on a list)
 _CHUNK = 8
-
-
-def _overlay_path(target: str, image: str, many: bool) -> Path:
-    if not many:
-        return Path(target)
-    return Path(target) / f"{Path(image).stem}_overlay.png"
-
-
-def _check_overlays(target: str, images: list[str], force: bool) -> None:
-    """Refuse ``--overlay`` where it names a file for several images, or where two images would write one overlay
-    (the same name in two folders): the second would replace the first within the run."""
-    if len(images) == 1:
-        return check_output(Path(target), force, images)
-    if Path(target).is_file() or (not Path(target).is_dir() and Path(target).suffix.lower() in (".png", ".jpg")):
-        raise OutputError(f"--overlay {target} names a file, but {len(images)} images were given; give a folder")
-    first: dict[Path, str] = {}
-    for image in images:
-        other = first.setdefault(_overlay_path(target, image, True), image)
-        if other != image:
-            raise OutputError(
-                f"{other} and {image} would both write {_overlay_path(target, image, True)}; calibrate them in "
-                "separate runs, or give one of them another name"
-            )
-    return None
-
-
-def check_output(path: Path, force: bool, inputs: list[str] = ()) -> None:
-    """Refuse an output image path that OpenCV cannot write (no or unknown extension), that is one of the inputs,
-    or that exists already (unless ``force``).
-
-    Raises:
-        OutputError: with the fix in the message.
-    """
-    import cv2
-
-    if path.is_dir():
-        raise OutputError(f"{path} is a folder; give the image file to write, e.g. {path / 'out.png'}")
-    if not cv2.haveImageWriter(str(path)):
-        raise OutputError(f"{path}: cannot tell the image format from the extension; end the name with .png or .jpg")
-    if path.exists():
-        if any(same_file(path, i) for i in inputs):
-            raise OutputError(f"{path} is one of the input images; write the output to another file")
-        if not force:
-            raise OutputError(f"{path} exists; add --force to overwrite it, or choose another name")
-
-
-def _write_image(path: Path, rgb: np.ndarray) -> None:
-    import cv2
-    import numpy as np
-
-    path.parent.mkdir(parents=True, exist_ok=True)
-    if not cv2.imwrite(str(path), cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2BGR)):
-        raise OutputError(f"could not write {path}")
-
-
-def _write_overlay(path: Path, rgb: np.ndarray, calibration, config: ParserConfig | None = None, truth=None) -> None:
-    from ngp_kornia.pipeline.segments import detect_segments
-    from ngp_kornia.viz import draw_calibration
-
-    settings = None if config is None else config.segments
-    segments = detect_segments(rgb, settings)[0][0].numpy()  # the lines the calibration saw (same settings)
-    _write_image(path, draw_calibration(rgb, calibration, segments, truth=truth))
 
 
 def _calibrate_loaded(loaded: list, args: argparse.Namespace) -> list:
@@ -237,16 +195,18 @@ def _calibrate(args: argparse.Namespace) -> int:
     from ngp_kornia.io import read_rgb_oriented
 
     many = len(args.images) > 1
+    _prior_check(args)
     if args.overlay:
-        _check_overlays(args.overlay, args.images, args.force)
+        check_overlays(args.overlay, args.images, args.force)
     failed, truth = 0, load_truth(args.truth)
+    table = Table(args.images) if not args.json and sys.stdout.isatty() else None  # people read, programs parse
     chunk = len(args.images) if args.same_camera else _CHUNK  # one camera: its photos are calibrated together
     for start in range(0, len(args.images), chunk):  # a few images at a time, so results come as they are done
         loaded = []
         for image in args.images[start : start + chunk]:
             try:
                 if args.overlay and many:
-                    check_output(_overlay_path(args.overlay, image, True), args.force, args.images)
+                    check_output(overlay_path(args.overlay, image, True), args.force, args.images)
                 loaded.append((image, *read_rgb_oriented(image)))
             except _user_errors() as err:
                 failed += 1
@@ -262,30 +222,16 @@ def _calibrate(args: argparse.Namespace) -> int:
                 failed += 1
                 continue
             result = with_orientation(result, orientation)
-            print(json.dumps({"image": image, **result.to_dict()}), flush=True)
-            _warn_if_turned(image, result, _config(args).upright.sure)
+            print_result(image, result, table, _config(args).upright.sure)
+            warn_if_turned(image, result, _config(args).upright.sure)
             try:
                 if args.overlay:
                     given = truth.get(Path(image).resolve())
-                    _write_overlay(_overlay_path(args.overlay, image, many), rgb, result, _config(args), given)
+                    write_overlay(overlay_path(args.overlay, image, many), rgb, result, _config(args), given)
             except _user_errors() as err:
                 failed += 1
                 print(f"ngp: error: {_one_line(err)}", file=sys.stderr, flush=True)
     return 1 if failed else 0
-
-
-def _warn_if_turned(image: str, result, sure: float) -> None:
-    """One line on stderr where the orientation check is sure enough that the photo is turned to act on it (its
-    upright probability below ``1 - sure``): either the answer is the turned camera's (its roll beyond 45 degrees,
-    ``upright.turn_back``), or it is that of a camera rolled the other way and its confidence was scaled."""
-    turned = 0 if result.turned is None else int(result.turned)
-    if turned and bool(result.valid) and float(result.upright) < 1.0 - sure:
-        head = f"ngp: warning: {image} looks turned by {turned} degrees counter-clockwise"
-        if abs(float(result.roll)) > 45.0:
-            tail = f"answered as the camera of a turned photo (roll {float(result.roll):.1f})"
-        else:
-            tail = "turn it back or give it an orientation tag, then calibrate it again"
-        print(f"{head} (upright probability {float(result.upright):.2f}): {tail}", file=sys.stderr, flush=True)
 
 
 def _calibrate_or_none(image: str, rgb: np.ndarray, args: argparse.Namespace):
@@ -326,7 +272,7 @@ def _predict(args: argparse.Namespace) -> int:
             batch_size=args.batch_size,
             seed=args.seed,
             config=_config(args),
-            priors=Priors(args.focal, args.fov, **camera_arguments(args)),
+            priors=Priors(args.focal, args.fov, focal_35mm=args.focal_35mm, **camera_arguments(args)),
             exif=args.exif,
             same_camera=args.same_camera,
             progress_bar=sys.stdout.isatty(),
@@ -364,9 +310,16 @@ def _rectify(args: argparse.Namespace) -> int:
 
     path = Path(args.output)
     try:
+        _prior_check(args)
         check_output(path, args.force, [args.image])
         rgb = read_image_file(args.image)
-        result = calibrate(rgb, weights=args.weights, seed=args.seed, config=_config(args), **camera_arguments(args))
+        result = calibrate(rgb, weights=args.weights, seed=args.seed, config=_config(args),
+                           **_prior(args, args.image, rgb))
+        if not bool(result.valid) and not args.force_invalid:
+            print(f"ngp: error: {args.image}: no camera found (valid false, confidence 0: too few lines of man-made "
+                  "structure), so there is nothing to rectify; add --force-invalid to write it anyway (a level "
+                  "camera: the image as it is)", file=sys.stderr, flush=True)
+            return 1
         K, R = result.K[None].double(), result.R[None].double()
         if args.mode == "level":
             homography = level_homography(K, R)
@@ -379,7 +332,7 @@ def _rectify(args: argparse.Namespace) -> int:
         lens = {} if result.k1 is None else {"k1": result.k1[None].double(), "K": K}  # undistorted on the way
         warped, _ = rectify(image, homography, crop=crop, **lens)  # too oblique for keep: the error names --crop
         out = warped[0].permute(1, 2, 0).mul(255.0).round().clamp(0, 255).to(torch.uint8).numpy()
-        _write_image(path, out)
+        write_image(path, out)
     except _user_errors() as err:
         print(f"ngp: error: {_one_line(err)}", file=sys.stderr, flush=True)
         return 1
@@ -400,7 +353,7 @@ def _demo(args: argparse.Namespace) -> int:
         print(f"{key:8}{result[key]:10.2f}{truth[key]:10.2f}")
     if args.overlay:
         check_output(Path(args.overlay), force=True)
-        _write_overlay(Path(args.overlay), scene.image, calibration)
+        write_overlay(Path(args.overlay), scene.image, calibration)
         print(f"overlay written to {args.overlay}")
     return 0
 
@@ -416,6 +369,17 @@ def _check_weights(parser: argparse.ArgumentParser, command: str, weights: str) 
         subcommands.choices[command].error(f"--weights: {err}")
 
 
+def _unrecognized(command: argparse.ArgumentParser, extras: list[str]) -> None:
+    """A usage error for words the command does not know: its usage, and for a mistyped option the closest one
+    (``--focla``: ``did you mean --focal?``). Exits with status 2."""
+    for word in extras:
+        if word.startswith("-"):
+            close = closest_option(command, word)
+            hint = f"did you mean {close}?" if close else f"see {command.prog} --help"
+            command.error(f"unrecognized option {word}: {hint}")
+    command.error(f"unrecognized arguments: {' '.join(extras)}")
+
+
 def parse(argv: list[str] | None = None) -> argparse.Namespace | int:
     """The command line, checked without importing torch, OpenCV or Lightning.
 
@@ -427,7 +391,9 @@ def parse(argv: list[str] | None = None) -> argparse.Namespace | int:
         the arguments for :func:`run`, or the exit status.
     """
     parser = _parser()
-    args = parser.parse_args(argv)
+    args, extras = parser.parse_known_args(argv)
+    if extras:
+        _unrecognized(subcommand(parser, args.command), extras)
     if args.command == "calibrate":
         images_after_the_point(args, subcommand(parser, "calibrate"))
     if hasattr(args, "setting:segments.working_size"):
@@ -463,7 +429,9 @@ def run(args: argparse.Namespace) -> int:
     commands = {"calibrate": _calibrate, "predict": _predict, "rectify": _rectify, "demo": _demo}
     commands["render"] = render_command
     try:
-        return commands[args.command](args)
+        with warnings.catch_warnings():
+            warnings.showwarning = _show_warning
+            return commands[args.command](args)
     except KeyboardInterrupt:
         print("ngp: interrupted", file=sys.stderr)
         return 130
@@ -476,6 +444,15 @@ def run(args: argparse.Namespace) -> int:
     except Exception as err:  # a one-line message instead of a traceback, whatever went wrong
         print(f"ngp: error: {type(err).__name__}: {_one_line(err)}", file=sys.stderr)
         return 1
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """The package's warnings (:class:`~ngp_kornia.errors.NGPWarning`) as one line ``ngp: warning: <message>``;
+    other warnings as Python shows them."""
+    if issubclass(category, NGPWarning):
+        print(f"ngp: warning: {_one_line(message)}", file=sys.stderr, flush=True)
+    else:
+        print(warnings.formatwarning(message, category, filename, lineno, line), file=sys.stderr, end="")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,6 +1,6 @@
-"""The command line's camera options: a gravity prior, the principal point, lens distortion, one camera for many
-photos (``--same-camera``) and the ground truth an overlay draws beside the estimate (``--truth``). Imports nothing
-heavy, so ``--help`` stays fast.
+"""The command line's camera options: a gravity prior, the principal point, lens distortion and one camera for many
+photos (``--same-camera``), and the ground truth an overlay draws beside the estimate (``--truth``, read by
+:func:`load_truth`). Imports nothing heavy, so ``--help`` stays fast.
 
 Example:
     >>> import argparse
@@ -29,24 +29,18 @@ def images_after_the_point(args: argparse.Namespace, parser: argparse.ArgumentPa
         parser.error("the following arguments are required: images")
 
 
-def add_camera_arguments(command: argparse.ArgumentParser, truth: bool = False) -> None:
-    """Add ``--gravity``, ``--gravity-std``, ``--principal-point``, ``--k1`` and ``--same-camera`` (and, with
-    ``truth``, ``--truth``) to ``command``."""
-    group = command.add_argument_group("camera")
+def add_camera_arguments(group, same_camera: str | None = None) -> None:
+    """Add ``--gravity``, ``--gravity-std``, ``--principal-point``, ``--k1`` and, with its help text
+    ``same_camera``, ``--same-camera`` to ``group`` (a parser or an argument group)."""
     group.add_argument("--gravity", type=float, nargs=2, metavar=("PITCH", "ROLL"),
-                       help="a known pitch and roll in degrees (a phone's IMU): the searches keep near it")
-    group.add_argument("--gravity-std", type=float, metavar="DEG",
-                       help="standard deviation of --gravity (1 when omitted)")
-    group.add_argument("--principal-point", nargs="+", metavar="CX CY|estimate",
-                       help="the known principal point in pixels, or 'estimate' (the image centre when omitted)")
-    group.add_argument("--k1", metavar="K1|estimate",
-                       help="the lens's radial distortion (division model), or 'estimate' (none when omitted)")
-    group.add_argument("--same-camera", action="store_true",
-                       help="the photos (of each folder) come from one camera: one focal length for all of them")
-    if truth:
-        group.add_argument("--truth", metavar="FILE",
-                           help="ground truth for the overlays: a CSV manifest or a folder written by ngp render; "
-                                "the true horizon is drawn beside the estimate")
+                       help="pitch and roll in degrees (a phone's sensor)")
+    group.add_argument("--gravity-std", type=float, metavar="DEG", help="uncertainty of --gravity (default: 1)")
+    point = group.add_argument("--principal-point", nargs="+", metavar="CX CY|estimate",
+                               help="in pixels, or estimate (default: the image centre)")
+    point.shown_args = "X Y"
+    group.add_argument("--k1", metavar="K1|estimate", help="lens distortion, or estimate (default: none)")
+    if same_camera:
+        group.add_argument("--same-camera", action="store_true", help=same_camera)
 
 
 def camera_arguments(args: argparse.Namespace) -> dict:

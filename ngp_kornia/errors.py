@@ -19,6 +19,7 @@ __all__ = [
     "InputError",
     "ManifestError",
     "NGPError",
+    "NGPWarning",
     "OutputError",
     "WeightsError",
     "shown",
@@ -77,3 +78,9 @@ class ConfigError(NGPError, ValueError):
 
 class OutputError(NGPError, ValueError):
     """An output path that would overwrite an input or an existing file, or that cannot be written."""
+
+
+class NGPWarning(UserWarning):
+    """A result that is less than what was asked for, said once (``warnings.warn``): a camera to be shared by photos
+    of which fewer than two have lines, so nothing is shared. The command-line tools print it as one line,
+    ``ngp: warning: <message>``."""

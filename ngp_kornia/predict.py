@@ -30,7 +30,6 @@ import threading
 import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import replace
 from pathlib import Path
 from typing import IO
 
@@ -48,14 +47,15 @@ except ImportError as err:
 
 from ngp_kornia.api import file_priors, load_parser, shared_focal, with_orientation
 from ngp_kornia.data.folder import ImageFolder
-from ngp_kornia.errors import OutputError
+from ngp_kornia.errors import NGPWarning, OutputError
 from ngp_kornia.folder_items import FolderImages, FolderItem, collate_items, error_reason
 from ngp_kornia.pipeline import Calibration, NeuralGeometricParser, ParserConfig
 from ngp_kornia.pipeline.priors import Priors, checked_seed
 from ngp_kornia.pipeline.segments import line_workers
-from ngp_kornia.pipeline.shared_camera import SharedFocal, with_shared_focal
+from ngp_kornia.pipeline.shared_camera import SharedFocal, not_shared_folders, with_shared_focal
 from ngp_kornia.preflight import check_folder, same_file
 from ngp_kornia.rowfiles import count_rows, merge_parts, open_locked, remove_stale_files
+from ngp_kornia.rows import result_row
 from ngp_kornia.threads import pipeline_threads, usable_cores
 
 __all__ = [
@@ -72,7 +72,7 @@ __all__ = [
 
 class FolderPredictor(L.LightningModule):
     """The parser as a LightningModule whose ``predict_step`` turns a batch of :class:`FolderItem` into
-    ``(index, row)`` pairs, ``row`` being ``{"image": name, **Calibration.to_dict()}`` or
+    ``(index, row)`` pairs, ``row`` being :func:`~ngp_kornia.rows.result_row` (``ngp calibrate --json``'s) or
     ``{"image": name, "error": reason}``.
 
     Args:
@@ -116,7 +116,7 @@ class FolderPredictor(L.LightningModule):
             segments, mask = segments.to(self.device), mask.to(self.device)
         shared = None if self.cameras is None or name is None else self.cameras.get(Path(name).parent.as_posix())
         if shared is not None:  # the focal length of the photo's folder, estimated from all of them
-            priors = replace(priors, focal=shared.focal, fov_v=None)
+            priors = priors.with_focal(shared.focal)
         result = self.parser(image[None].to(self.device), segments, mask, seed=self.seed, priors=priors)[0]
         return result if shared is None else with_shared_focal(result, shared)
 
@@ -130,7 +130,7 @@ class FolderPredictor(L.LightningModule):
                 result = self.calibrate(item.image, item.name, item.segments, item.mask)
                 if item.orientation is not None:
                     result = with_orientation(result, item.orientation)
-                rows.append((item.index, {"image": item.name, **result.to_dict()}))
+                rows.append((item.index, result_row(item.name, result)))
             except Exception as err:  # one image's failure is its row, never the end of the run
                 rows.append((item.index, {"image": item.name, "error": error_reason(err, item.name)}))
         return rows
@@ -374,7 +374,7 @@ def predict_folder(
 ) -> dict | None:
     """Calibrate every image of a folder into a JSON Lines file, one row per image in sorted path order.
 
-    A row is ``{"image": <path relative to folder>, **Calibration.to_dict()}`` (with ``exif_orientation``), or
+    A row is :func:`~ngp_kornia.rows.result_row` of its path relative to folder (``ngp calibrate --json``'s), or
     ``{"image": ..., "error": <reason>}`` for a file that cannot be read or calibrated, whatever the reason. An
     interrupted run (Ctrl+C or SIGTERM; the caller's handlers are back after) leaves ``out`` holding the rows of the
     images finished so far and returns with ``"interrupted": True``; it does not resume. What killed runs left
@@ -422,7 +422,9 @@ def predict_folder(
 def folder_cameras(images: ImageFolder, weights, seed: int, config, priors, exif: bool) -> dict[str, SharedFocal]:
     """The focal length shared by the photos of each folder (:func:`ngp_kornia.api.shared_focal`), by the folder's
     path relative to the root (``"."`` for the root): estimated in this process before the run, whose every
-    photo then takes its folder's as known (``shared_photos`` in its row).
+    photo then takes its folder's as known (``shared_photos`` in its row). A folder where fewer than two photos
+    have lines shares nothing (its photos are calibrated alone) and is left out, with one
+    :class:`~ngp_kornia.errors.NGPWarning` naming such folders.
 
     Raises:
         ValueError: with ``exif`` (a focal length per photo, where one is shared), or a folder of photos of
@@ -434,7 +436,11 @@ def folder_cameras(images: ImageFolder, weights, seed: int, config, priors, exif
     groups: dict[str, list[Path]] = {}
     for path in images.paths:
         groups.setdefault(path.relative_to(images.root).parent.as_posix(), []).append(path)
-    return {name: shared_focal(paths, weights, seed, config, priors) for name, paths in groups.items()}
+    cameras = {name: shared_focal(paths, weights, seed, config, priors) for name, paths in groups.items()}
+    alone = sorted(name for name, camera in cameras.items() if camera.photos < 2)
+    if alone:  # said once for all such folders: a tree of one photo per folder would say it hundreds of times
+        warnings.warn(NGPWarning(not_shared_folders(alone, len(cameras))), stacklevel=3)
+    return {name: camera for name, camera in cameras.items() if camera.photos >= 2}
 
 
 def _check_counts(devices: int, batch_size: int) -> None:

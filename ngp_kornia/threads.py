@@ -27,7 +27,7 @@ from typing import Any
 
 import torch
 
-from ngp_kornia.errors import shown
+from ngp_kornia.errors import InputError, shown
 
 __all__ = ["ENV_VAR", "Lookahead", "pipeline_threads", "resolve_num_threads", "usable_cores"]
 
@@ -42,8 +42,8 @@ def resolve_num_threads(num_threads: int | None = None) -> int:
         a count >= 1, or 0 for "leave the caller's setting alone".
 
     Raises:
-        ValueError: a negative count, a bool, a non-integer, or an environment value that is not a non-negative
-            integer.
+        InputError: a negative count, a bool, a non-integer, or an environment value that is not a non-negative
+            integer (an :class:`~ngp_kornia.errors.NGPError`, and a ``ValueError``).
 
     Example:
         >>> resolve_num_threads(3)
@@ -56,13 +56,13 @@ def resolve_num_threads(num_threads: int | None = None) -> int:
         try:
             return _checked(int(raw), f"{ENV_VAR}={raw}")
         except ValueError:
-            raise ValueError(f"{ENV_VAR}={raw!r} is not a thread count; set it to 1, 4, ... or 0") from None
+            raise InputError(f"{ENV_VAR}={raw!r} is not a thread count; set it to 1, 4, ... or 0") from None
     return _checked(num_threads, f"num_threads={shown(num_threads)}")
 
 
 def _checked(count: object, source: str) -> int:
     if isinstance(count, bool) or not isinstance(count, int) or count < 0:
-        raise ValueError(f"{source}: expected a thread count >= 1, or 0 to keep the caller's setting")
+        raise InputError(f"{source}: expected a thread count >= 1, or 0 to keep the caller's setting")
     return count
 
 

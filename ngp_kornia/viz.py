@@ -1,6 +1,7 @@
 """Overlays: the horizon, the zenith direction, the vanishing points and the Manhattan frame drawn on the image (with
-the true horizon beside the estimate when the ground truth is known), and virtual objects (a box, the world axes)
-placed in the estimated Manhattan frame (Fig. 1c-d of the paper)."""
+the true horizon beside the estimate when the ground truth is known) above a strip of the numbers and a key
+(:mod:`ngp_kornia.viz_key`), and virtual objects (a box, the world axes) placed in the estimated Manhattan frame
+(Fig. 1c-d of the paper)."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import torch
 
 from ngp_kornia.geometry import horizon_border_points, segment_vp_angle
 from ngp_kornia.pipeline.result import Calibration
+from ngp_kornia.viz_key import KeyEntry, key_strip
 
 __all__ = [
     "BOX_EDGES",
@@ -46,15 +48,16 @@ def draw_calibration(
     tolerance_deg: float = 2.0,
     truth: object = None,
     vps: bool = True,
+    key: bool = True,
 ) -> np.ndarray:
-    """Draw a calibration on an HxWx3 uint8 RGB image (returns a copy).
+    """Draw a calibration over an HxWx3 uint8 RGB image (a copy, the photo as it is: not dimmed), with a strip
+    below it that gives the answer's numbers and a key of everything drawn.
 
-    Segments that point at one of the three VPs within ``tolerance_deg`` are drawn in that axis' colour (x red,
-    vertical green, z blue); the horizon is a yellow line, the up (zenith) direction an arrow at the image centre,
-    the VPs rings in their axis' colours (arrows at the border towards those off the image,
-    :func:`draw_vanishing_points`), the true horizon (given ``truth``) a dashed magenta line, the estimate (and,
-    when the calibration carries them, its confidence and standard deviations) is written in the top-left corner
-    and a key of the colours (:data:`LEGEND`) in the bottom-left, both on a dark box.
+    Segments that point at one of the three VPs within ``tolerance_deg`` are drawn thin in that axis' colour (x
+    red, vertical green, z blue), the others thin grey; the horizon is a yellow line, the up (zenith) direction a
+    green arrow from the image centre, the VPs rings in their axis' colours where they lie in the image and arrows
+    at its border towards those that do not (:func:`draw_vanishing_points`), the true horizon (given ``truth``) a
+    dashed magenta line. The strip (:func:`~ngp_kornia.viz_key.key_strip`) sits below the photo, never over it.
 
     Args:
         image: (H, W, 3) uint8 RGB.
@@ -64,35 +67,56 @@ def draw_calibration(
         truth: the true horizon, a line ``(a, b, c)`` in the image's pixels, or a ground-truth record holding one
             under ``"horizon"`` (a manifest row, a render's record, a labelled image): see :func:`truth_horizon`.
         vps: draw the vanishing points.
+        key: add the strip of numbers and key below the photo; False returns the drawing at the image's size.
 
     Returns:
-        (H, W, 3) uint8 RGB.
+        (H + strip, W, 3) uint8 RGB, the photo's rows first; (H, W, 3) without ``key``.
     """
     _check_unbatched(calibration, "draw_calibration")
-    out = (image.astype(np.float32) * 0.6).astype(np.uint8)  # dim the photo so the drawing stands out
+    out = np.array(image, dtype=np.uint8, copy=True)
     h, w = out.shape[:2]
     thick = _thickness(out)
+    entries = []
     if segments is not None and len(segments):
-        _draw_segments(out, segments, calibration, tolerance_deg, thick)
-    line = None if truth is None else truth_horizon(truth)
-    if line is not None:
-        _dashed_line(out, line, w, TRUTH_COLOUR, 2 * thick)
+        _draw_segments(out, segments, calibration, tolerance_deg, max(1, round(max(h, w) / 800)))
+        entries += [KeyEntry(name, colour, "line") for name, colour in LEGEND[:4]]
     (x0, y0), (x1, y1) = horizon_border_points(calibration.horizon[None].double(), w)[0].tolist()
-    cv2.line(out, _pt(x0, y0), _pt(x1, y1), HORIZON_COLOUR, 2 * thick, cv2.LINE_AA)
-    _draw_zenith_arrow(out, calibration, thick)
-    if vps:
-        draw_vanishing_points(out, calibration, thick)
-    text = (
-        f"f={float(calibration.focal):.0f}px  vFoV={float(calibration.fov_v):.1f}  "
-        f"pitch={float(calibration.pitch):.1f}  roll={float(calibration.roll):.1f}"
-    )
-    scale = max(0.4, max(h, w) / 1400)
-    lines = [text] + ([_trust_text(calibration)] if calibration.confidence is not None else [])
-    _draw_label(out, lines, scale, thick)
-    drawn_segments = segments is not None and len(segments) > 0
-    entries = LEGEND if drawn_segments else LEGEND[:4] if vps else (LEGEND[3],)  # axes, horizon, other lines
-    _draw_legend(out, scale, thick, (*entries, *((("true horizon", TRUTH_COLOUR),) if line is not None else ())))
-    return out
+    _outlined(cv2.line, out, (_pt(x0, y0), _pt(x1, y1)), HORIZON_COLOUR, 2 * thick)
+    line = None if truth is None else truth_horizon(truth)
+    if line is not None:  # over the estimate, thinner: where the two agree both still show
+        _dashed_line(out, line, w, TRUTH_COLOUR, max(2, thick))
+    entries += [KeyEntry(*LEGEND[4], "thick")] + ([KeyEntry("true horizon", TRUTH_COLOUR, "dashed")] if
+                                                  line is not None else [])
+    if _draw_zenith_arrow(out, calibration, thick):
+        entries.append(KeyEntry("up, from the image centre", AXIS_COLOURS[1], "up"))
+    shapes = _draw_vps(out, calibration, thick) if vps else set()
+    entries += [KeyEntry(label, (255, 255, 255), shape) for shape, label in _VP_KEY if shape in shapes]
+    return np.concatenate([out, key_strip(w, _numbers(calibration), entries)]) if key else out
+
+
+#: the key's words for the two ways a vanishing point is drawn
+_VP_KEY = (("ring", "vanishing point (axis colour)"), ("arrow", "towards a vanishing point off the image"))
+
+
+def _numbers(cal: Calibration) -> list[str]:
+    """The answer as the strip's first items: the camera, then its confidence and standard deviations."""
+    if not bool(cal.valid):
+        return ["no camera found (valid false): a level guess"]
+    items = [f"focal {float(cal.focal):.0f} px", f"FoV v {float(cal.fov_v):.1f} deg",
+             f"pitch {float(cal.pitch):.1f} deg", f"roll {float(cal.roll):.1f} deg"]
+    if cal.confidence is not None:
+        items.append(f"confidence {float(cal.confidence):.2f}")
+    if cal.pitch_std is not None:
+        stds = (float(cal.pitch_std), float(cal.roll_std), float(cal.fov_v_std))
+        items.append("std: pitch {:.1f}, roll {:.1f}, FoV {:.1f} deg".format(*stds))
+    return items
+
+
+def _outlined(draw, out: np.ndarray, points: tuple, colour, thick: int, **kwargs) -> None:
+    """``draw(out, *points, colour, thick)`` over a dark outline one pixel wider each side, so that it reads on
+    any photo."""
+    draw(out, *points, (20, 20, 20), thick + 2, cv2.LINE_AA, **kwargs)
+    draw(out, *points, colour, thick, cv2.LINE_AA, **kwargs)
 
 
 def truth_horizon(truth: object) -> np.ndarray:
@@ -128,27 +152,36 @@ def draw_vanishing_points(out: np.ndarray, calibration: Calibration, thick: int 
     """Draw the three VPs on ``out`` (H, W, 3) uint8 RGB, in place: a ring in the axis' colour where a VP lies in
     the image, else an arrow at the border pointing towards it (both ways for one at infinity, whose direction has
     no sign). Returns ``out``."""
+    _draw_vps(out, calibration, thick)
+    return out
+
+
+def _draw_vps(out: np.ndarray, calibration: Calibration, thick: int) -> set[str]:
+    """:func:`draw_vanishing_points`; the shapes drawn (``"ring"``, ``"arrow"``), for the key."""
     h, w = out.shape[:2]
     centre = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
-    radius, margin = max(4, 5 * thick), 4 * thick + 8
+    radius, margin, shapes = max(4, 5 * thick), 4 * thick + 8, set()
     for axis, vp in enumerate(calibration.vps.detach().cpu().double().numpy()):
         colour = AXIS_COLOURS[axis]
         if abs(vp[2]) > 1e-9 * np.abs(vp).max():
             point = vp[:2] / vp[2]
             if (point >= margin).all() and point[0] <= w - 1 - margin and point[1] <= h - 1 - margin:
-                cv2.circle(out, _pt(*point), radius, colour, 2 * thick, cv2.LINE_AA)
+                _outlined(cv2.circle, out, (_pt(*point), radius), colour, 2 * thick)
                 cv2.drawMarker(out, _pt(*point), colour, cv2.MARKER_CROSS, radius, thick, cv2.LINE_AA)
+                shapes.add("ring")
                 continue
             directions = [point - centre]
         else:
             directions = [vp[:2], -vp[:2]]
         for d in directions:
             _border_arrow(out, centre, d, colour, thick, margin)
-    return out
+            shapes.add("arrow")
+    return shapes
 
 
 def _border_arrow(out: np.ndarray, centre: np.ndarray, direction: np.ndarray, colour, thick: int, margin: int) -> None:
-    """An arrow just inside the image's border, pointing from the centre along ``direction``."""
+    """A pointer (a filled triangle, outlined dark) just inside the image's border, pointing from the centre along
+    ``direction``: shaped apart from the up arrow, which is a line."""
     h, w = out.shape[:2]
     norm = float(np.linalg.norm(direction))
     if norm == 0:
@@ -156,65 +189,21 @@ def _border_arrow(out: np.ndarray, centre: np.ndarray, direction: np.ndarray, co
     d = direction / norm
     half = np.array([(w - 1) / 2.0 - margin, (h - 1) / 2.0 - margin])
     reach = float(np.min(np.where(np.abs(d) > 1e-12, half / np.maximum(np.abs(d), 1e-12), np.inf)))
-    tip = centre + d * reach
-    cv2.arrowedLine(out, _pt(*(tip - d * 0.08 * max(h, w))), _pt(*tip), colour, 2 * thick, cv2.LINE_AA,
-                    tipLength=0.35)
+    tip, side, size = centre + d * reach, np.array([-d[1], d[0]]), max(6.0, 0.025 * max(h, w))
+    back = tip - d * 1.7 * size
+    triangle = np.array([_pt(*tip), _pt(*(back + side * size)), _pt(*(back - side * size))])
+    cv2.fillPoly(out, [triangle], colour, cv2.LINE_AA)
+    cv2.polylines(out, [triangle], True, (20, 20, 20), max(1, thick), cv2.LINE_AA)
 
 
-#: the legend of :func:`draw_calibration`: (name, RGB colour)
+#: the colours of :func:`draw_calibration`'s lines, as its key names them: (name, RGB colour)
 LEGEND = (
-    ("x axis", AXIS_COLOURS[0]),
-    ("vertical", AXIS_COLOURS[1]),
-    ("z axis", AXIS_COLOURS[2]),
-    ("horizon", HORIZON_COLOUR),
+    ("x-axis lines", AXIS_COLOURS[0]),
+    ("vertical lines", AXIS_COLOURS[1]),
+    ("z-axis lines", AXIS_COLOURS[2]),
     ("other lines", (150, 150, 150)),
+    ("horizon", HORIZON_COLOUR),
 )
-_FONT = cv2.FONT_HERSHEY_SIMPLEX
-_PANEL = (20, 20, 20)  # the dark box behind text, blended at _PANEL_ALPHA
-_PANEL_ALPHA = 0.7
-
-
-def _panel(out: np.ndarray, x0: int, y0: int, x1: int, y1: int) -> None:
-    """Darken a box of the image (in place) so white and coloured text reads on any photo."""
-    h, w = out.shape[:2]
-    x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, w), min(y1, h)
-    if x1 > x0 and y1 > y0:
-        box = out[y0:y1, x0:x1].astype(np.float32)
-        out[y0:y1, x0:x1] = (box * (1 - _PANEL_ALPHA) + np.float32(_PANEL) * _PANEL_ALPHA).astype(np.uint8)
-
-
-def _draw_label(out: np.ndarray, lines: list[str], scale: float, thick: int) -> None:
-    """White lines of text on a dark box in the top-left corner."""
-    sizes = [cv2.getTextSize(line, _FONT, scale, thick) for line in lines]
-    tw = max(w for (w, _), _ in sizes)
-    th, base = sizes[0][0][1], sizes[0][1]
-    pad, row = max(3, int(6 * scale)), th + base + max(2, int(4 * scale))
-    _panel(out, 0, 0, tw + 2 * pad + 4, len(lines) * row + 2 * pad + 4)
-    for i, line in enumerate(lines):
-        cv2.putText(out, line, (pad + 2, pad + 2 + th + i * row), _FONT, scale, (255, 255, 255), thick, cv2.LINE_AA)
-
-
-def _draw_legend(out: np.ndarray, scale: float, thick: int, entries: tuple) -> None:
-    """A small key of the colours in the bottom-left corner: a line sample and a name per ``(name, colour)``."""
-    scale *= 0.85
-    (_, th), base = cv2.getTextSize("Mg", _FONT, scale, thick)
-    pad, row, swatch = max(3, int(6 * scale)), th + base + max(2, int(4 * scale)), int(3 * th)
-    width = max(cv2.getTextSize(name, _FONT, scale, thick)[0][0] for name, _ in entries) + swatch + 4 * pad
-    h = out.shape[0]
-    top = h - len(entries) * row - 2 * pad
-    _panel(out, 0, top, width, h)
-    for i, (name, colour) in enumerate(entries):
-        y = top + pad + i * row + th
-        cv2.line(out, (pad, y - th // 2), (pad + swatch, y - th // 2), colour, 2 * thick, cv2.LINE_AA)
-        cv2.putText(out, name, (3 * pad + swatch, y), _FONT, scale, colour, thick, cv2.LINE_AA)
-
-
-def _trust_text(cal: Calibration) -> str:
-    """The second line of the overlay: confidence and one standard deviation of each angle."""
-    return (
-        f"confidence={float(cal.confidence):.2f}  std: pitch {float(cal.pitch_std):.1f}  "
-        f"roll {float(cal.roll_std):.1f}  vFoV {float(cal.fov_v_std):.1f}"
-    )
 
 
 def _pt(x: float, y: float) -> tuple[int, int]:
@@ -223,24 +212,29 @@ def _pt(x: float, y: float) -> tuple[int, int]:
 
 
 def _draw_segments(out: np.ndarray, segments: np.ndarray, cal: Calibration, tol: float, thick: int) -> None:
+    """Thin segments in the colour of the VP they point at (grey for the others, drawn first, underneath)."""
     seg = torch.as_tensor(segments, dtype=torch.float64)[None]
     angle = segment_vp_angle(seg, cal.vps.double()[None])[0]  # (3, N)
     best, axis = angle.min(0)
-    for (p, q), a, i in zip(segments.tolist(), best.tolist(), axis.tolist(), strict=True):
-        colour = AXIS_COLOURS[i] if a < tol else (150, 150, 150)
-        cv2.line(out, _pt(*p), _pt(*q), colour, thick if a < tol else 1, cv2.LINE_AA)
+    lines = list(zip(segments.tolist(), best.tolist(), axis.tolist(), strict=True))
+    for (p, q), a, i in sorted(lines, key=lambda line: line[1] < tol):
+        cv2.line(out, _pt(*p), _pt(*q), AXIS_COLOURS[i] if a < tol else LEGEND[3][1], thick, cv2.LINE_AA)
 
 
-def _draw_zenith_arrow(out: np.ndarray, cal: Calibration, thick: int) -> None:
+def _draw_zenith_arrow(out: np.ndarray, cal: Calibration, thick: int) -> bool:
+    """The up direction as an arrow from the image centre; whether one was drawn (none for a camera looking
+    straight up or down)."""
     # at the image centre the world's up direction projects along (up_x, up_y): the way vertical lines rise there
     h, w = out.shape[:2]
     centre = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
     direction = cal.up[:2].double().numpy()
     norm = np.linalg.norm(direction)
     if norm == 0:
-        return
+        return False
     tip = centre + direction / norm * 0.2 * h
-    cv2.arrowedLine(out, _pt(*centre), _pt(*tip), AXIS_COLOURS[1], 2 * thick, cv2.LINE_AA, tipLength=0.2)
+    _outlined(cv2.arrowedLine, out, (_pt(*centre), _pt(*tip)), AXIS_COLOURS[1], 2 * thick, tipLength=0.2)
+    _outlined(cv2.circle, out, (_pt(*centre), 2 * thick + 1), AXIS_COLOURS[1], -1)  # its foot: the image centre
+    return True
 
 
 def frame_box_points(

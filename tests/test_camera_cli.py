@@ -48,6 +48,34 @@ def test_predict_same_camera_shares_per_folder(folder, tmp_path):
         predict_folder(folder, out, weights="none", same_camera=True, exif=True)
 
 
+def test_predict_same_camera_keeps_every_row_beside_a_photo_without_lines(folder, tmp_path, capsys):
+    # a line-free photo in the folder once ended the run with no rows at all (exit 1)
+    mixed = tmp_path / "mixed"
+    mixed.mkdir()
+    for image in sorted(folder.glob("*.png"))[:2]:
+        (mixed / image.name).write_bytes(image.read_bytes())
+    cv2.imwrite(str(mixed / "blank.png"), np.full((240, 320, 3), 128, np.uint8))
+    out = tmp_path / "rows.jsonl"
+    assert main(["predict", str(mixed), "-o", str(out), "--weights", "none", "--same-camera"]) == 0
+    rows = {row["image"]: row for row in map(json.loads, out.read_text().splitlines())}
+    assert len(rows) == 3 and not rows["blank.png"]["valid"] and rows["blank.png"]["confidence"] == 0
+    assert all(rows[name]["valid"] and rows[name]["shared_photos"] == 2 for name in rows if name != "blank.png")
+    assert "warning" not in capsys.readouterr().err
+
+
+def test_predict_same_camera_says_when_a_folder_shares_nothing(folder, tmp_path, capsys):
+    tree = tmp_path / "tree"
+    for image in sorted(folder.glob("*.png"))[:2]:  # one photo per folder: nothing to share
+        (tree / image.stem).mkdir(parents=True)
+        (tree / image.stem / image.name).write_bytes(image.read_bytes())
+    out = tmp_path / "tree.jsonl"
+    assert main(["predict", str(tree), "-o", str(out), "--weights", "none", "--same-camera", "--recursive"]) == 0
+    err = capsys.readouterr().err
+    assert err.count("ngp: warning:") == 1 and "2 of the 2 folders have fewer than two photos" in err
+    rows = [json.loads(line) for line in out.read_text().splitlines()]
+    assert len(rows) == 2 and all("shared_photos" not in row and row["fov_v_std"] > 0 for row in rows)
+
+
 def test_images_may_follow_the_principal_point(folder, capsys):
     images = [str(p) for p in sorted(folder.glob("*.png"))[:2]]
     assert main(["calibrate", "--weights", "none", "--principal-point", "161", "118", *images]) == 0

@@ -34,6 +34,43 @@ def test_calibrate_prints_one_json_object_per_image(photo, capsys):
         assert key in record
 
 
+def _floats(value):
+    if isinstance(value, float):
+        yield value
+    elif isinstance(value, dict):
+        for item in value.values():
+            yield from _floats(item)
+    elif isinstance(value, list):
+        for item in value:
+            yield from _floats(item)
+
+
+def test_piped_output_is_json_lines_with_six_significant_digits(photo):
+    # one long line with float noise (660.2574462890625) once; rounded at output, the result keeps every digit
+    run = subprocess.run([sys.executable, "-m", "ngp_kornia.cli", "calibrate", str(photo), str(photo)],
+                         capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    rows = [json.loads(line) for line in run.stdout.splitlines()]
+    floats = list(_floats(rows))
+    assert len(rows) == 2 and len(floats) > 40
+    assert all(float(f"{v:.6g}") == v for v in floats)
+    assert any(float(f"{v:.5g}") != v for v in floats)  # six digits, not fewer
+
+
+def test_a_terminal_gets_a_short_table_and_json_on_request(photo, tmp_path, capsys, monkeypatch):
+    noise = tmp_path / "noise.png"
+    cv2.imwrite(str(noise), np.random.default_rng(1).integers(0, 256, (120, 160, 3), dtype=np.uint8))
+    monkeypatch.setattr(sys.stdout, "isatty", lambda: True)
+    assert main(["calibrate", str(photo), str(noise)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert len(lines) == 3 and lines[0].split()[1:] == [
+        "focal", "px", "FoV", "v", "deg", "pitch", "deg", "roll", "deg", "confidence", "warning"]
+    assert lines[1].split()[0].endswith("scene.png") and len(lines[1].split()) >= 6  # a long path keeps its end
+    assert lines[2].endswith("0.00  no camera found (valid false)")
+    assert main(["calibrate", str(photo), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["image"] == str(photo)
+
+
 def test_bad_image_is_one_line_on_stderr_and_the_rest_still_run(photo, tmp_path, capsys):
     missing = tmp_path / "missing.jpg"
     code = main(["calibrate", str(missing), str(photo)])
@@ -47,7 +84,7 @@ def test_overlay_is_written_as_an_image(photo, tmp_path, capsys):
     target = tmp_path / "out" / "overlay.png"
     assert main(["calibrate", str(photo), "--overlay", str(target)]) == 0
     drawn = cv2.imread(str(target))
-    assert drawn is not None and drawn.shape == (120, 160, 3)
+    assert drawn is not None and drawn.shape[1:] == (160, 3) and drawn.shape[0] > 120  # the key strip below
 
 
 def test_overlay_folder_for_several_images(photo, tmp_path, capsys):
@@ -164,6 +201,18 @@ def test_rectify_keep_of_a_rendered_scene_keeps_the_pixels(tmp_path, capsys):
     assert main(["rectify", str(source), "-o", str(target)]) == 0
     written = cv2.imread(str(target))
     assert written.shape[0] * written.shape[1] > 320 * 240  # the tilted frame needs a larger canvas
+
+
+def test_rectify_refuses_an_invalid_answer_unless_forced(tmp_path, capsys):
+    noise = tmp_path / "noise.png"  # no lines of structure: the answer is a guess (it was once written, exit 0)
+    cv2.imwrite(str(noise), np.random.default_rng(1).integers(0, 256, (480, 640, 3), dtype=np.uint8))
+    target = tmp_path / "out.png"
+    assert main(["rectify", str(noise), "-o", str(target)]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "no camera found (valid false" in err and "--force-invalid" in err
+    assert not target.exists()
+    assert main(["rectify", str(noise), "-o", str(target), "--force-invalid"]) == 0
+    assert np.array_equal(cv2.imread(str(target)), cv2.imread(str(noise)))  # a level camera: the image as it is
 
 
 def test_rectify_rejects_a_bad_mode(photo, tmp_path, capsys):

@@ -9,6 +9,8 @@ import pytest
 
 import ngp_kornia
 from ngp_kornia import calibrate, cli
+from ngp_kornia.cli_options import HelpAllAction
+from ngp_kornia.rows import result_row
 from ngp_kornia.training.synth.render import render_scene
 
 
@@ -37,9 +39,11 @@ def test_version(capsys):
 def test_every_help_shows_the_defaults_and_describes_every_argument():
     parser = cli._parser()
     for name, sub in _subparsers(parser).items():
+        for action in sub._actions:  # as --help-all shows them: the pipeline settings too
+            action.help = getattr(action, "full_help", action.help)
         text = " ".join(sub.format_help().split())
         for action in sub._actions:
-            if isinstance(action, argparse._HelpAction):
+            if isinstance(action, (argparse._HelpAction, HelpAllAction)):
                 continue
             assert action.help, f"ngp {name}: {action.dest} has no help"
             if action.default not in (None, False) and action.option_strings:
@@ -80,7 +84,7 @@ def test_several_images_give_what_the_list_api_gives(scenes, tmp_path, capsys, m
     assert [r["image"] for r in rows] == [str(p) for p in scenes]
     expected = calibrate([str(p) for p in scenes], weights="none")
     for row, cal in zip(rows, expected, strict=True):
-        assert row == {"image": row["image"], **json.loads(json.dumps(cal.to_dict()))}
+        assert row == json.loads(json.dumps(result_row(row["image"], cal)))
     assert err.count("\n") == 1 and "missing.jpg: file not found" in err
 
 
@@ -139,3 +143,66 @@ def test_a_usage_error_is_the_short_usage_and_one_line(argv, capsys):
     lines = capsys.readouterr().err.splitlines()
     assert stop.value.code == 2 and len(lines) == 2
     assert lines[0].startswith(f"usage: ngp {argv[0]} [options]") and lines[1].startswith(f"ngp {argv[0]}: error: ")
+
+
+# --- help that fits a screen ------------------------------------------------------------------------------------
+
+COMMANDS = ("calibrate", "predict", "rectify", "demo", "render")
+#: what a --help for people never shows: equation numbers, Sphinx roles, reStructuredText literals, the paper's sets
+MARKUP = ("Eq.", ":func:", ":class:", ":mod:", "``", "|L_z|", "|Z|")
+
+
+def _help(capsys, *args) -> str:
+    with pytest.raises(SystemExit) as stop:
+        cli.main([*args])
+    assert stop.value.code == 0
+    return capsys.readouterr().out
+
+
+@pytest.mark.parametrize("command", ["", *COMMANDS])
+def test_every_help_fits_a_screen_in_plain_words(command, capsys, monkeypatch):
+    # calibrate --help was 264 lines of internals ("Eq. 22", |L_z|, :func:); every setting is under --help-all
+    monkeypatch.setenv("COLUMNS", "80")
+    text = _help(capsys, *([command] if command else []), "--help")
+    assert len(text.splitlines()) <= 40, text
+    assert not [word for word in MARKUP if word in text]
+    assert "--segments.working_size 640" in text or command in ("", "demo", "render")
+
+
+@pytest.mark.parametrize("command", ["calibrate", "predict", "rectify"])
+def test_help_all_lists_every_setting_with_its_default(command, capsys, monkeypatch):
+    from ngp_kornia.pipeline.settings import setting_fields
+
+    monkeypatch.setenv("COLUMNS", "80")
+    listed = _help(capsys, command, "--help")
+    short = " ".join(listed.split())
+    text = " ".join(_help(capsys, command, "--help-all").split())
+    settings = list(setting_fields())
+    assert len(settings) > 40 and all(f"--{stage}.{f.name}" in text for stage, f, _ in settings)
+    assert not [line for line in listed.splitlines() if line.strip().startswith("--segments.")]
+    assert text.count("(default: ") >= len(settings) and not [w for w in (":func:", "``") if w in text]
+    assert short.split(" options: ")[1][:40] in text  # the everyday options too
+
+
+def test_rectify_offers_only_what_makes_sense_for_one_image(capsys, monkeypatch):
+    monkeypatch.setenv("COLUMNS", "80")
+    text = _help(capsys, "rectify", "--help-all")
+    assert "--same-camera" not in text and "--truth" not in text and "each folder" not in text
+    assert "--force-invalid" in text and "--focal-35mm" in text
+    assert "one camera per folder" in _help(capsys, "predict", "--help")
+
+
+@pytest.mark.parametrize(("args", "hint"), [
+    (["calibrate", "--focla", "3", "x.jpg"], "unrecognized option --focla: did you mean --focal?"),
+    (["rectify", "x.jpg", "-o", "y.png", "--mdoe", "level"], "unrecognized option --mdoe: did you mean --mode?"),
+    (["calibrate", "x.jpg", "--horizon.refnie", "false"], "did you mean --horizon.refine?"),
+    (["predict", "a", "b", "-o", "r.jsonl"], "unrecognized arguments: b"),
+])
+def test_a_mistyped_option_gives_the_command_usage_and_the_closest_option(args, hint, capsys):
+    # the top-level usage once, with "unrecognized arguments" and no hint
+    with pytest.raises(SystemExit) as stop:
+        cli.main(args)
+    err = capsys.readouterr().err.splitlines()
+    assert stop.value.code == 2 and len(err) == 2
+    assert err[0].startswith(f"usage: ngp {args[0]} [options] ") and err[1].startswith(f"ngp {args[0]}: error: ")
+    assert err[1].endswith(hint)

@@ -12,6 +12,7 @@ import pytest
 from ngp_kornia import calibrate
 from ngp_kornia.cli import main
 from ngp_kornia.predict import merge_parts, predict_folder
+from ngp_kornia.rows import result_row
 from ngp_kornia.training.synth.render import render_scene
 
 #: an earlier run's results in the file a run replaces
@@ -61,8 +62,15 @@ def test_a_row_for_every_file_and_error_rows_for_the_bad_ones(predicted):
 
 def test_a_row_is_what_calibrate_gives_for_the_file(folder, predicted):
     row = next(r for r in predicted[1] if r["image"] == "scene02.png")
-    expected = json.loads(json.dumps(calibrate(str(folder / "scene02.png")).to_dict()))
-    assert row == {"image": "scene02.png", **expected}
+    expected = json.loads(json.dumps(result_row("scene02.png", calibrate(str(folder / "scene02.png")))))
+    assert row == expected
+
+
+def test_a_row_is_what_ngp_calibrate_json_prints_for_the_file(folder, predicted, capsys):
+    row = next(r for r in predicted[1] if r["image"] == "scene03.png")
+    assert main(["calibrate", str(folder / "scene03.png"), "--json"]) == 0
+    printed = json.loads(capsys.readouterr().out)
+    assert printed == {**row, "image": str(folder / "scene03.png")}
 
 
 def test_merge_keeps_dataset_order_and_drops_padded_duplicates(tmp_path):
@@ -246,7 +254,7 @@ def test_rows_report_the_exif_orientation(tmp_path):
     predict_folder(folder, tmp_path / "r.jsonl")
     (row,) = _rows(tmp_path / "r.jsonl")
     assert row["exif_orientation"] == 6 and (row["height"], row["width"]) == (160, 120)
-    assert row == {"image": "phone.jpg", **calibrate(folder / "phone.jpg").to_dict()}
+    assert row == result_row("phone.jpg", calibrate(folder / "phone.jpg"))
 
 
 def test_devices_are_capped_at_the_usable_cores(monkeypatch, folder, tmp_path, capsys):

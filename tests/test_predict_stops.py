@@ -100,10 +100,13 @@ _LIMITED = textwrap.dedent(
 
 @pytest.mark.parametrize("devices", [1, 2])
 def test_a_file_size_limit_leaves_no_hidden_file(tmp_path, devices):
-    folder, out = _photos(tmp_path / "photos", 6), tmp_path / "results.jsonl"
+    folder, out = _photos(tmp_path / "photos", 6 if devices == 1 else 24), tmp_path / "results.jsonl"
     out.write_text(OLD_RESULTS)
     row = len(json.dumps({"image": "scene000.png", **_one_row(folder, tmp_path)})) + 1
-    command = [sys.executable, "-c", _LIMITED, str(folder), str(out), str(int(2.5 * row)), str(devices)]
+    # a forked process that stops writes its traceback to a file under the same limit (torch reads it back): room
+    # for it beside the rows, and images enough to reach the limit all the same
+    limit = int(2.5 * row) + (4096 if devices > 1 else 0)
+    command = [sys.executable, "-c", _LIMITED, str(folder), str(out), str(limit), str(devices)]
     run = subprocess.run(command, capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stderr[-2000:]
     message = run.stdout.strip()
@@ -116,7 +119,7 @@ def test_a_file_size_limit_leaves_no_hidden_file(tmp_path, devices):
         assert out.read_text() == OLD_RESULTS
     else:  # on a busy machine one process may have finished two rows while the other had none: those fit
         rows = _rows(out)
-        assert message.endswith(f"the {len(rows)} rows finished are in {out}") and 0 < len(rows) <= 2, message
+        assert message.endswith(f"the {len(rows)} rows finished are in {out}") and 0 < len(rows) <= limit // row
         assert all("focal" in r for r in rows)
     assert _hidden(tmp_path) == [] and sorted(p.name for p in tmp_path.iterdir()) == ["photos", "results.jsonl"]
 

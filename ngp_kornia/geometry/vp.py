@@ -79,8 +79,8 @@ def weighted_structure_tensor(v: Tensor, weights: Tensor) -> Tensor:
 def dominant_eigenvector(tensor: Tensor, fallback: Tensor | None = None) -> Tensor:
     """Unit eigenvector of the largest eigenvalue of a symmetric (B, 3, 3) tensor: the mean point of Eq. 10-12.
 
-    The sign is fixed so the largest-magnitude component is positive. A zero tensor has no dominant direction and
-    gives ``fallback`` (default ``(0, 1, 0)``, the zenith of a level camera).
+    The sign is fixed so the largest-magnitude component is positive. A zero tensor, or one with NaN or infinite
+    entries, has no dominant direction and gives ``fallback`` (default ``(0, 1, 0)``, the zenith of a level camera).
 
     Args:
         tensor: (B, 3, 3) symmetric positive semi-definite tensors.
@@ -111,11 +111,13 @@ def symmetric_dominant_eigenvector(tensor: Tensor, fallback: Tensor | None = Non
 
 
 def _dominant(sym: Tensor, tensor: Tensor, fallback: Tensor | None) -> Tensor:
-    _, vecs = torch.linalg.eigh(sym)
+    # a tensor with NaN or infinite entries has no dominant direction either (eigh fails on it): the fallback
+    finite = torch.isfinite(sym).flatten(1).all(-1, keepdim=True)
+    _, vecs = torch.linalg.eigh(torch.where(finite[..., None], sym, torch.zeros_like(sym)))
     v = vecs[..., -1]
     # the sign that makes the largest-magnitude component positive (a zero one counts as negative, as sign() did)
     v = torch.where(torch.gather(v, -1, v.abs().argmax(-1, keepdim=True)) > 0, v, -v)
-    empty = tensor.flatten(1).abs().amax(-1, keepdim=True) <= torch.finfo(tensor.dtype).tiny ** 0.5
+    empty = ~finite | (tensor.flatten(1).abs().amax(-1, keepdim=True) <= torch.finfo(tensor.dtype).tiny ** 0.5)
     return torch.where(empty, (_LEVEL_ZENITH if fallback is None else fallback).to(v).expand_as(v), v)
 
 
@@ -358,6 +360,9 @@ def topk_weighted_average(
     w = torch.where(keep, scores.clamp_min(0.0), torch.zeros_like(scores))
     # all kept scores zero: count the kept candidates equally rather than divide by zero
     w = torch.where((w.sum(1, keepdim=True) > 0) | ~keep, w, keep.to(w))
-    w = w / w.sum(1, keepdim=True).clamp_min(torch.finfo(w.dtype).eps)
+    # divided by their sum whatever its size: scores far below eps (a gravity prior far from every frame leaves
+    # subnormal ones, 1e-42) still give weights summing to 1; a zero sum (no valid candidate) leaves them zero
+    total = w.sum(1, keepdim=True)
+    w = w / torch.where(total > 0, total, torch.ones_like(total))
     mean = (w.reshape(*w.shape, *([1] * (values.dim() - 2))) * values).sum(1)
     return mean, w

@@ -42,6 +42,7 @@ from ngp_kornia.io.files import open_file, open_image
 from ngp_kornia.io.limits import MAX_PIXELS, MAX_PIXELS_ENV, check_file_size, check_pixels, max_pixels
 
 __all__ = [
+    "BACKGROUND",
     "MAX_PIXELS",
     "MAX_PIXELS_ENV",
     "MIN_SIZE",
@@ -63,8 +64,12 @@ MIN_SIZE = 32
 #: the former name of :class:`~ngp_kornia.errors.ImageReadError`, kept so that existing ``except`` clauses work.
 ImageError = ImageReadError
 _SUPPORTED = "supported: JPEG, PNG, TIFF, BMP, WebP, ..."
-# Pillow modes whose values are kept as they are (then converted by to_rgb_uint8); others are converted to RGB
+# Pillow modes whose values are kept as they are (then converted by to_rgb_uint8); those with transparency are
+# converted to RGBA (their alpha composited by to_rgb_uint8), the others to RGB
 _KEPT_MODES = {"RGB", "RGBA", "L", "I;16", "I;16L", "I;16B", "I;16N", "F", "I"}
+_ALPHA_MODES = {"LA", "La", "PA", "RGBa"}
+#: the grey that transparent pixels are composited over: a plain background, where no line can be found
+BACKGROUND = 128
 _TRUNCATED = "image data is truncated (the file ends before the image does); re-export it"
 
 
@@ -80,7 +85,8 @@ def read_image(path: str | Path, max_pixels: int | None = None) -> ImageFile:
     """Decode an image file safely to an HxWx3 uint8 RGB array as displayed, with its EXIF orientation.
 
     Greyscale, 16-bit, float greyscale (in [0, 1]), palette and RGBA files are converted; the EXIF orientation is
-    applied.
+    applied. Transparency (an alpha channel, or a palette's transparent colour) is composited over a plain grey
+    (:data:`BACKGROUND`), so that pixels hidden under alpha 0 never count (their lines would).
 
     Args:
         path: the image file.
@@ -145,7 +151,7 @@ def _decode(image: PILImage.Image, file: BinaryIO, path: Path) -> tuple[np.ndarr
         before = orientation_tag(image) if image.format != "PNG" else None
         image.load()
         pending = orientation_tag(image)
-        pixels = np.array(image if image.mode in _KEPT_MODES else image.convert("RGB"))  # a copy: writable
+        pixels = np.array(image if image.mode in _KEPT_MODES else image.convert(_mode_for(image)))  # a copy
     except PILImage.DecompressionBombError as err:
         raise ImageReadError(f"{path}: {err}; raise PIL.Image.MAX_IMAGE_PIXELS if the file is trusted") from None
     except (OSError, ValueError, SyntaxError, EOFError) as err:
@@ -155,6 +161,11 @@ def _decode(image: PILImage.Image, file: BinaryIO, path: Path) -> tuple[np.ndarr
     if pixels.dtype.kind == "u" and pixels.dtype.itemsize == 2:  # I;16B: big-endian 16-bit
         pixels = pixels.astype(np.uint16)
     return pixels, pending if before is None else before, pending
+
+
+def _mode_for(image: PILImage.Image) -> str:
+    """The mode a Pillow image not kept as it is is converted to: RGBA where it has transparency, else RGB."""
+    return "RGBA" if image.mode in _ALPHA_MODES or "transparency" in image.info else "RGB"
 
 
 def read_image_file(path: str | Path, max_pixels: int | None = None) -> np.ndarray:
@@ -206,7 +217,8 @@ def _float_advice(lo: float, hi: float, whole: bool, source: Path | None) -> str
 
 
 def to_rgb_uint8(image: np.ndarray, bgr: bool = False) -> np.ndarray:
-    """Convert an HxW, HxWx1, HxWx3 or HxWx4 array (uint8, uint16 or float in [0, 1]) to HxWx3 uint8 RGB.
+    """Convert an HxW, HxWx1, HxWx3 or HxWx4 array (uint8, uint16 or float in [0, 1]) to HxWx3 uint8 RGB; the
+    fourth channel is alpha, composited over a plain grey (:data:`BACKGROUND`) so that hidden pixels never count.
 
     Example:
         >>> to_rgb_uint8(np.full((2, 2), 65535, np.uint16))[0, 0].tolist()
@@ -236,10 +248,20 @@ def _rgb_uint8(image: np.ndarray, bgr: bool, source: Path | None) -> np.ndarray:
     channels = image.shape[2]
     if channels == 1:
         return np.repeat(image, 3, axis=2)
-    if bgr and image.dtype == np.uint8:  # OpenCV's swap is many times faster than numpy's reversed copy
-        return cv2.cvtColor(image, cv2.COLOR_BGRA2RGB if channels == 4 else cv2.COLOR_BGR2RGB)
-    image = image[..., :3]  # drop alpha
-    return np.ascontiguousarray(image[..., ::-1] if bgr else image)
+    if channels == 4:
+        image = _composited(image)
+    if bgr:  # OpenCV's swap is many times faster than numpy's reversed copy
+        return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+    return np.ascontiguousarray(image)
+
+
+def _composited(image: np.ndarray) -> np.ndarray:
+    """An (H, W, 4) uint8 image with alpha as (H, W, 3), composited over :data:`BACKGROUND` (rounded)."""
+    alpha = image[..., 3:]
+    if bool((alpha == 255).all()):  # opaque: the colours as they are
+        return np.ascontiguousarray(image[..., :3])
+    mixed = image[..., :3].astype(np.uint32) * alpha + np.uint32(BACKGROUND) * (255 - alpha.astype(np.uint32))
+    return ((mixed + 127) // 255).astype(np.uint8)
 
 
 def _check_size(height: int, width: int, name: str) -> None:

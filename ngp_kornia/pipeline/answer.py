@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import torch
 from torch import Tensor
@@ -25,7 +26,7 @@ from ngp_kornia.pipeline.constants import constant_tensors
 from ngp_kornia.pipeline.result import Calibration
 from ngp_kornia.pipeline.settings import ScoringSettings
 
-__all__ = ["calibration_from_camera", "topk_calibration"]
+__all__ = ["calibration_from_camera", "level_answer", "topk_calibration"]
 
 
 def topk_calibration(
@@ -85,6 +86,34 @@ def calibration_from_camera(
     camera = Camera.from_matrix(K, R, size)
     exif = torch.ones(len(K), dtype=torch.long, device=K.device)  # tensors are taken as they are
     return Calibration(camera=camera, score=score, valid=valid, exif_orientation=exif)
+
+
+def level_answer(result: Calibration, where: Tensor, fallback_fov: float) -> Calibration:
+    """The answer with the (batched) images ``where`` (B,) bool given the answer of an image without evidence: a
+    level camera (pitch, roll and yaw 0) with a known focal length (``fov_v_std`` 0) or else ``fallback_fov``
+    degrees on the long side, at the answer's principal point. What :func:`topk_calibration` gives an image
+    without a valid frame, for an image that another check finds without evidence.
+
+    Example:
+        >>> K = torch.tensor([[[500.0, 0, 319.5], [0, 500.0, 239.5], [0, 0, 1]]])
+        >>> R = torch.linalg.matrix_exp(torch.tensor([[[0.0, -0.2, 0.1], [0.2, 0, 0], [-0.1, 0, 0]]]))  # rolled
+        >>> answer = calibration_from_camera(K, R, torch.ones(1), torch.ones(1, dtype=torch.bool), 480, 640)
+        >>> level = level_answer(answer, torch.tensor([True]), 60.0)
+        >>> [round(float(v), 2) for v in (level.pitch, level.roll, level.yaw, level.fov_h)]
+        [0.0, 0.0, 0.0, 60.0]
+    """
+    if not bool(where.any()):
+        return result
+    height, width = (int(v) for v in result.image_size[0])
+    fallback = max(height, width) / 2.0 / math.tan(math.radians(fallback_fov) / 2.0)
+    known = torch.zeros_like(where) if result.fov_v_std is None else result.fov_v_std == 0
+    focal = torch.where(known, result.focal, torch.full_like(result.focal, fallback))
+    params = result.camera.params
+    level = torch.stack([focal, focal, params[:, 2], params[:, 3]], -1)  # the principal point kept
+    eye = torch.eye(3, dtype=result.R.dtype, device=result.R.device).expand_as(result.R)
+    camera = result.camera.replace(params=torch.where(where[:, None], level, params),
+                                   R=torch.where(where[:, None, None], eye, result.R))
+    return replace(result, camera=camera)
 
 
 def _weighted_zenith_tensor(zenith: Tensor, weights: Tensor, k: int) -> Tensor:

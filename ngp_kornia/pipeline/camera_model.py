@@ -149,7 +149,7 @@ def _distortion(stages, images, segments, mask, priors, config, point, pixels) -
         bent = _run_at(stages, images, segments, mask, priors, point, lam, trust_std, pixels).confidence
         straight = _run_at(stages, images, segments, mask, priors, point, None, trust_std, pixels).confidence
         return torch.where(bent > straight, lam, torch.zeros_like(lam))
-    focal = priors.focal_pixels(height)
+    focal = priors.focal_pixels(height, width)
     if focal is None:
         focal = _run_at(stages, images, segments, mask, priors, point, None, 0.0, pixels).focal
     focal = torch.as_tensor(focal, dtype=torch.float64, device=segments.device).expand(len(segments))

@@ -84,11 +84,14 @@ def refine_up_on_camera(
         inlier = near_direction(cam, cur, math.sin(math.radians(zenith_tol)) ** 2) & mask
         w = lengths * inlier
         M = torch.bmm(w[:, None] * cam.normals_t, cam.normals)  # sum_i w_i n_i n_i^T
-        _, vecs = torch.linalg.eigh(M)
+        # a degenerate camera (a zero up vector, a singular K) makes M NaN, on which eigh fails outright: such an
+        # image is not refined (a zero M has a defined decomposition)
+        finite = torch.isfinite(M).flatten(1).all(-1)
+        _, vecs = torch.linalg.eigh(torch.where(finite[:, None, None], M, torch.zeros_like(M)))
         fit = vecs[..., 0].detach()  # no gradient through eigh (unstable for close eigenvalues)
         dot = (fit * up).sum(-1, keepdim=True)
         fit = torch.where(dot < 0, -fit, fit)
-        good = (inlier.sum(-1) >= 3) & (dot.abs()[:, 0] > cos_tol) & torch.isfinite(fit).all(-1)  # |dot|: fit . up
+        good = (inlier.sum(-1) >= 3) & (dot.abs()[:, 0] > cos_tol) & finite  # |dot|: fit . up
         cur = torch.where(good[:, None], fit, cur)
         ok = good if ok is None else ok | good
     return normalize(cur), torch.zeros(len(up), dtype=torch.bool, device=up.device) if ok is None else ok

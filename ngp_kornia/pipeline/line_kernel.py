@@ -140,7 +140,8 @@ def closeness_kernel(
     v = vps.reshape(B, H * P, 3)
     grad = torch.is_grad_enabled() and (v.requires_grad or cam.line_t.requires_grad or cam.mid_terms.requires_grad)
     num, den = _ratio(cam, v, not grad)
-    if den.amin().item() > tiny:  # tiny, a power of 2, is the same number in the tensor's dtype
+    # tiny, a power of 2, is the same number in the tensor's dtype; a photo without segments has nothing to reduce
+    if den.numel() and den.amin().item() > tiny:
         sin2 = torch.div(num, den, out=None if grad else num)
     else:
         sin2 = torch.where(den > tiny, num / den.clamp_min(tiny), 1.0)

@@ -163,6 +163,7 @@ class NeuralGeometricParser(nn.Module):
             :class:`ParserTrace` of the stages (the same computation: the calibration does not change).
         """
         seed, priors = _checked_call(images, seed, priors)
+        priors.check_image(*images.shape[-2:])  # a focal length no camera has on this image: a mistake of units
         if images.dtype in (torch.float16, torch.bfloat16):  # computed in float32, returned in the input's dtype
             low = None if segments is None else segments.float()
             out = self.forward(images.float(), low, mask, seed=seed, priors=priors, return_trace=return_trace)
@@ -195,7 +196,7 @@ class NeuralGeometricParser(nn.Module):
         check = self.config.upright
         if check.pitch_spread > 0:  # a steep answer is likelier that of a photo turned by a quarter
             probs = weigh_by_pitch(probs, result.pitch, check.pitch_spread)
-        return apply_upright(result, probs, check.sure, check.turn_back)
+        return apply_upright(result, probs, check.sure, check.turn_back, self.config.scoring.fallback_fov)
 
     def _segments(self, images: Tensor, segments: Tensor | None, mask: Tensor | None) -> tuple[Tensor, Tensor]:
         """The segments given (checked) or detected, never an empty tensor."""

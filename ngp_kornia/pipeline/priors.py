@@ -15,11 +15,12 @@ from __future__ import annotations
 
 import math
 import numbers
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from ngp_kornia.errors import InputError, shown
+from ngp_kornia.io.exif import FILM_DIAGONAL_MM
 
-__all__ = ["DEFAULT_GRAVITY_STD", "ESTIMATE", "MAX_SEED", "Priors", "checked_seed"]
+__all__ = ["DEFAULT_GRAVITY_STD", "ESTIMATE", "FOCAL_35MM_RANGE", "MAX_SEED", "Priors", "checked_seed"]
 
 #: seeds are 64-bit: torch.Generator.manual_seed takes [0, 2**64 - 1]
 MAX_SEED = 2**64 - 1
@@ -46,9 +47,20 @@ def checked_seed(seed: object) -> int:
     return int(seed)
 
 
+#: the 35 mm-equivalent focal lengths (millimetres) a focal-length prior may amount to on its image, whatever its
+#: units: from a little wider than the widest rectilinear lenses made (about 9 mm, 135 degrees on the diagonal; a
+#: pinhole camera's field of view must stay below 180) to a long telephoto (2000 mm, 1.2 degrees). Beyond, the prior
+#: is far likelier a mistake of units (35 millimetres given as 35 pixels is a 2 mm lens on a 640 x 480 photo) than
+#: a photo, and a line-based calibration could not use it anyway.
+FOCAL_35MM_RANGE = (8.0, 2000.0)
+
 #: the largest focal length a prior may give, in pixels: a field of view of a few ten-thousandths of a degree, where
 #: the frame's arithmetic in float32 still holds (at 1e15 it no longer gives a rotation)
 MAX_FOCAL = 1e8
+
+
+#: the three forms of the focal-length prior, of which one may be given
+_FOCAL_PRIORS = ("focal", "fov_v", "focal_35mm")
 
 
 def _positive(value: object, name: str, what: str, high: float = math.inf) -> float | None:
@@ -63,6 +75,16 @@ def _positive(value: object, name: str, what: str, high: float = math.inf) -> fl
     if not (math.isfinite(number) and 0 < number < high):
         raise InputError(f"{name} must be {what} or None, got {shown(value)}")
     return number
+
+
+def _focal_35mm(value: object) -> float | None:
+    low, high = FOCAL_35MM_RANGE
+    what = f"a 35 mm-equivalent focal length in [{low:g}, {high:g}] millimetres"
+    f35 = _positive(value, "focal_35mm (--focal-35mm)", what)
+    if f35 is not None and not low <= f35 <= high:
+        raise InputError(f"focal_35mm (--focal-35mm) must be {what} (the widest rectilinear lenses are about 9 mm), "
+                         f"got {shown(value)}")
+    return f35
 
 
 def _finite(value: object) -> float:
@@ -94,10 +116,18 @@ def _gravity(value: object) -> tuple[float, float] | None:
     if value is None:
         return None
     numbers_ = _pair(value)
-    if len(numbers_) != 2 or not all(math.isfinite(v) for v in numbers_) or not abs(numbers_[0]) < 90:
+    if len(numbers_) != 2 or not all(math.isfinite(v) for v in numbers_):
         raise InputError(
-            f"gravity must be (pitch, roll) in degrees, pitch in (-90, 90), or None; got {shown(value)}"
+            f"gravity must be (pitch, roll) in degrees, pitch in (-90, 90), roll in [-180, 180], or None; "
+            f"got {shown(value)}"
         )
+    pitch, roll = numbers_
+    if not abs(pitch) < 90.0:  # beyond +-90 the camera would be upside down: a roll of 180 says that
+        raise InputError(f"gravity's pitch must be in (-90, 90) degrees (90 looks straight up), got {shown(pitch)}; "
+                         "a camera turned upside down has a roll near 180 instead")
+    if not abs(roll) <= 180.0:
+        raise InputError(f"gravity's roll must be in [-180, 180] degrees, got {shown(roll)}; "
+                         "give the angle itself, not a multiple of a full turn (e.g. 10, not 370)")
     return numbers_
 
 
@@ -126,8 +156,11 @@ class Priors:
 
     Attributes:
         focal: the focal length in pixels of the input image; every frame candidate then uses it.
-        fov_v: the vertical field of view in degrees (the same prior in other units); ignored when ``focal`` is
-            given.
+        fov_v: the vertical field of view in degrees (the same prior in other units).
+        focal_35mm: the 35 mm-equivalent focal length in millimetres (the same prior, in the units cameras and
+            EXIF give): ``focal = focal_35mm * hypot(W, H) / 43.27``, the diagonal of a 36 x 24 mm frame.
+            At most one of ``focal``, ``fov_v`` and ``focal_35mm`` may be given; on an image, the prior must
+            amount to a 35 mm-equivalent focal length in :data:`FOCAL_35MM_RANGE` (:meth:`check_image`).
         gravity: ``(pitch, roll)`` in degrees, the camera's up direction as an IMU measures it (the conventions of
             :class:`~ngp_kornia.pipeline.result.Calibration`); the frame and horizon searches keep to it
             (:mod:`~ngp_kornia.pipeline.gravity`).
@@ -153,10 +186,16 @@ class Priors:
     gravity_std: float | None = None
     principal_point: tuple[float, float] | str | None = None
     k1: float | str | None = None
+    focal_35mm: float | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "focal", _positive(self.focal, "focal", "a number of pixels in (0, 1e8)", MAX_FOCAL))
         object.__setattr__(self, "fov_v", _positive(self.fov_v, "fov_v", "an angle in (0, 180) degrees", 180.0))
+        object.__setattr__(self, "focal_35mm", _focal_35mm(self.focal_35mm))
+        given = [f"{name}={shown(getattr(self, name))}" for name in _FOCAL_PRIORS if getattr(self, name) is not None]
+        if len(given) > 1:
+            raise InputError(f"{' and '.join(given)} were both given; they are one prior in different units: give "
+                             "one of focal= (pixels), fov_v= (degrees) and focal_35mm= (millimetres)")
         object.__setattr__(self, "gravity", _gravity(self.gravity))
         std = _positive(self.gravity_std, "gravity_std", "a number of degrees in (0, 90)", 90.0)
         if std is not None and self.gravity is None:
@@ -173,7 +212,7 @@ class Priors:
             {'focal': 500.0, 'gravity': [2.0, -1.0], 'gravity_std': 1.0}
         """
         out = {}
-        for name in ("focal", "fov_v", "gravity", "gravity_std", "principal_point", "k1"):
+        for name in (*_FOCAL_PRIORS, "gravity", "gravity_std", "principal_point", "k1"):
             value = getattr(self, name)
             if value is not None:
                 out[name] = list(value) if isinstance(value, tuple) else value
@@ -181,18 +220,73 @@ class Priors:
 
     @property
     def known_focal(self) -> bool:
-        """Whether the focal length is given (in pixels or as a field of view)."""
-        return self.focal is not None or self.fov_v is not None
+        """Whether the focal length is given (in pixels, as a field of view or as a 35 mm equivalent)."""
+        return any(getattr(self, name) is not None for name in _FOCAL_PRIORS)
 
-    def focal_pixels(self, height: int) -> float | None:
-        """The known focal length in pixels of an image ``height`` pixels high, or None."""
+    def focal_pixels(self, height: int, width: int | None = None) -> float | None:
+        """The known focal length in pixels of an image ``height`` x ``width`` pixels, or None (``width`` is needed
+        for ``focal_35mm`` only).
+
+        Example:
+            >>> round(Priors(focal_35mm=35.0).focal_pixels(480, 640), 1)  # diag 800 px: 35 * 800 / 43.27
+            647.2
+        """
         if self.focal is not None:
             return self.focal
         if self.fov_v is not None:
             return (height / 2.0) / math.tan(math.radians(self.fov_v) / 2.0)
+        if self.focal_35mm is not None:
+            if width is None:
+                raise TypeError("focal_pixels() needs the image's width for a focal_35mm prior")
+            return self.focal_35mm * math.hypot(height, width) / FILM_DIAGONAL_MM
         return None
 
     def focal_in_units(self, height: int, width: int) -> float | None:
         """The known focal length in pseudo-camera units (half the image's long side), or None."""
-        focal = self.focal_pixels(height)
+        focal = self.focal_pixels(height, width)
         return None if focal is None else focal / (max(height, width) / 2.0)
+
+    def with_focal(self, focal: float) -> Priors:
+        """These priors with the focal length ``focal`` pixels in place of the one given, in whatever units.
+
+        Example:
+            >>> Priors(fov_v=50.0, k1=-0.1).with_focal(500.0).to_dict()
+            {'focal': 500.0, 'k1': -0.1}
+        """
+        return replace(self, focal=focal, fov_v=None, focal_35mm=None)
+
+    def check_image(self, height: int, width: int) -> None:
+        """Refuse a focal-length prior that is no camera's on a ``height`` x ``width`` image: one whose 35 mm
+        equivalent is outside :data:`FOCAL_35MM_RANGE` (a field of view wider than any rectilinear lens, or
+        narrower than a long telephoto's); the message names the likely mistake.
+
+        Raises:
+            InputError: e.g. ``focal=35`` on a 640 x 480 image (a 164 degree vertical field of view).
+
+        Example:
+            >>> Priors(focal=35.0).check_image(480, 640)
+            Traceback (most recent call last):
+            ...
+            ngp_kornia.errors.InputError: focal=35.0 px on this 640x480 image is a 163.4 degree vertical field ...
+        """
+        focal = self.focal_pixels(height, width)
+        if focal is None or self.focal_35mm is not None:  # checked on construction
+            return
+        f35 = focal * FILM_DIAGONAL_MM / math.hypot(height, width)
+        low, high = FOCAL_35MM_RANGE
+        if low <= f35 <= high:
+            return
+        fov = math.degrees(2.0 * math.atan(height / 2.0 / focal))
+        lens, where = f"a {f35:.3g} mm lens on a 35 mm camera", f"on this {width}x{height} image"
+        if self.focal is not None:
+            head = f"focal={shown(self.focal)} px {where} is a {fov:.1f} degree vertical field of view, {lens}"
+        else:
+            head = f"fov_v={shown(self.fov_v)} degrees {where} is {lens}"
+        if f35 < low and self.focal is not None:
+            raise InputError(f"{head}, wider than any rectilinear lens (about {low:g} mm at the widest): is it in "
+                             f"millimetres? give it as focal_35mm= (--focal-35mm), or the focal length in pixels")
+        if f35 < low:
+            raise InputError(f"{head}, wider than any rectilinear lens (about {low:g} mm at the widest): give the "
+                             "vertical field of view of the image as displayed (not a fisheye's or the diagonal's)")
+        raise InputError(f"{head}, narrower than a {high:g} mm telephoto: give the focal length in pixels of this "
+                         "image (scaled with it where the image was resized)")

@@ -53,10 +53,10 @@ class Calibration:
         vps: (B, 3, 3) the three Manhattan VPs, homogeneous pixels, unit norm; row ``i`` is the VP of world axis
             ``i`` (row 1 is the zenith direction).
         score: (B,) score of the best frame candidate (the Manhattan score for the geometric path), in [0, 1].
-        valid: (B,) bool; False when the image offered no valid frame candidate, in which case the result is a
-            level camera with a 60 degree field of view on the long side, or when the orientation check finds no
-            man-made structure in it (:mod:`ngp_kornia.pipeline.upright_check`; the answer the lines gave, with
-            confidence 0).
+        valid: (B,) bool; False when the image offered no valid frame candidate, or when the orientation check
+            finds no man-made structure in it (:mod:`ngp_kornia.pipeline.upright_check`); the result is then a
+            level camera (pitch, roll and yaw 0) with the known focal length or a 60 degree field of view on the
+            long side, at confidence 0.
         image_size: (B, 2) ``(height, width)`` in pixels.
         principal_point: (B, 2) ``(c_x, c_y)`` in pixels, ``K[:, :2, 2]``.
         exif_orientation: (B,) long: the EXIF orientation tag (1-8) of the file that was applied before

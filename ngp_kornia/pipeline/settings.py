@@ -28,6 +28,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 from ngp_kornia.errors import ConfigError, shown
+from ngp_kornia.suggest import did_you_mean, either
 
 __all__ = [
     "DETECTORS",
@@ -152,10 +153,10 @@ class SamplingSettings:
     """Zenith, horizontal-VP and Manhattan-frame candidates (:mod:`ngp_kornia.pipeline.candidates`).
 
     Attributes:
-        num_zenith_lines: |L_z|, the near-vertical lines ZSNet reads (Eq. 3).
-        num_zenith: |Z|, zenith candidates (Eq. 4).
-        vertical_threshold: delta_z of Eq. 4, degrees.
-        zenith_threshold: delta_c of Eq. 12, the ZSNet score a candidate needs.
+        num_zenith_lines: near-vertical lines the zenith network reads (the paper's |L_z|, Eq. 3).
+        num_zenith: zenith candidates drawn from pairs of near-vertical lines (|Z|, Eq. 4).
+        vertical_threshold: lines steeper than this many degrees count as near-vertical (delta_z, Eq. 4).
+        zenith_threshold: the zenith network's score a candidate needs to count (delta_c, Eq. 12).
         vertical_tol: a segment within this angle (degrees) of the ray to the zenith estimate counts as vertical in
             the junction filter.
         junction_radius: endpoint distance for a junction, in units of half the image's long side.
@@ -190,9 +191,9 @@ class ScoringSettings:
 
     Attributes:
         kernel_angle: width of the sharp closeness kernel of the Manhattan score, degrees.
-        top_k: k of Eq. 23.
+        top_k: the answer averages this many best frames (k, Eq. 23).
         num_scored: frames FSNet scores per image, the best by Manhattan score (unused without FSNet).
-        use_manhattan: with FSNet, the final score is ``s_vh * m_i`` (Eq. 22); False uses ``s_vh`` alone.
+        use_manhattan: a frame's score is FSNet's times its Manhattan score (``s_vh * m_i``, Eq. 22), else FSNet's.
         fallback_fov: long-side field of view (degrees) reported when an image has no valid frame.
     """
 
@@ -416,7 +417,7 @@ def locate_setting(key: str) -> tuple[str, str]:
     """``(stage, field)`` of a setting named ``stage.field`` or by a field name that only one stage has.
 
     Raises:
-        ConfigError: no such setting; the message lists the stages.
+        ConfigError: no such setting, or a field name of several stages; the message names the settings meant.
     """
     if "." in key:
         stage, name = key.split(".", 1)
@@ -424,13 +425,14 @@ def locate_setting(key: str) -> tuple[str, str]:
         if kind is not None and name in {f.name for f in dataclasses.fields(kind)}:
             return stage, name
     else:
-        found = [(s, f.name) for s, f, _ in setting_fields() if f.name == key]
+        found = [f"{s}.{f.name}" for s, f, _ in setting_fields() if f.name == key]
         if len(found) == 1:
-            return found[0]
-    raise ConfigError(
-        f"unknown setting {key!r}; settings are stage.field with stage one of {', '.join(_STAGES)} "
-        "(e.g. horizon.refine, segments.working_size)"
-    )
+            return tuple(found[0].split("."))
+        if found:
+            raise ConfigError(f"setting {key!r} is ambiguous: did you mean {either(found)}?")
+    hint = did_you_mean(key, [f"{s}.{f.name}" for s, f, _ in setting_fields()])
+    raise ConfigError(f"unknown setting {key!r}; {hint}settings are stage.field with stage one of "
+                      f"{', '.join(_STAGES)} (e.g. horizon.refine, segments.working_size)")
 
 
 def _attribute_docs(doc: str) -> dict[str, str]:

@@ -52,6 +52,8 @@ __all__ = [
     "joint_k1",
     "joint_principal_point",
     "nearest_rotation",
+    "not_shared_folders",
+    "not_shared_message",
     "with_shared_focal",
 ]
 
@@ -234,3 +236,31 @@ def joint_k1(values: Tensor) -> float:
     estimate of 0 is a photo without evidence), 0 when none did."""
     found = values[values != 0]
     return float(found.median()) if len(found) else 0.0
+
+
+def not_shared_message(photos: int, total: int) -> str:
+    """What is said where a camera was to be shared by ``total`` photos of which ``photos`` (fewer than two) have
+    lines to measure it by.
+
+    Example:
+        >>> not_shared_message(1, 2)
+        'only 1 of the 2 photos has lines to measure the camera by, so nothing is shared: each photo is ...'
+    """
+    if total == 1:
+        return "one photo cannot share a camera: it is calibrated alone (its own focal length and uncertainty)"
+    some = f"only {photos}" if photos else "none"
+    return (f"{some} of the {total} photos has lines to measure the camera by, so nothing is shared: each photo is "
+            "calibrated alone (its own focal length and uncertainty)")
+
+
+def not_shared_folders(folders: list[str], total: int) -> str:
+    """What is said where the photos of each folder were to share a camera, but in ``folders`` (of ``total``)
+    fewer than two photos have lines.
+
+    Example:
+        >>> not_shared_folders(["a", "b"], 3)
+        '2 of the 3 folders have fewer than two photos with lines (a, b), so their photos share nothing: ...'
+    """
+    named = ", ".join(folders[:3]) + (f" and {len(folders) - 3} more" if len(folders) > 3 else "")
+    return (f"{len(folders)} of the {total} folders have fewer than two photos with lines ({named}), so their photos "
+            "share nothing: each is calibrated alone (its own focal length and uncertainty)")

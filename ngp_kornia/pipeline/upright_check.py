@@ -23,6 +23,7 @@ import torch
 from torch import Tensor, nn
 
 from ngp_kornia.geometry.camera import canonical_manhattan_rotation
+from ngp_kornia.pipeline.answer import level_answer
 from ngp_kornia.pipeline.result import Calibration
 from ngp_kornia.pipeline.segments import strip_threads
 
@@ -128,7 +129,9 @@ def turned_answer(result: Calibration, turns: Tensor, use: Tensor) -> Calibratio
     return replace(result, camera=result.camera.replace(R=R))
 
 
-def apply_upright(result: Calibration, probs: Tensor, sure: float = 0.0, turn_back: bool = False) -> Calibration:
+def apply_upright(
+    result: Calibration, probs: Tensor, sure: float = 0.0, turn_back: bool = False, fallback_fov: float = 60.0
+) -> Calibration:
     """The answer with ``upright`` and ``turned`` filled in and its confidence scaled by ``upright`` where the
     probability that the image is not upright with structure is above ``sure`` (``upright < 1 - sure``).
 
@@ -140,8 +143,10 @@ def apply_upright(result: Calibration, probs: Tensor, sure: float = 0.0, turn_ba
     (:func:`turned_answer`; its roll then lies beyond 45 degrees, which no upright answer has) and its confidence
     is scaled by that turn's probability instead; not where a gravity prior says which way is up. ``valid``
     becomes False where no structure is likelier than every reading with structure: the answer then rests on no
-    line evidence worth the name; it keeps what the lines gave, with confidence 0 and the standard deviations of an
-    answer without a frame (90 degrees for pitch and roll, 180 for the field of view, 0 for a known focal length).
+    line evidence worth the name, so it is that of an image without a frame (:func:`~ngp_kornia.pipeline.answer.
+    level_answer`: a level camera with the known focal length or ``fallback_fov`` degrees on the long side), with
+    confidence 0 and the standard deviations of an answer without a frame (90 degrees for pitch and roll, 180 for
+    the field of view, 0 for a known focal length).
     """
     probs = probs.to(result.focal.dtype)
     upright = probs[:, 0]
@@ -151,7 +156,7 @@ def apply_upright(result: Calibration, probs: Tensor, sure: float = 0.0, turn_ba
     likeliest = structured.gather(-1, turns[:, None])[:, 0]
     back = (turns > 0) & (likeliest > sure) & valid & turn_back & (result.gravity is None)
     factor = torch.where(back, likeliest, torch.where(1.0 - upright > sure, upright, 1.0))
-    result = turned_answer(result, turns, back)
+    result = level_answer(turned_answer(result, turns, back), result.valid & ~valid, fallback_fov)
     confidence = None if result.confidence is None else torch.where(valid, result.confidence * factor, 0.0)
     stds = {}
     for name, nothing in (("pitch_std", 90.0), ("roll_std", 90.0), ("fov_v_std", 180.0)):

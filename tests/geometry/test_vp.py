@@ -138,6 +138,14 @@ def test_dominant_eigenvector_diag_and_fallback():
     )
 
 
+def test_dominant_eigenvector_of_a_non_finite_tensor_is_the_fallback():
+    # torch.linalg.eigh fails on NaN entries ("the algorithm failed to converge"): a defined answer instead
+    T = torch.stack([torch.full((3, 3), float("nan")), torch.diag(torch.tensor([0.9, 0.05, 0.05]))])
+    T[0, 0, 0] = float("inf")
+    torch.testing.assert_close(dominant_eigenvector(T), torch.tensor([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0]]))
+    torch.testing.assert_close(symmetric_dominant_eigenvector(T[:1]), torch.tensor([[0.0, 1.0, 0.0]]))
+
+
 @pytest.mark.parametrize("b", [1, 3])
 def test_symmetric_dominant_eigenvector_equals_dominant_eigenvector_bitwise(b, dtype):
     # weighted sums of structure tensors are exactly symmetric: symmetrising them changes no bit
@@ -480,6 +488,17 @@ def test_topk_weighted_average_all_zero_scores_and_no_valid_candidate():
     # no valid candidate: zero mean, zero weights, finite
     mean, w = topk_weighted_average(torch.rand(2, 4), values, k=2, mask=torch.zeros(2, 4, dtype=torch.bool))
     assert torch.equal(mean, torch.zeros(2)) and torch.equal(w, torch.zeros(2, 4))
+
+
+def test_topk_weighted_average_of_scores_far_below_eps_sums_to_one():
+    # a gravity prior far from every frame leaves scores near 1e-42 (subnormal in float32): the weights must still
+    # sum to 1 (they once summed to 1e-35, which averaged every zenith to a zero vector)
+    scores = torch.tensor([[1e-42, 3e-42, 0.0, 2e-40]])
+    values = torch.tensor([[1.0, 2.0, 3.0, 6.0]])
+    mean, w = topk_weighted_average(scores, values, k=2)
+    torch.testing.assert_close(w.sum(1), torch.ones(1))
+    assert w[0, 3] > 0.98 and w[0, 1] > 0 and w[0, 0] == 0
+    assert 5.9 < float(mean[0]) <= 6.0
 
 
 @pytest.mark.parametrize("b", BATCHES)

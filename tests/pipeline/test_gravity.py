@@ -24,6 +24,24 @@ def test_priors_check_the_gravity_prior():
         Priors(gravity=(0.0, 0.0), gravity_std=0.0)
 
 
+def test_a_gravity_prior_out_of_range_is_refused_naming_the_angle():
+    for bad, name in (((10.0, 1e300), "roll"), ((0.0, 190.0), "roll"), ((0.0, -180.5), "roll"), ((95.0, 0.0), "pitch"),
+                      ((-90.0, 0.0), "pitch")):
+        with pytest.raises(InputError, match=f"gravity's {name} must be in"):
+            Priors(gravity=bad)
+    assert Priors(gravity=(89.0, -180.0)).gravity == (89.0, -180.0)  # the ends that are angles
+
+
+@pytest.mark.parametrize(("seed", "gravity"), [(4, (10.0, 40.0)), (2, (45.0, 40.0)), (5, (10.0, 40.0))])
+def test_a_prior_far_from_every_frame_gives_an_answer_not_an_error(seed, gravity):
+    # every frame's score fell below 1e-38 (its agreement with the prior), the top-k weights summed to 1e-35, the
+    # averaged up vector was zero and linalg.eigh raised from inside calibrate(); York Urban showed it at (45, 40)
+    result = calibrate(render_scene(seed).image, gravity=gravity)
+    fields = torch.stack([result.pitch, result.roll, result.focal, result.confidence])
+    assert bool(torch.isfinite(fields).all()) and bool(torch.isfinite(result.R).all())
+    assert abs(float(torch.linalg.det(result.R)) - 1.0) < 1e-4
+
+
 def test_frames_within_the_gate_keep_their_score_and_far_ones_lose_it():
     priors = Priors(gravity=(10.0, 5.0), gravity_std=1.0)
     pitches = torch.tensor([10.0, 12.0, 20.0, 40.0])

@@ -181,6 +181,20 @@ def test_refine_up_recovers_the_zenith_and_ignores_too_few_lines():
     assert not bool(ok[0]) and torch.allclose(none, start)
 
 
+def test_refine_up_of_a_degenerate_camera_is_not_refined_and_does_not_fail():
+    # a zero up vector or a near-singular K (what a wrong gravity prior once left) made the fit's matrix NaN, on which
+    # torch.linalg.eigh raised _LinAlgError from inside calibrate()
+    K, R = camera(15.0, 6.0)
+    seg, mask = atlanta_segments(K, R, seed=4)
+    start = up_from_pitch_roll(torch.tensor([16.0]), torch.tensor([5.0]))
+    up, ok = refine_up(torch.zeros(1, 3), seg, mask, K.float())
+    assert not bool(ok[0]) and torch.equal(up, torch.zeros(1, 3))
+    singular = K.float().clone()
+    singular[:, 0, 0] = singular[:, 1, 1] = 3e-33  # what the zero-weighted average of frames gave
+    up, ok = refine_up(start, seg, mask, singular)
+    assert not bool(ok[0]) and torch.allclose(up, start)
+
+
 def test_parser_switch_recovers_the_camera():
     K, R = camera(9.0, -4.0, 20.0)
     seg, mask = atlanta_segments(K, R, clutter=10, seed=5)

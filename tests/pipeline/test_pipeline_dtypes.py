@@ -70,6 +70,8 @@ def _frames_r(x):
 CASES = {
     "answer.calibration_from_camera": (
         lambda x: answer.calibration_from_camera(x.cal.K, x.cal.R, x.cal.score, x.cal.valid, x.height, x.width), {}),
+    "answer.level_answer": (
+        lambda x: answer.level_answer(x.cal, torch.tensor([True, False], device=x.device), 60.0), {}),
     "answer.topk_calibration": (
         lambda x: answer.topk_calibration(x.trace.final_frames, x.trace.final_scores, x.height, x.width,
                                           ScoringSettings()), {"tol": False}),  # ties in the top k
@@ -246,6 +248,8 @@ NOT_TENSORS = {
     "segments.line_workers": "a context manager for LSD's threads",
     "segments.strip_threads": "an int: how many threads the strips use",
     "settings.check_settings": "checks settings dataclasses",
+    "shared_camera.not_shared_folders": "the words of a warning",
+    "shared_camera.not_shared_message": "the words of a warning",
     "settings.locate_setting": "finds a setting by name",
     "settings.setting_fields": "lists settings' fields",
 }

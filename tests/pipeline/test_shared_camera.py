@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import torch
 
-from ngp_kornia import calibrate
+from ngp_kornia import NGPWarning, calibrate
 from ngp_kornia.pipeline.segments import detect_segments
 from ngp_kornia.pipeline.settings import SamplingSettings, SharedSettings
 from ngp_kornia.pipeline.shared_camera import focal_grid, focal_support, joint_focal, nearest_rotation
@@ -33,6 +33,37 @@ def test_shared_intrinsics_give_every_photo_one_focal_length_near_the_truth(scen
     assert abs(focals[0] - truth) < max(abs(f - truth) for f in alone)
     row = shared[0].to_dict()
     assert row["shared"] == ["focal"] and row["shared_photos"] == 6 and row["fov_v_std"] > 0
+
+
+def test_a_photo_without_lines_gets_its_own_flagged_answer_and_the_others_theirs(scenes):
+    # a line-free photo once ended the whole call (RuntimeError: amin() of its empty segments)
+    blank = np.full_like(scenes[0].image, 128)
+    results = calibrate([scenes[0].image, blank, scenes[1].image], weights="none", shared_intrinsics=True)
+    assert [bool(r.valid) for r in results] == [True, False, True]
+    assert float(results[1].confidence) == 0.0
+    assert [int(r.shared_photos) for r in results] == [2, 2, 2]  # the two photos with lines
+    assert float(results[0].focal) == pytest.approx(float(results[2].focal), rel=1e-5)
+
+
+def test_fewer_than_two_photos_with_lines_share_nothing_and_say_so(scenes):
+    alone = calibrate(scenes[0].image, weights="none")
+    blank = np.full_like(scenes[0].image, 128)
+    for images in ([scenes[0].image], [scenes[0].image, blank]):
+        with pytest.warns(NGPWarning, match="calibrated alone"):
+            results = calibrate(images, weights="none", shared_intrinsics=True)
+        # the photo keeps its own answer and uncertainty (it once said fov_v_std 0 at confidence 0.99)
+        assert float(results[0].fov_v_std) == pytest.approx(float(alone.fov_v_std)) and float(alone.fov_v_std) > 0
+        assert float(results[0].focal) == pytest.approx(float(alone.focal))
+        assert results[0].shared_photos is None and "shared" not in results[0].to_dict()
+    with pytest.warns(NGPWarning, match="one photo cannot share"):
+        assert calibrate(scenes[0].image, weights="none", shared_intrinsics=True).shared_photos is None
+
+
+def test_focal_support_of_a_photo_without_segments_is_zero():
+    grid = focal_grid(240, 320, SharedSettings(), SamplingSettings())
+    K = torch.tensor([[[300.0, 0.0, 159.5], [0.0, 300.0, 119.5], [0.0, 0.0, 1.0]]])
+    support = focal_support(K, torch.eye(3)[None], torch.zeros(1, 0, 2, 2), torch.zeros(1, 0, dtype=torch.bool), grid)
+    assert support.shape == (1, len(grid)) and not bool(support.any())
 
 
 def test_a_batch_shares_its_focal_length_and_stays_batched(scenes):

@@ -85,7 +85,7 @@ def test_bad_prior_is_a_clear_error(kwargs):
 def test_convention_prior_focal_in_pseudo_camera_units():
     assert Priors().focal_in_units(480, 640) is None
     assert Priors(focal=640.0).focal_in_units(480, 640) == pytest.approx(2.0)
-    assert Priors(focal=640.0, fov_v=10.0).focal_in_units(480, 640) == pytest.approx(2.0)  # focal wins
+    assert Priors(fov_v=2 * math.degrees(math.atan(0.375))).focal_in_units(480, 640) == pytest.approx(2.0)
 
 
 def test_known_focal_builds_frames_from_pairs_that_disagree_with_it():

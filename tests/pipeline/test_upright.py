@@ -50,12 +50,27 @@ def test_turn_is_the_likeliest_reading_with_structure():
     assert out.turned.tolist() == [180]
 
 
-def test_no_structure_makes_the_answer_invalid_with_nothing_known():
-    result = _batched(_answer())
+def test_no_structure_makes_the_answer_a_level_camera_with_nothing_known():
+    lines = calibrate(render_scene(4).image, config=ParserConfig().replace(**{"upright.enabled": False}))
+    result = _batched(lines)
+    assert bool(lines.valid) and abs(float(lines.roll)) > 5 and abs(float(lines.pitch)) > 5
     out = apply_upright(result, torch.tensor([[0.1, 0.05, 0.05, 0.1, 0.7]]))
     assert out.valid.tolist() == [False] and out.confidence.tolist() == [0.0]
     assert out.roll_std.tolist() == [90.0] and out.fov_v_std.tolist() == [180.0]
-    assert torch.equal(out.horizon, result.horizon)  # the lines' answer stays as it was
+    # what an answer without a frame is (the README's "a level camera"), not the lines' rolled guess
+    assert [float(v) for v in (out.pitch, out.roll, out.yaw)] == pytest.approx([0.0, 0.0, 0.0], abs=1e-5)
+    assert float(out.fov_h) == pytest.approx(60.0) and torch.equal(out.K[:, :2, 2], result.K[:, :2, 2])
+    assert torch.allclose(out.R, torch.eye(3)[None]) and torch.allclose(out.up, torch.tensor([[0.0, -1.0, 0.0]]))
+
+
+def test_an_answer_without_evidence_is_a_level_camera_whichever_check_finds_it():
+    # white noise was once answered valid false at pitch -22.8, roll 21.6
+    noise = np.random.default_rng(1).integers(0, 256, (480, 640, 3), dtype=np.uint8)
+    out = calibrate(noise)
+    assert not bool(out.valid) and float(out.confidence) == 0.0
+    assert [float(v) for v in (out.pitch, out.roll, out.yaw)] == pytest.approx([0.0, 0.0, 0.0], abs=1e-5)
+    known = calibrate(noise, focal=500.0)  # a known focal length is kept
+    assert not bool(known.valid) and float(known.focal) == pytest.approx(500.0) and float(known.fov_v_std) == 0.0
 
 
 def test_thumbnail_ignores_the_shape_of_the_image():

@@ -4,7 +4,7 @@ length) are read."""
 from __future__ import annotations
 
 import warnings
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from copy import deepcopy
 from dataclasses import replace
 from functools import lru_cache
@@ -36,6 +36,7 @@ from ngp_kornia.pipeline.shared_camera import (
 from ngp_kornia.threads import Lookahead, pipeline_threads, resolve_num_threads
 
 __all__ = [
+    "DEFAULT_SETTINGS",
     "DEFAULT_WEIGHTS",
     "WEIGHTS",
     "calibrate",
@@ -44,13 +45,18 @@ __all__ = [
     "file_priors",
     "load_parser",
     "shared_focal",
+    "weight_set_config",
     "with_orientation",
 ]
 
 #: weight sets ``calibrate`` accepts by name; paths to weights files (``.pt``) work too.
 WEIGHTS = ("default", "none", "zsnet", "fsnet", "full")
-#: what "default" means: the most accurate path this version ships (see BENCHMARKS.md).
-DEFAULT_WEIGHTS = "fsnet"
+#: what "default" means: the networks of this weight set with :data:`DEFAULT_SETTINGS`, the configuration that beats
+#: the geometric path on the real sets by the paired rule (BENCHMARKS.md, docs/lab-notes/real-scenes.md).
+DEFAULT_WEIGHTS = "full"
+#: the settings "default" changes (a ``config`` mapping changes them further; a whole ParserConfig replaces them):
+#: the line evidence drops the segments it reads as clutter before the candidates are sampled
+DEFAULT_SETTINGS = {"evidence.enabled": True}
 #: the shipped networks each named weight set uses
 _NAMED = {"none": (), "zsnet": ("zsnet",), "fsnet": ("fsnet",), "full": ("zsnet", "fsnet")}
 
@@ -115,13 +121,35 @@ def load_parser(
 
     ``"none"`` is the geometric path: uniform zenith scores and frames ranked by the Manhattan score (Eq. 21).
     ``"zsnet"`` scores the zenith candidates with the shipped ZSNet, ``"fsnet"`` rescores the best frames with the
-    shipped FSNet, ``"full"`` uses both (the paper's parser). ``"default"`` is :data:`DEFAULT_WEIGHTS`. A path (or
+    shipped FSNet, ``"full"`` uses both (the paper's parser). ``"default"`` is :data:`DEFAULT_WEIGHTS` with
+    :data:`DEFAULT_SETTINGS` (a mapping ``config`` changes settings on top of them). A path (or
     a list of paths) loads weights files written by ``ngp-train export``: a ZSNet file, an FSNet file, or one of each.
 
     The networks are the caller's own copies, in eval mode: training them (as a layer of a larger model) or moving
     them does not change what :func:`calibrate` computes.
     """
-    return _parser(check_weights(weights), checked_config(config), copy=True)
+    return _parser(check_weights(weights), weight_set_config(weights, config), copy=True)
+
+
+def weight_set_config(weights: object, config: object) -> ParserConfig:
+    """The settings of a call: ``config`` as :func:`~ngp_kornia.pipeline.parser.checked_config` takes it; for the
+    ``"default"`` weight set with :data:`DEFAULT_SETTINGS` on top, unless a ``config`` mapping names them (a whole
+    :class:`ParserConfig` cannot tell a setting left alone from one chosen: name it in a mapping, or choose
+    ``weights="full"``, to turn one off).
+
+    Example:
+        >>> weight_set_config("default", None).evidence.enabled, weight_set_config("none", None).evidence.enabled
+        (True, False)
+        >>> weight_set_config("default", {"evidence.enabled": False}).evidence.enabled
+        False
+        >>> weight_set_config("default", ParserConfig()).evidence.enabled
+        True
+    """
+    settings = checked_config(config)
+    if not (isinstance(weights, str) and weights == "default"):
+        return settings
+    named = config if isinstance(config, Mapping) else {}
+    return settings.replace(**{key: value for key, value in DEFAULT_SETTINGS.items() if key not in named})
 
 
 def _parser(nets: list[torch.nn.Module], config: ParserConfig | None, copy: bool) -> NeuralGeometricParser:
@@ -188,7 +216,7 @@ def calibrate(
         >>> [c.image_size.tolist() for c in calibrate([torch.rand(3, 64, 64), torch.rand(3, 48, 80)])]
         [[64, 64], [48, 80]]
     """
-    call = _Call(check_weights(weights), checked_config(config), checked_seed(seed),
+    call = _Call(check_weights(weights), weight_set_config(weights, config), checked_seed(seed),
                  Priors(focal, fov_v, gravity, gravity_std, principal_point, k1, focal_35mm), exif)
     return _calibrate_call(image, call, num_threads, shared_intrinsics)
 
@@ -371,7 +399,8 @@ def shared_focal(
         ValueError: photos of different sizes, or none readable.
         TypeError: one path instead of a list of them.
     """
-    call = _Call(check_weights(weights), checked_config(config), checked_seed(seed), priors or Priors(), False)
+    call = _Call(check_weights(weights), weight_set_config(weights, config), checked_seed(seed), priors or Priors(),
+                 False)
     if isinstance(images, (str, Path)) or not isinstance(images, Sequence):
         raise TypeError(f"shared_focal() takes a list of photo paths, got {shown(images)}; for one photo: [path]")
     if not images:

@@ -13,7 +13,14 @@ from typing import TYPE_CHECKING
 from ngp_kornia.cli_camera import add_camera_arguments, camera_arguments, images_after_the_point, load_truth
 from ngp_kornia.cli_colmap import add_colmap_argument, check_colmap, write_colmap
 from ngp_kornia.cli_files import check_output, check_overlays, overlay_path, write_image, write_overlay
-from ngp_kornia.cli_options import add_setting_options, closest_option, config_from_args, short_usage, subcommand
+from ngp_kornia.cli_options import (
+    add_setting_options,
+    closest_option,
+    config_from_args,
+    settings_from_args,
+    short_usage,
+    subcommand,
+)
 from ngp_kornia.cli_output import Table, print_result, warn_if_turned
 from ngp_kornia.cli_render import add_render_command, render_command
 from ngp_kornia.errors import ConfigError, NGPError, NGPWarning
@@ -151,8 +158,14 @@ def _add_prior_arguments(command: argparse.ArgumentParser, same_camera: str | No
 
 
 def _config(args: argparse.Namespace) -> ParserConfig:
-    """The ParserConfig of the command's ``--stage.field`` options (checked in main())."""
+    """The ParserConfig of the command's ``--stage.field`` options (checked in main()), the defaults for the rest."""
     return config_from_args(args)
+
+
+def _settings(args: argparse.Namespace) -> dict:
+    """The command's ``--stage.field`` options as the mapping ``calibrate(config=...)`` takes: the weight set's own
+    settings (those of "default" differ) for the rest."""
+    return settings_from_args(args)
 
 
 def _prior(args: argparse.Namespace, image: str, rgb: np.ndarray) -> dict:
@@ -182,7 +195,7 @@ def _calibrate_loaded(loaded: list, args: argparse.Namespace) -> list:
     from ngp_kornia.api import calibrate
 
     priors = [_prior(args, image, rgb) for image, rgb, _ in loaded]
-    options = {"weights": args.weights, "seed": args.seed, "config": _config(args)}
+    options = {"weights": args.weights, "seed": args.seed, "config": _settings(args)}
     if args.same_camera and loaded:  # every photo of the command in one call (one chunk, see _calibrate)
         return calibrate([rgb for _, rgb, _ in loaded], **options, **priors[0], shared_intrinsics=True)
     if all(p == priors[0] for p in priors[1:]):
@@ -239,7 +252,7 @@ def _calibrate_or_none(image: str, rgb: np.ndarray, args: argparse.Namespace):
     from ngp_kornia.api import calibrate
 
     try:
-        options = {"weights": args.weights, "seed": args.seed, "config": _config(args)}
+        options = {"weights": args.weights, "seed": args.seed, "config": _settings(args)}
         return calibrate(rgb, **options, **_prior(args, image, rgb))
     except _user_errors() as err:
         print(f"ngp: error: {image}: {_one_line(err)}", file=sys.stderr, flush=True)
@@ -271,7 +284,7 @@ def _predict(args: argparse.Namespace) -> int:
             recursive=args.recursive,
             batch_size=args.batch_size,
             seed=args.seed,
-            config=_config(args),
+            config=_settings(args),
             priors=Priors(args.focal, args.fov, focal_35mm=args.focal_35mm, **camera_arguments(args)),
             exif=args.exif,
             same_camera=args.same_camera,
@@ -313,7 +326,7 @@ def _rectify(args: argparse.Namespace) -> int:
         _prior_check(args)
         check_output(path, args.force, [args.image])
         rgb = read_image_file(args.image)
-        result = calibrate(rgb, weights=args.weights, seed=args.seed, config=_config(args),
+        result = calibrate(rgb, weights=args.weights, seed=args.seed, config=_settings(args),
                            **_prior(args, args.image, rgb))
         if not bool(result.valid) and not args.force_invalid:
             print(f"ngp: error: {args.image}: no camera found (valid false, confidence 0: too few lines of man-made "

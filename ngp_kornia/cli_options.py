@@ -25,6 +25,7 @@ __all__ = [
     "closest_option",
     "config_from_args",
     "plain_words",
+    "settings_from_args",
     "short_usage",
     "subcommand",
 ]
@@ -107,17 +108,20 @@ def closest_option(command: argparse.ArgumentParser, word: str) -> str | None:
     return found[0] if found else None
 
 
+def settings_from_args(args: argparse.Namespace) -> dict:
+    """The settings given on the command line, as the mapping ``calibrate(config=...)`` takes (``"stage.field"``
+    -> value): the weight set's settings for the others."""
+    return {key[len(_PREFIX) :]: value for key, value in vars(args).items()
+            if key.startswith(_PREFIX) and value is not None}
+
+
 def config_from_args(args: argparse.Namespace) -> ParserConfig:
     """The :class:`ParserConfig` of the settings given on the command line (the defaults for the others).
 
     Raises:
         ConfigError: a value out of its range; the message names the setting.
     """
-    given = {
-        key[len(_PREFIX) :]: value
-        for key, value in vars(args).items()
-        if key.startswith(_PREFIX) and value is not None
-    }
+    given = settings_from_args(args)
     return ParserConfig().replace(**given) if given else ParserConfig()
 
 

@@ -150,7 +150,9 @@ def weights_and_config(spec: str | None) -> tuple[str | list[str], ParserConfig]
         except ValueError as err:
             raise ValueError(f"{err} (in the weights spec {spec!r})") from None
         values[f"{stage}.{name}"] = _converted(value, getattr(getattr(ParserConfig(), stage), name), key, spec)
-    return weights, ParserConfig().replace(**values)
+    from ngp_kornia.api import weight_set_config
+
+    return weights, weight_set_config(weights, values)
 
 
 def _converted(value: str | bool, default: object, key: str, spec: str | None) -> object:

@@ -348,7 +348,8 @@ class NeuralGeometricParser(nn.Module):
         without ZSNet, or where no candidate passes delta_c, every valid candidate counts equally. (B, Z)."""
         if self.zsnet is None:
             return zenith_ok.to(zenith)
-        scores = torch.sigmoid(self.zsnet(lines_z, lines_z_ok, zenith))
+        dtype = next(self.zsnet.parameters()).dtype  # ZSNet runs in its own dtype (float32 on float64 input, say)
+        scores = torch.sigmoid(self.zsnet(lines_z.to(dtype), lines_z_ok, zenith.to(dtype))).to(zenith.dtype)
         return zenith_weights_from_scores(scores, zenith_ok, self.config.sampling.zenith_threshold)
 
     def calibrate_from_frames(

@@ -100,9 +100,9 @@ class EvidenceSettings:
 
     Attributes:
         enabled: drop the segments the learned line evidence says lie on no man-made structure (where the parser has
-            the network: every weight set of :func:`ngp_kornia.calibrate` has it). Opt-in: on the development
-            photos it gains on York Urban and loses on the Eurasian Cities photos, within the seed noise pooled
-            (BENCHMARKS.md).
+            the network: every weight set of :func:`ngp_kornia.calibrate` has it). Off here, on in the ``"default"``
+            weight set (:data:`ngp_kornia.api.DEFAULT_SETTINGS`): with ZSNet and FSNet it beats the geometric path
+            on the real sets, most on real indoor scenes (BENCHMARKS.md).
         keep: the least structure weight of a segment kept (the network's weights are set so that 0.1 keeps 97% of
             the structural segments of renders).
         weigh: the kept segments' structure weights also multiply their lengths in the candidates' sampling, the

@@ -15,7 +15,7 @@ import torch
 
 from ngp_kornia import calibrate
 from ngp_kornia.io import ImageError
-from ngp_kornia.pipeline import NeuralGeometricParser
+from ngp_kornia.pipeline.frame_search import FrameSearch
 from ngp_kornia.threads import ENV_VAR, pipeline_threads, resolve_num_threads
 from ngp_kornia.training.synth.render import render_scene
 
@@ -100,13 +100,13 @@ def test_a_call_changes_no_other_threads_count(caller_threads):
 def test_calibrate_keeps_the_callers_thread_count(caller_threads, monkeypatch):
     monkeypatch.delenv(ENV_VAR, raising=False)
     seen = []
-    original = NeuralGeometricParser.score_frames
+    original = FrameSearch.candidates
 
     def spy(self, *args, **kwargs):
         seen.append(torch.get_num_threads())
         return original(self, *args, **kwargs)
 
-    monkeypatch.setattr(NeuralGeometricParser, "score_frames", spy)
+    monkeypatch.setattr(FrameSearch, "candidates", spy)
     image = render_scene(1, size=(160, 120)).image
     calibrate(image)
     assert seen == [1] and torch.get_num_threads() == caller_threads
@@ -121,7 +121,7 @@ def test_calibrate_restores_after_an_exception_inside(caller_threads, monkeypatc
         assert torch.get_num_threads() == 1
         raise RuntimeError("failed inside the parser")
 
-    monkeypatch.setattr(NeuralGeometricParser, "score_frames", fail)
+    monkeypatch.setattr(FrameSearch, "candidates", fail)
     with pytest.raises(RuntimeError, match="inside the parser"):
         calibrate(render_scene(1, size=(160, 120)).image)
     assert torch.get_num_threads() == caller_threads and cv2.getNumThreads() == caller_threads

@@ -19,7 +19,6 @@ With neither a principal point nor a distortion asked for, the stages run once o
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import replace
 
 import torch
@@ -29,15 +28,12 @@ from torch import Tensor
 
 from ngp_kornia.geometry import distort_points, image_center, pseudo_intrinsics, undistort_points
 from ngp_kornia.pipeline.distortion import estimate_distortion, k1_from_units, units_from_k1
+from ngp_kornia.pipeline.frame_search import FrameSearch, Search, View
 from ngp_kornia.pipeline.principal_point import estimate_principal_point
 from ngp_kornia.pipeline.priors import ESTIMATE, Priors
 from ngp_kornia.pipeline.result import Calibration
-from ngp_kornia.pipeline.settings import ParserConfig
 
-__all__ = ["Stages", "calibrate_camera_model", "moved_calibration"]
-
-#: the stages as a function of (images, segments, mask, priors, principal-point std as a fraction of the height)
-Stages = Callable[[Tensor, Tensor, Tensor, Priors, float], Calibration]
+__all__ = ["calibrate_camera_model", "moved_calibration"]
 
 
 def moved_calibration(cal: Calibration, offset: Tensor) -> Calibration:
@@ -80,50 +76,56 @@ def _moved_images(images: Tensor, point: Tensor, lam: Tensor | None) -> Tensor:
     return remap(images, source[..., 0], source[..., 1], align_corners=True)
 
 
-def _run_at(stages: Stages, images, segments, mask, priors, point, lam, pp_std: float, pixels: bool) -> Calibration:
-    """The stages on the photo brought to a centred pinhole (module docstring), their answer moved back."""
-    height, width = images.shape[-2:]
-    centre = image_center(height, width, like=segments).expand(len(segments), 2)
+def _search_at(
+    search: FrameSearch, view: View, priors: Priors, point: Tensor, lam: Tensor | None, std: float
+) -> Search:
+    """The frame search on the photo brought to a centred pinhole (module docstring), its answer moved back;
+    ``std``, the uncertainty of the principal point as a fraction of the height."""
+    height, width = view.images.shape[-2:]
+    centre = image_center(height, width, like=view.segments).expand(len(view.segments), 2)
     if lam is None and bool((point.to(centre) == centre).all()):
-        return stages(images, segments, mask, priors, pp_std)
-    moved = _moved_segments(segments, point, lam, height, width)
-    if pixels:
-        images = _moved_images(images, point, lam)
-    return moved_calibration(stages(images, moved, mask, priors, pp_std), point.to(centre) - centre)
+        return search(view, priors, std)
+    moved = _moved_segments(view.segments, point, lam, height, width)
+    images = _moved_images(view.images, point, lam) if search.reads_pixels else view.images
+    found = search(view._replace(images=images, segments=moved), priors, std)
+    return found._replace(result=moved_calibration(found.result, point.to(centre) - centre))
 
 
-def calibrate_camera_model(
-    stages: Stages, images: Tensor, segments: Tensor, mask: Tensor, priors: Priors, config: ParserConfig, pixels: bool
-) -> Calibration:
-    """The stages with the principal point and distortion of ``priors`` (module docstring).
+def calibrate_camera_model(search: FrameSearch, view: View, priors: Priors) -> Search:
+    """The frame search with the principal point and distortion of ``priors`` (module docstring): the distortion
+    first (estimated, or the given ``k1`` in the search's units), then the principal point (estimated on a first
+    search's frame, or given), then the search on the photo brought to a centred pinhole, its answer moved back.
 
     Args:
-        stages: the parser's stages for a centred, distortion-free camera.
-        images: (B, 3, H, W); segments: (B, N, 2, 2) pixels; mask: (B, N) bool.
+        search: the stages for a centred, distortion-free camera (their settings: ``trust.principal_point_std``,
+            the prior of an estimate; ``distortion``).
+        view: the images (B, 3, H, W), segments (B, N, 2, 2) in pixels, mask (B, N) and line-evidence weights.
         priors: what is known of the camera; ``principal_point`` and ``k1`` are handled here.
-        config: the settings (``trust.principal_point_std``, the prior of an estimate; ``distortion``).
-        pixels: the stages read the pixels (FSNet), so they are warped too.
 
     Returns:
-        the calibration, with ``principal_point_std`` where a principal point was given (0) or estimated, and
-        ``k1`` where a distortion was given or estimated.
+        the last search (:class:`~ngp_kornia.pipeline.frame_search.Search`), its calibration with
+        ``principal_point_std`` where a principal point was given (0) or estimated, and ``k1`` where a distortion
+        was given or estimated.
     """
-    height, width = images.shape[-2:]
-    B = len(segments)
-    centre = image_center(height, width, like=segments.double()).expand(B, 2)
+    config = search.config
+    height, width = view.images.shape[-2:]
+    B = len(view.segments)
+    centre = image_center(height, width, like=view.segments.double()).expand(B, 2)
     given = isinstance(priors.principal_point, tuple)
-    point = segments.new_tensor(priors.principal_point, dtype=torch.float64).expand(B, 2) if given else centre
-    trust_std = 0.0 if given else config.trust.principal_point_std
-    lam = _distortion(stages, images, segments, mask, priors, config, point, pixels)
+    point = view.segments.new_tensor(priors.principal_point, dtype=torch.float64).expand(B, 2) if given else centre
+    std = 0.0 if given else config.trust.principal_point_std
+    lam = _distortion(search, view, priors, point)
     if priors.principal_point == ESTIMATE:
-        frame = _run_at(stages, images, segments, mask, priors, centre, lam, trust_std, pixels)
-        undistorted = _moved_segments(segments, centre, lam, height, width)  # about the centre: not moved
-        found = estimate_principal_point(frame.K, frame.R, undistorted, mask, config.trust.principal_point_std * height)
-        point, std = found.point.double(), found.std
-        trust_std = float(std.mean()) / height
-    result = _run_at(stages, images, segments, mask, priors, point, lam, trust_std, pixels)
+        frame = _search_at(search, view, priors, centre, lam, std).result
+        undistorted = _moved_segments(view.segments, centre, lam, height, width)  # about the centre: not moved
+        prior = config.trust.principal_point_std * height
+        found = estimate_principal_point(frame.K, frame.R, undistorted, view.mask, prior)
+        point, point_std = found.point.double(), found.std
+        std = float(point_std.mean()) / height
+    last = _search_at(search, view, priors, point, lam, std)
+    result = last.result
     if priors.principal_point == ESTIMATE:
-        result = replace(result, principal_point_std=std.to(result.K))
+        result = replace(result, principal_point_std=point_std.to(result.K))
     elif given:
         result = replace(result, principal_point_std=torch.zeros_like(result.K[:, :2, 2]))
     if priors.k1 == ESTIMATE:
@@ -131,26 +133,27 @@ def calibrate_camera_model(
         result = replace(result, camera=result.camera.replace(k1=k1))
     elif priors.k1 is not None:  # given: reported as given (undistorted at the first run's focal length)
         result = replace(result, camera=result.camera.replace(k1=torch.full_like(result.focal, priors.k1)))
-    return result
+    return last._replace(result=result)
 
 
-def _distortion(stages, images, segments, mask, priors, config, point, pixels) -> Tensor | None:
+def _distortion(search: FrameSearch, view: View, priors: Priors, point: Tensor) -> Tensor | None:
     """The distortion ``lam`` (B,) in pseudo units: estimated, or the given ``k1`` at the known focal length (else
-    at the focal length of a first, distortion-free run); None without one."""
-    height, width = images.shape[-2:]
+    at the focal length of a first, distortion-free search); None without one."""
+    height, width = view.images.shape[-2:]
     if priors.k1 is None:
         return None
     if priors.k1 == ESTIMATE:
-        lam = estimate_distortion(segments, mask, point, height, width, config.distortion).double()
+        config = search.config
+        lam = estimate_distortion(view.segments, view.mask, point, height, width, config.distortion).double()
         if not bool((lam != 0).any()):
             return lam
         # the lines say which camera they fit: the undistorted photo is kept where its answer is the more confident
-        trust_std = config.trust.principal_point_std
-        bent = _run_at(stages, images, segments, mask, priors, point, lam, trust_std, pixels).confidence
-        straight = _run_at(stages, images, segments, mask, priors, point, None, trust_std, pixels).confidence
+        std = config.trust.principal_point_std
+        bent = _search_at(search, view, priors, point, lam, std).result.confidence
+        straight = _search_at(search, view, priors, point, None, std).result.confidence
         return torch.where(bent > straight, lam, torch.zeros_like(lam))
     focal = priors.focal_pixels(height, width)
     if focal is None:
-        focal = _run_at(stages, images, segments, mask, priors, point, None, 0.0, pixels).focal
-    focal = torch.as_tensor(focal, dtype=torch.float64, device=segments.device).expand(len(segments))
+        focal = _search_at(search, view, priors, point, None, 0.0).result.focal
+    focal = torch.as_tensor(focal, dtype=torch.float64, device=view.segments.device).expand(len(view.segments))
     return units_from_k1(torch.full_like(focal, priors.k1), focal.double(), height, width)

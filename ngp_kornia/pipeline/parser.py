@@ -1,11 +1,10 @@
 """The Neural Geometric Parser as an ``nn.Module``: it runs the pipeline's stages in order.
 
 segments (:mod:`~ngp_kornia.pipeline.segments`) -> line evidence (:mod:`~ngp_kornia.pipeline.evidence`, where
-the parser has its network) -> zenith, horizontal-VP and frame candidates
-(:mod:`~ngp_kornia.pipeline.candidates`, scored by ZSNet where given) -> Manhattan scores, rescored by FSNet where
-given (Eq. 22) -> the top-k answer (:mod:`~ngp_kornia.pipeline.answer`) -> optional polish
-(:mod:`~ngp_kornia.pipeline.polish`) -> horizon search and choice (:mod:`~ngp_kornia.pipeline.horizon`) -> trust
-fields (:mod:`~ngp_kornia.pipeline.trust`).
+the parser has its network) -> the camera model (:mod:`~ngp_kornia.pipeline.camera_model`: a principal point or a
+distortion, given or estimated) around the frame search (:mod:`~ngp_kornia.pipeline.frame_search`: zenith,
+horizontal-VP and frame candidates scored by ZSNet and FSNet where given, the top-k answer, polish, horizon search
+and trust fields) -> the orientation check (:mod:`~ngp_kornia.pipeline.upright_check`).
 
 Without networks this is the paper's geometric baseline: zenith candidates count uniformly (instead of ZSNet's
 scores) and frames are ranked by the Manhattan score ``m_i`` of Eq. 21 alone (instead of ``s_vh * m_i``). With
@@ -15,47 +14,24 @@ FSNet, gradients flow from the outputs to FSNet's parameters and to the image's 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import replace
-from functools import partial
 
 import torch
 from torch import Tensor, nn
 
 from ngp_kornia.errors import ConfigError, InputError, shown
-from ngp_kornia.geometry import (
-    FrameCandidates,
-    frame_manhattan_scores,
-    segment_lengths,
-    segments_to_lines,
-    select_frames,
-    to_pseudo_camera,
-    top_frames,
-)
-from ngp_kornia.nets.fsnet_inputs import FSNetImageInputs, frame_scores
-from ngp_kornia.nets.zsnet import zenith_estimate, zenith_weights_from_scores
-from ngp_kornia.pipeline.answer import calibration_from_camera, topk_calibration
+from ngp_kornia.geometry import FrameCandidates
 from ngp_kornia.pipeline.camera_model import calibrate_camera_model
-from ngp_kornia.pipeline.candidates import (
-    Generators,
-    horizontal_line_mask,
-    sample_candidate_frames,
-    sample_horizontal_vps,
-    sample_zenith_candidates,
-    split_by_pseudo_horizon,
-)
+from ngp_kornia.pipeline.candidates import Generators
 from ngp_kornia.pipeline.evidence import apply_evidence
-from ngp_kornia.pipeline.gravity import allowed_ups, gravity_frame_scores, gravity_zenith_weights
-from ngp_kornia.pipeline.horizon import choose_horizon, search_horizon
-from ngp_kornia.pipeline.polish import polish_frame
+from ngp_kornia.pipeline.frame_search import FrameSearch, Search, View, pseudo_lines
 from ngp_kornia.pipeline.priors import Priors, checked_seed
 from ngp_kornia.pipeline.result import Calibration
 from ngp_kornia.pipeline.segments import detect_segments
 from ngp_kornia.pipeline.settings import ParserConfig
 from ngp_kornia.pipeline.trace import ParserTrace
-from ngp_kornia.pipeline.trust import SharedInputs, attach_trust
 from ngp_kornia.pipeline.upright_check import apply_upright, read_beside, weigh_by_pitch
 
-__all__ = ["NeuralGeometricParser", "ParserConfig", "checked_config", "checked_segments", "pseudo_lines"]
+__all__ = ["NeuralGeometricParser", "ParserConfig", "checked_config", "checked_segments"]
 
 
 def checked_config(config: object) -> ParserConfig:
@@ -171,25 +147,21 @@ class NeuralGeometricParser(nn.Module):
         reading = None
         if self.upright is not None and self.config.upright.enabled:  # read on a second core meanwhile
             reading = read_beside(self.upright, images, self.config.upright.prior)
-        segments, mask = self._segments(images, segments, mask)
-        stages = {"segments": segments, "detected": mask} if return_trace else None
-        weights = None
+        segments, detected = self._segments(images, segments, mask)
+        evidence, mask = None, detected
         if self.evidence is not None and self.config.evidence.enabled:
-            weights, mask = apply_evidence(self.evidence, images, segments, mask, self.config.evidence.keep)
-            if stages is not None:
-                stages["evidence"] = weights
-            weights = weights if self.config.evidence.weigh else None
-        if stages is not None:
-            stages["mask"] = mask
-
-        def run(images_, segments_, mask_, priors_, principal_point_std):  # a centred, distortion-free camera
-            return self._calibrate(images_, segments_, mask_, seed, priors_, stages, principal_point_std, weights)
-
-        # the principal point and the distortion, given or estimated, around the stages (camera_model.py)
-        result = calibrate_camera_model(run, images, segments, mask, priors, self.config, self.fsnet is not None)
+            evidence, mask = apply_evidence(self.evidence, images, segments, detected, self.config.evidence.keep)
+        view = View(images, segments, mask, evidence if self.config.evidence.weigh else None)
+        # the principal point and the distortion, given or estimated, around the frame search (camera_model.py)
+        found = calibrate_camera_model(self._search(seed), view, priors)
+        result = found.result
         if reading is not None:
             result = self._check_upright(result, reading())
-        return (result, ParserTrace(**stages)) if return_trace else result
+        return (result, _trace(found, view, detected, evidence)) if return_trace else result
+
+    def _search(self, seed: int = 0) -> FrameSearch:
+        """The stages after the line evidence, with this parser's settings and networks (frame_search.py)."""
+        return FrameSearch(self.config, self.zsnet, self.fsnet, seed)
 
     def _check_upright(self, result: Calibration, probs: Tensor) -> Calibration:
         """The orientation and structure check's reading applied to the answer (pipeline/upright_check.py)."""
@@ -209,69 +181,6 @@ class NeuralGeometricParser(nn.Module):
             segments, mask = segments.new_zeros(len(images), 1, 2, 2), mask.new_zeros(len(images), 1)
         return segments, mask
 
-    def _calibrate(
-        self,
-        images: Tensor,
-        segments: Tensor,
-        mask: Tensor,
-        seed: int,
-        priors: Priors,
-        stages: dict | None,
-        principal_point_std: float | None = None,
-        weights: Tensor | None = None,
-    ) -> Calibration:
-        """The stages after the line evidence; ``weights`` (B, N), when given, multiply the segments' lengths."""
-        cfg = self.config
-        trust = cfg.trust
-        if principal_point_std is not None and principal_point_std != trust.principal_point_std:
-            trust = replace(trust, principal_point_std=principal_point_std)
-        height, width = images.shape[-2:]
-        # one generator per image, each seeded alike: an image's answer does not depend on its batch or position
-        generators = [torch.Generator().manual_seed(seed) for _ in range(len(images))]
-        # the segments' lines and lengths serve the scores, FSNet's inputs and the trust fields: computed once
-        pseudo = pseudo_lines(segments, mask, height, width)
-        if weights is not None:
-            pseudo = (pseudo[0], pseudo[1], pseudo[2] * weights)
-        frames, scores = self.score_frames(segments, mask, height, width, generators, stages, pseudo, priors)
-        if self.fsnet is not None:
-            frames, scores = self.rescore_frames(images, segments, mask, frames, scores, stages, pseudo[1])
-        known = priors.focal_in_units(height, width)
-        result, top_k_weights = topk_calibration(frames, scores, height, width, cfg.scoring, known)
-        if stages is not None:
-            best = scores.argmax(-1)
-            stages.update(final_frames=frames, final_scores=scores, top_k_weights=top_k_weights, best=best)
-        search_vps = result.vps  # the frame search's VPs: the residual of their lines is a trust input
-        if cfg.polish.enabled:
-            result = self._polished(result, segments, mask, priors.known_focal, height, width)
-        # the horizon search serves the refinement and the confidence (how well the lines support a rival horizon);
-        # with a known focal length only the horizon moves, never the focal length
-        keep = None if priors.gravity is None else partial(allowed_ups, priors=priors)  # within a gravity prior
-        found = search_horizon(result, segments, mask, cfg.horizon, priors.known_focal, keep, weights)
-        if cfg.horizon.refine:
-            result = choose_horizon(result, found, cfg.horizon.margin)
-        result = attach_trust(
-            result, frames, scores, segments, mask, cfg.scoring, trust, priors.known_focal,
-            shared=SharedInputs(*pseudo[1:], top_k_weights), refinement=found, residual_vps=search_vps,
-        )  # fmt: skip
-        if priors.gravity is None:
-            return result
-        given = result.focal.new_tensor([*priors.gravity, priors.gravity_std]).expand(len(result.focal), 3)
-        return replace(result, gravity=given)
-
-    def _polished(
-        self, result: Calibration, segments: Tensor, mask: Tensor, known_focal: bool, height: int, width: int
-    ) -> Calibration:
-        """The frame refitted on its inlier segments (:func:`~ngp_kornia.pipeline.polish.polish_frame`; with a known
-        focal length only the rotation), where that raises its line support."""
-        scales = (1.0,) if known_focal else self.config.polish.scales
-        K, R, use = polish_frame(result.K, result.R, segments, mask, scales)
-        use = use & result.valid
-        if not bool(use.any()):
-            return result
-        # the other images keep their K and R, from which the same fields are rebuilt
-        K, R = torch.where(use[:, None, None], K, result.K), torch.where(use[:, None, None], R, result.R)
-        return calibration_from_camera(K, R, result.score, result.valid, height, width)
-
     def score_frames(
         self,
         segments: Tensor,
@@ -279,92 +188,32 @@ class NeuralGeometricParser(nn.Module):
         height: int,
         width: int,
         generator: Generators,
-        stages: dict | None = None,
-        pseudo: tuple[Tensor, Tensor, Tensor] | None = None,
         priors: Priors | None = None,
     ) -> tuple[FrameCandidates, Tensor]:
-        """Sample frame candidates (pseudo camera) and score each one: (B, F) scores, zero for invalid frames.
-        ``stages``, a dict, receives the intermediate tensors (the fields of :class:`ParserTrace`); ``pseudo``,
-        the segments' :func:`pseudo_lines` when already computed; ``priors``, a known focal length."""
-        cfg = self.config.sampling
-        seg, lines, lengths = pseudo_lines(segments, mask, height, width) if pseudo is None else pseudo
-        lines_z, lines_z_ok, zenith, zenith_ok = sample_zenith_candidates(
-            lines, lengths, mask, cfg.num_zenith_lines, cfg.num_zenith, cfg.vertical_threshold, generator
-        )
-        weights = gravity_zenith_weights(self.zenith_weights(lines_z, lines_z_ok, zenith, zenith_ok), zenith, priors)
-        z_est = zenith_estimate(zenith, weights)
-        horizontal = horizontal_line_mask(seg, mask, z_est, cfg.vertical_tol, cfg.junction_radius)
-        right = split_by_pseudo_horizon(lines, z_est)
-        h_vps, h_ok = sample_horizontal_vps(lines, lengths, horizontal, right, cfg.num_horizontal, generator)
-        known = None if priors is None else priors.focal_in_units(height, width)
-        frames = sample_candidate_frames(
-            zenith, weights, h_vps, h_ok, cfg.num_frames, cfg.num_horizontal_frames, cfg.focal_range, generator, known
-        )
-        # zero for the invalid frames, which it does not score
-        kernel = self.config.scoring.kernel_angle
-        scores = gravity_frame_scores(frame_manhattan_scores(lines, frames.vps, lengths, mask, kernel, frames.valid),
-                                      frames.R, priors)  # a gravity prior's agreement (gravity.py)
-        if stages is not None:
-            stages.update(lines=lines, zenith_lines=lines_z, zenith_lines_ok=lines_z_ok, zenith_candidates=zenith)
-            stages.update(zenith_ok=zenith_ok, zenith_weights=weights, zenith_estimate=z_est, horizontal=horizontal)
-            stages.update(right=right, horizontal_vps=h_vps, horizontal_ok=h_ok, frames=frames, manhattan=scores)
-        return frames, scores
+        """Sample frame candidates (pseudo camera) and score each one: the frames and their (B, F) Manhattan scores,
+        zero for invalid frames (:meth:`~ngp_kornia.pipeline.frame_search.FrameSearch.candidates`, which returns
+        every intermediate stage); ``priors``, a known focal length and a gravity prior."""
+        pseudo = pseudo_lines(segments, mask, height, width)
+        found = self._search().candidates(pseudo, mask, (height, width), generator, priors)
+        return found.frames, found.manhattan
 
     def rescore_frames(
-        self,
-        images: Tensor,
-        segments: Tensor,
-        mask: Tensor,
-        frames: FrameCandidates,
-        manhattan: Tensor,
-        stages: dict | None = None,
-        lines: Tensor | None = None,
+        self, images: Tensor, segments: Tensor, mask: Tensor, frames: FrameCandidates, manhattan: Tensor
     ) -> tuple[FrameCandidates, Tensor]:
         """Keep the best ``num_scored`` frames by Manhattan score and score them with FSNet: ``s_vh * m_i`` (Eq. 22),
-        or ``s_vh`` alone without ``use_manhattan``. Returns the kept frames and their (B, K) scores. ``lines``: the
-        segments' pseudo-camera lines when already computed."""
-        cfg = self.config.scoring
-        index = top_frames(frames, manhattan, cfg.num_scored)
-        frames, manhattan = select_frames(frames, index), manhattan.gather(1, index)
-        # FSNet runs in its own dtype (float32 weights on a float64 image, say): lines in another dtype are redone
-        dtype = next(self.fsnet.parameters()).dtype
-        lines = lines if lines is not None and lines.dtype == dtype else None
-        image_inputs, context = self.fsnet_image_side(images, segments, mask)
-        inputs = self.fsnet.prepare_inputs(images.to(dtype), segments.to(dtype), mask, frames, lines, image_inputs)
-        s_vh = torch.sigmoid(self.fsnet(*inputs, context=context)).to(manhattan)
-        if stages is not None:
-            stages.update(scored_index=index, fsnet_scores=s_vh)
-        return frames, frame_scores(s_vh, manhattan, frames.valid, cfg.use_manhattan)
-
-    def fsnet_image_side(self, images: Tensor, segments: Tensor, mask: Tensor) -> tuple[FSNetImageInputs, tuple | None]:
-        """FSNet's inputs that need no frame candidate (:meth:`FSNet.prepare_image_inputs`) and its shared trunk's
-        output on them (:meth:`FSNet.image_context`), in FSNet's dtype."""
-        dtype = next(self.fsnet.parameters()).dtype
-        image_inputs = self.fsnet.prepare_image_inputs(images.to(dtype), segments.to(dtype), mask)
-        return image_inputs, self.fsnet.image_context(image_inputs)
-
-    def zenith_weights(self, lines_z: Tensor, lines_z_ok: Tensor, zenith: Tensor, zenith_ok: Tensor) -> Tensor:
-        """Weights of the zenith candidates: the ZSNet score p_z on Z_c (p_z > delta_c, Eq. 12) and zero elsewhere;
-        without ZSNet, or where no candidate passes delta_c, every valid candidate counts equally. (B, Z)."""
-        if self.zsnet is None:
-            return zenith_ok.to(zenith)
-        dtype = next(self.zsnet.parameters()).dtype  # ZSNet runs in its own dtype (float32 on float64 input, say)
-        scores = torch.sigmoid(self.zsnet(lines_z.to(dtype), lines_z_ok, zenith.to(dtype))).to(zenith.dtype)
-        return zenith_weights_from_scores(scores, zenith_ok, self.config.sampling.zenith_threshold)
-
-    def calibrate_from_frames(
-        self, frames: FrameCandidates, scores: Tensor, height: int, width: int, priors: Priors | None = None
-    ) -> Calibration:
-        """Top-k average (Eq. 23) of focal and zenith, yaw from the best frame, everything mapped to pixels."""
-        known = None if priors is None else priors.focal_in_units(height, width)
-        return topk_calibration(frames, scores, height, width, self.config.scoring, known)[0]
+        or ``s_vh`` alone without ``use_manhattan``. Returns the kept frames and their (B, K) scores
+        (:meth:`~ngp_kornia.pipeline.frame_search.FrameSearch.rescore`)."""
+        return self._search().rescore(images, segments, mask, frames, manhattan)[:2]
 
 
-def pseudo_lines(segments: Tensor, mask: Tensor, height: int, width: int) -> tuple[Tensor, Tensor, Tensor]:
-    """(B, N, 2, 2) pixel segments -> the pseudo camera's segments, their (B, N, 3) lines and (B, N) pixel lengths
-    (zero where the mask is False)."""
-    seg = to_pseudo_camera(segments, height, width)
-    return seg, segments_to_lines(seg), segment_lengths(segments, mask)
+def _trace(found: Search, view: View, detected: Tensor, evidence: Tensor | None) -> ParserTrace:
+    """The trace of a forward call: the view's segments and mask, and what its last frame search returned."""
+    return ParserTrace(
+        segments=view.segments, mask=view.mask, detected=detected, evidence=evidence,
+        **found.candidates._asdict(), final_frames=found.final_frames, final_scores=found.final_scores,
+        top_k_weights=found.top_k_weights, best=found.final_scores.argmax(-1), scored_index=found.scored_index,
+        fsnet_scores=found.fsnet_scores,
+    )  # fmt: skip
 
 
 def checked_segments(segments: Tensor, mask: Tensor | None, batch: int) -> tuple[Tensor, Tensor]:

@@ -22,6 +22,7 @@ from ngp_kornia.pipeline import (
     constants,
     distortion,
     evidence,
+    frame_search,
     gravity,
     horizon,
     horizon_support,
@@ -62,6 +63,20 @@ def _shared_focal(x):
     return shared_camera.joint_focal(support, focals, x.cal.valid, bootstrap=20)
 
 
+class _FixedSearch(frame_search.FrameSearch):
+    """A frame search that answers the scenes' calibration whatever it is given: the camera model's own arithmetic
+    (moving the segments and the answer) on every dtype."""
+
+    def __init__(self, x):
+        super().__init__(pipeline_room.ParserConfig())
+        self.x = x
+
+    def __call__(self, view, priors, centre_std=None):
+        x = self.x
+        cal = answer.calibration_from_camera(x.cal.K, x.cal.R, x.cal.score, x.cal.valid, x.height, x.width)
+        return frame_search.Search(cal, None, None, None, None)
+
+
 def _frames_r(x):
     return x.trace.frames.R
 
@@ -92,10 +107,8 @@ CASES = {
             x.cal.K[0], torch.tensor(-0.1).to(x.cal.K), x.cal.image_size[0]).values()])), {"float_dtype": F64}),
     "camera_model.calibrate_camera_model": (
         lambda x: camera_model.calibrate_camera_model(
-            lambda images, segments, mask, priors, std: answer.calibration_from_camera(
-                x.cal.K, x.cal.R, x.cal.score, x.cal.valid, x.height, x.width),
-            x.images, x.segments, x.mask, Priors(principal_point=(150.0, 110.0), k1=-0.05, focal=300.0),
-            pipeline_room.ParserConfig(), False), {}),
+            _FixedSearch(x), frame_search.View(x.images, x.segments, x.mask),
+            Priors(principal_point=(150.0, 110.0), k1=-0.05, focal=300.0)).result, {}),
     "camera_model.moved_calibration": (
         lambda x: camera_model.moved_calibration(x.cal, 0.01 * x.cal.principal_point), {}),
     "candidates.sample_horizontal_pair_frames": (
@@ -179,7 +192,7 @@ CASES = {
     "line_kernel.squared_sines": (lambda x: line_kernel.squared_sines(x.cam, x.cal.R.transpose(1, 2)), {}),
     "line_kernel.total_length": (lambda x: line_kernel.total_length(x.lengths), {}),
     "parser.checked_segments": (lambda x: parser.checked_segments(x.segments, x.mask, 2), {}),
-    "parser.pseudo_lines": (lambda x: parser.pseudo_lines(x.segments, x.mask, x.height, x.width), {}),
+    "frame_search.pseudo_lines": (lambda x: frame_search.pseudo_lines(x.segments, x.mask, x.height, x.width), {}),
     "polish.polish_frame": (lambda x: polish.polish_frame(x.cal.K, x.cal.R, x.segments, x.mask), {"tol": False}),
     "polish.refit_rotation": (
         lambda x: polish.refit_rotation(x.cam, x.lengths, x.mask, x.cal.R, 1.5, 2), {"tol": 1e-2}),
@@ -246,6 +259,7 @@ NOT_TENSORS = {
     "priors.checked_seed": "checks an int seed",
     "segments.detect_segments_gray": "OpenCV's LSD on a uint8 numpy image; detect_segments is its tensor form",
     "segments.line_workers": "a context manager for LSD's threads",
+    "segments.longest_segments": "selects rows of a numpy array of segments; detect_segments is its tensor form",
     "segments.strip_threads": "an int: how many threads the strips use",
     "settings.check_settings": "checks settings dataclasses",
     "shared_camera.not_shared_folders": "the words of a warning",
@@ -330,7 +344,7 @@ def test_gradients_reach_the_frames_through_the_top_k_average():
 
 
 @pytest.mark.parametrize("name", ["camera_model.moved_calibration", "line_kernel.camera_points",
-                                  "trust_features.line_residual", "parser.pseudo_lines", "polish.polish_frame",
+                                  "trust_features.line_residual", "frame_search.pseudo_lines", "polish.polish_frame",
                                   "horizon.search_horizon", "principal_point.orthocentre"])  # fmt: skip
 def test_batch_equals_alone(name):
     x = inputs("cpu", F64)

@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-import ngp_kornia.pipeline.parser as parser_module
+import ngp_kornia.pipeline.frame_search as search_module
 from ngp_kornia import calibrate
 from ngp_kornia.evaluation import LabelledImage as Sample
 from ngp_kornia.evaluation import load_renders as load_rendered
@@ -156,7 +156,7 @@ def collect(samples: list[Sample], spec: str | None, seed: int, prior: str) -> l
     weights, config = weights_and_config(spec)
     captured: list[TrustFeatures] = []
     lines_confidence: list[torch.Tensor] = []  # before the orientation check
-    attach = parser_module.attach_trust
+    attach = search_module.attach_trust
 
     def recording(result, frames, scores, segments, mask, *args, **kwargs):
         with torch.no_grad():
@@ -168,7 +168,7 @@ def collect(samples: list[Sample], spec: str | None, seed: int, prior: str) -> l
         lines_confidence.append(out.confidence)
         return out
 
-    parser_module.attach_trust = recording
+    search_module.attach_trust = recording
     records = []
     try:
         for i, s in enumerate(samples):
@@ -179,12 +179,12 @@ def collect(samples: list[Sample], spec: str | None, seed: int, prior: str) -> l
                 given = {"focal": float(s.K[0, 0])}
             elif prior == "exif":
                 given = {"exif": True}
-            cal = calibrate(str(s.image_path), weights=weights, seed=seed, config=config, **given)
+            cal = calibrate(str(s.image_path), weights=weights, seed=seed, config=config, priors=given)
             feats = {k: float(v[0]) for k, v in captured.pop().as_dict().items()}
             records.append(_record(s, cal, feats, float(lines_confidence.pop().reshape(-1)[0])))
             print(f"\r{i + 1}/{len(samples)} {s.name}", end="", file=sys.stderr, flush=True)
     finally:
-        parser_module.attach_trust = attach
+        search_module.attach_trust = attach
     print(file=sys.stderr)
     return records
 

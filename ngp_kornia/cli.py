@@ -169,7 +169,7 @@ def _settings(args: argparse.Namespace) -> dict:
 
 
 def _prior(args: argparse.Namespace, image: str, rgb: np.ndarray) -> dict:
-    """calibrate()'s prior arguments for one file: --focal, --fov, else the EXIF focal length with --exif."""
+    """calibrate()'s priors for one file: --focal, --fov, else the EXIF focal length with --exif."""
     from ngp_kornia.api import file_priors
     from ngp_kornia.pipeline.priors import Priors
 
@@ -190,17 +190,19 @@ _CHUNK = 8
 
 
 def _calibrate_loaded(loaded: list, args: argparse.Namespace) -> list:
-    """calibrate() on the (image, rgb, orientation) items read: one call on the list when every item has the same
-    prior (always, unless --exif finds different focal lengths), else one call per item."""
+    """calibrate() on the (image, rgb, orientation) items read, in one call on the list: each file with its own
+    priors where they differ (--exif finds different focal lengths)."""
     from ngp_kornia.api import calibrate
 
+    if not loaded:
+        return []
     priors = [_prior(args, image, rgb) for image, rgb, _ in loaded]
     options = {"weights": args.weights, "seed": args.seed, "config": _settings(args)}
-    if args.same_camera and loaded:  # every photo of the command in one call (one chunk, see _calibrate)
-        return calibrate([rgb for _, rgb, _ in loaded], **options, **priors[0], shared_intrinsics=True)
-    if all(p == priors[0] for p in priors[1:]):
-        return calibrate([rgb for _, rgb, _ in loaded], **options, **priors[0]) if loaded else []
-    return [calibrate(rgb, **options, **p) for (_, rgb, _), p in zip(loaded, priors, strict=True)]
+    if args.same_camera:  # every photo of the command in one call (one chunk, see _calibrate)
+        return calibrate([rgb for _, rgb, _ in loaded], **options, priors={**priors[0], "shared_intrinsics": True})
+    per_item = {name: [p[name] for p in priors] for name in priors[0]}
+    given = {name: values if any(v != values[0] for v in values) else values[0] for name, values in per_item.items()}
+    return calibrate([rgb for _, rgb, _ in loaded], **options, priors=given)
 
 
 def _calibrate(args: argparse.Namespace) -> int:
@@ -253,7 +255,7 @@ def _calibrate_or_none(image: str, rgb: np.ndarray, args: argparse.Namespace):
 
     try:
         options = {"weights": args.weights, "seed": args.seed, "config": _settings(args)}
-        return calibrate(rgb, **options, **_prior(args, image, rgb))
+        return calibrate(rgb, **options, priors=_prior(args, image, rgb))
     except _user_errors() as err:
         print(f"ngp: error: {image}: {_one_line(err)}", file=sys.stderr, flush=True)
         return None
@@ -327,7 +329,7 @@ def _rectify(args: argparse.Namespace) -> int:
         check_output(path, args.force, [args.image])
         rgb = read_image_file(args.image)
         result = calibrate(rgb, weights=args.weights, seed=args.seed, config=_settings(args),
-                           **_prior(args, args.image, rgb))
+                           priors=_prior(args, args.image, rgb))
         if not bool(result.valid) and not args.force_invalid:
             print(f"ngp: error: {args.image}: no camera found (valid false, confidence 0: too few lines of man-made "
                   "structure), so there is nothing to rectify; add --force-invalid to write it anyway (a level "

@@ -172,7 +172,7 @@ def test_tiny_image_is_rejected_with_the_minimum_size():
         (torch.full((3, 40, 40), float("nan")), ImageError, "NaN"),
         (torch.rand(4, 40, 40), ImageError, r"\(3, H, W\)"),
         (torch.rand(40, 40), ImageError, r"\(3, H, W\)"),
-        (torch.zeros(3, 40, 40, dtype=torch.uint8), TypeError, "float"),
+        (torch.zeros(3, 40, 40, dtype=torch.int32), TypeError, r"float tensor in \[0, 1\] or a uint8"),
         (torch.rand(3, 40, 40) * 255, ImageError, r"\[0, 1\]"),
         (torch.rand(0, 3, 40, 40), ImageError, "empty image tensor"),
     ],

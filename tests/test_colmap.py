@@ -108,7 +108,7 @@ def test_cameras_and_gravity_read_back_as_written(photos, tmp_path):
 
 
 def test_a_radial_camera_for_a_calibration_with_k1(photos, tmp_path):
-    cal = calibrate(str(photos["folder"] / "plaza.png"), k1="estimate")
+    cal = calibrate(str(photos["folder"] / "plaza.png"), priors={"k1": "estimate"})
     write_colmap_database(tmp_path / "radial.db", {"plaza.png": cal})
     camera = read_back(tmp_path / "radial.db")["plaza.png"]["camera"]
     assert camera.model_name == "RADIAL" and camera.has_prior_focal_length
@@ -207,7 +207,8 @@ def test_a_camera_shared_with_other_images_is_left_as_it_is(photos, tmp_path):
     assert plain(after["plaza.png"]["camera"]) == plain(before["plaza.png"]["camera"])
     assert abs(pitch_roll(after["plaza.png"]["priors"][0].gravity)[1] - float(ours["plaza.png"].roll)) < 0.01
     # every photo of the camera written, with one focal length: the camera is theirs, and updated
-    shared = calibrate([str(photos["folder"] / name) for name in before if name != "counts"], shared_intrinsics=True)
+    paths = [str(photos["folder"] / name) for name in before if name != "counts"]
+    shared = calibrate(paths, priors={"shared_intrinsics": True})
     names = sorted(name for name in before if name != "counts")
     report = write_colmap_database(database, dict(zip(names, shared, strict=True)))
     assert not report.camera_kept and sorted(report.updated) == names
@@ -219,7 +220,7 @@ def test_a_rerun_updates_rather_than_duplicates(photos, tmp_path):
     database = tmp_path / "rerun.db"
     write_colmap_database(database, photos["calibrations"])
     first = read_back(database)
-    known = {name: calibrate(str(photos["folder"] / name), focal=300.0) for name in photos["calibrations"]}
+    known = {name: calibrate(str(photos["folder"] / name), priors={"focal": 300.0}) for name in photos["calibrations"]}
     report = write_colmap_database(database, known)
     assert not report.added and sorted(report.updated) == sorted(known)
     second = read_back(database)

@@ -65,9 +65,10 @@ def test_cli_exif_prior_and_silent_fall_back(photos, capsys):
 
 def test_calibrate_reads_exif_only_when_asked(photos):
     path = str(photos / "with_exif.jpg")
-    assert float(calibrate(path, exif=True).focal) == pytest.approx(EXIF_FOCAL, rel=1e-5)
+    assert float(calibrate(path, priors={"exif": True}).focal) == pytest.approx(EXIF_FOCAL, rel=1e-5)
     assert float(calibrate(path).focal) != pytest.approx(EXIF_FOCAL, rel=1e-5)
-    assert float(calibrate(path, exif=True, focal=200.0).focal) == pytest.approx(200.0, rel=1e-5)  # given wins
+    given_wins = calibrate(path, priors={"exif": True, "focal": 200.0})
+    assert float(given_wins.focal) == pytest.approx(200.0, rel=1e-5)
 
 
 def test_predict_uses_each_files_exif(photos, tmp_path):
@@ -155,4 +156,4 @@ def test_cli_focal_priors_in_three_units_one_at_a_time(photos, capsys):
 def test_an_exif_focal_length_no_camera_has_is_no_prior(tmp_path):
     path = tmp_path / "odd.jpg"
     _scene_jpeg(path, 1)  # a 1 mm equivalent: a damaged tag, not a lens
-    assert float(calibrate(str(path), exif=True).focal) == pytest.approx(float(calibrate(str(path)).focal))
+    assert float(calibrate(str(path), priors={"exif": True}).focal) == pytest.approx(float(calibrate(str(path)).focal))

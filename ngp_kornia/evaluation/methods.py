@@ -236,9 +236,9 @@ def calibration_method(
         seed = int(parse_weights_spec(spec)[1].get("seed", 0))
     extra = call_arguments(spec)
     noise, stated = extra.pop("gravity_noise", None), extra.pop("gravity_std", None)
-    options = {"weights": weights, "seed": seed, "config": config, **extra}
+    options = {"weights": weights, "seed": seed, "config": config}
     if extra.pop("shared_intrinsics", False):
-        return _shared_method(images, options)
+        return _shared_method(images, {**options, "priors": {**extra, "shared_intrinsics": True}})
 
     on_segments = _segment_parser(weights, config)
 
@@ -248,7 +248,7 @@ def calibration_method(
             prior = {"gravity": gravity_prior(image, seed, noise), "gravity_std": stated or max(noise, 0.1)}
         if image.segments is not None:
             return calibrate_segments(on_segments(), image, seed, Priors(**{**prior, **extra}))
-        return calibrate(str(image.image_path), **options, **prior)
+        return calibrate(str(image.image_path), **options, priors={**extra, **prior})
 
     return run
 

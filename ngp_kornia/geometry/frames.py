@@ -74,7 +74,7 @@ def frames_from_vps(
     second: Tensor,
     valid: Tensor,
     focal_range: tuple[float, float] = (0.8, 4.0),
-    focal: float | None = None,
+    focal: float | Tensor | None = None,
 ) -> FrameCandidates:
     """Complete pairs of orthogonal VPs into Manhattan frames: focal length from orthogonality, rotation and the
     third VP.
@@ -90,9 +90,10 @@ def frames_from_vps(
         valid: (B, F) bool validity of the pairs.
         focal_range: allowed focal lengths in pseudo-camera units; (0.8, 4.0) spans long-side fields of view from
             about 28 to 103 degrees.
-        focal: a known focal length (pseudo-camera units). Every pair then makes a frame: the first VP is kept and
-            the second is moved onto the first's orthogonal plane (for a zenith, onto its horizon), instead of
-            deriving the focal length from the pair and dropping pairs that disagree with ``focal_range``.
+        focal: a known focal length (pseudo-camera units), one for all or (B,) one per image. Every pair then makes
+            a frame: the first VP is kept and the second is moved onto the first's orthogonal plane (for a zenith,
+            onto its horizon), instead of deriving the focal length from the pair and dropping pairs that disagree
+            with ``focal_range``.
 
     Returns:
         :class:`FrameCandidates`; frames whose VPs cannot be orthogonal or whose focal is out of range are invalid
@@ -104,8 +105,9 @@ def frames_from_vps(
     if focal is None:
         focal, ok = _focal_from_pair(pair)
         ok = ok & valid & (focal >= focal_range[0]) & (focal <= focal_range[1])
-    else:
-        focal, ok = torch.full_like(first[..., 0], focal), valid
+    else:  # one for all, or (B,): the same for every frame of an image
+        known = torch.as_tensor(focal, dtype=first.dtype, device=first.device)
+        focal, ok = (known[:, None] if known.dim() else known).expand_as(first[..., 0]).contiguous(), valid
     f = torch.where(ok, focal, 1.0)
     scale = torch.stack([f, f, torch.ones_like(f)], -1)  # K = diag(f, f, 1)
     a, b = normalize(pair / scale).unbind(0)

@@ -163,6 +163,30 @@ def _decode(image: PILImage.Image, file: BinaryIO, path: Path) -> tuple[np.ndarr
     return pixels, pending if before is None else before, pending
 
 
+def read_pillow(image: PILImage.Image) -> ImageFile:
+    """A Pillow image (``PIL.Image.open(path)``, say) as an HxWx3 uint8 RGB array as displayed, with its EXIF
+    orientation tag, which is applied as for a file (:func:`read_image`); modes convert as a file's do.
+
+    Raises:
+        ImageReadError: an image whose pixels cannot be read (a closed file, say), or float pixels outside [0, 1].
+
+    Example:
+        >>> read_pillow(PILImage.new("LA", (5, 4))).rgb.shape
+        (4, 5, 3)
+    """
+    orientation = orientation_tag(image)
+    try:
+        pixels = np.array(image if image.mode in _KEPT_MODES else image.convert(_mode_for(image)))
+    except (OSError, ValueError) as err:
+        raise ImageReadError(f"Pillow image: its pixels cannot be read ({err}); load it again (Image.open)") from None
+    if pixels.dtype.kind in "ui" and pixels.dtype.itemsize > 1:  # 16-bit modes, and I (32-bit) of 16-bit values
+        if pixels.min() < 0 or pixels.max() > 65535:
+            raise ImageReadError(f"Pillow image of mode {image.mode}: values beyond 16 bits; convert it to RGB")
+        pixels = pixels.astype(np.uint16)
+    rgb = _rgb_uint8(pixels, bgr=False, source=None)
+    return ImageFile(apply_orientation(rgb, orientation), orientation)
+
+
 def _mode_for(image: PILImage.Image) -> str:
     """The mode a Pillow image not kept as it is is converted to: RGBA where it has transparency, else RGB."""
     return "RGBA" if image.mode in _ALPHA_MODES or "transparency" in image.info else "RGB"
@@ -271,8 +295,8 @@ def _check_size(height: int, width: int, name: str) -> None:
         )
 
 
-def load_image(image: str | Path | np.ndarray) -> Tensor:
-    """A file path or an HxWx3 uint8 RGB array as a (1, 3, H, W) float tensor in [0, 1].
+def load_image(image: str | Path | np.ndarray | PILImage.Image) -> Tensor:
+    """A file path, an HxWx3 uint8 RGB array or a Pillow image as a (1, 3, H, W) float tensor in [0, 1].
 
     Example:
         >>> load_image(np.zeros((40, 50, 3), np.uint8)).shape
@@ -281,9 +305,9 @@ def load_image(image: str | Path | np.ndarray) -> Tensor:
     return torch.from_numpy(read_rgb(image)).permute(2, 0, 1)[None].float().div(255.0)
 
 
-def read_rgb(image: str | Path | np.ndarray) -> np.ndarray:
-    """A file path or an image array as a checked HxWx3 uint8 RGB array (see :func:`to_rgb_uint8`); files as
-    displayed (EXIF orientation applied).
+def read_rgb(image: str | Path | np.ndarray | PILImage.Image) -> np.ndarray:
+    """A file path, an image array or a Pillow image as a checked HxWx3 uint8 RGB array (see :func:`to_rgb_uint8`);
+    files and Pillow images as displayed (EXIF orientation applied).
 
     Example:
         >>> read_rgb(np.zeros((40, 50), np.uint16)).shape
@@ -292,8 +316,9 @@ def read_rgb(image: str | Path | np.ndarray) -> np.ndarray:
     return read_rgb_oriented(image)[0]
 
 
-def read_rgb_oriented(image: str | Path | np.ndarray) -> tuple[np.ndarray, int | None]:
-    """:func:`read_rgb` and the EXIF orientation applied to a file (None for an array, taken as it is).
+def read_rgb_oriented(image: str | Path | np.ndarray | PILImage.Image) -> tuple[np.ndarray, int | None]:
+    """:func:`read_rgb` and the EXIF orientation applied to a file or a Pillow image (None for an array, taken as
+    it is).
 
     Example:
         >>> read_rgb_oriented(np.zeros((40, 50, 3), np.uint8))[1] is None
@@ -303,24 +328,33 @@ def read_rgb_oriented(image: str | Path | np.ndarray) -> tuple[np.ndarray, int |
         (rgb, orientation), name = read_image(image), str(image)
     elif isinstance(image, np.ndarray):
         rgb, orientation, name = to_rgb_uint8(image), None, "image array"
+    elif isinstance(image, PILImage.Image):
+        (rgb, orientation), name = read_pillow(image), "Pillow image"
     else:
-        raise TypeError(f"expected a path, a numpy array or a torch tensor, got {type(image).__name__}")
+        raise TypeError(
+            f"expected a path, a numpy array, a Pillow image or a torch tensor, got {type(image).__name__}"
+        )
     _check_size(rgb.shape[0], rgb.shape[1], name)
     return rgb, orientation
 
 
-def as_batch(image: str | Path | np.ndarray | Tensor) -> tuple[Tensor, bool]:
-    """Any supported input as a checked (B, 3, H, W) float tensor in [0, 1], and whether the input was batched.
+def as_batch(image: str | Path | np.ndarray | PILImage.Image | Tensor) -> tuple[Tensor, bool]:
+    """Any supported input as a checked (B, 3, H, W) float tensor in [0, 1], and whether the input was batched;
+    a uint8 tensor in [0, 255] is divided by 255 into float32 (on its device).
 
     Example:
         >>> x, batched = as_batch(torch.rand(3, 40, 40))
         >>> x.shape, batched
         (torch.Size([1, 3, 40, 40]), False)
+        >>> as_batch(torch.full((2, 3, 40, 40), 255, dtype=torch.uint8))[0].amax().item()
+        1.0
     """
     if not isinstance(image, Tensor):
         return load_image(image), False
+    if image.dtype == torch.uint8 and not image.is_meta:
+        image = image.float() / 255.0
     if not image.is_floating_point():
-        raise TypeError(f"expected a float tensor in [0, 1], got {image.dtype}; for uint8 use image.float() / 255")
+        raise TypeError(f"expected a float tensor in [0, 1] or a uint8 tensor in [0, 255], got {image.dtype}")
     if image.dim() not in (3, 4) or image.shape[-3] != 3:
         raise ImageReadError(f"expected a (3, H, W) or (B, 3, H, W) RGB tensor, got shape {tuple(image.shape)}")
     if image.is_meta:

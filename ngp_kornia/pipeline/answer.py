@@ -35,7 +35,7 @@ def topk_calibration(
     height: int,
     width: int,
     settings: ScoringSettings,
-    known_focal: float | None = None,
+    known_focal: float | Tensor | None = None,
 ) -> tuple[Calibration, Tensor]:
     """Top-k average (Eq. 23) of the frames' focal lengths and zeniths, yaw from the best frame, mapped to pixels.
 
@@ -43,7 +43,8 @@ def topk_calibration(
         frames: (B, F) scored frame candidates (pseudo camera); scores: (B, F), zero for invalid frames.
         height, width: the image's size.
         settings: ``top_k`` and ``fallback_fov``.
-        known_focal: a focal-length prior in pseudo-camera units: the answer of an image without a valid frame.
+        known_focal: a focal-length prior in pseudo-camera units, one for all or (B,): the answer of an image
+            without a valid frame.
 
     Returns:
         the calibration, and the (B, F) top-k weights of its average. An image without a valid frame gets a level
@@ -55,7 +56,10 @@ def topk_calibration(
     zenith = dominant_eigenvector(_weighted_zenith_tensor(frames.zenith, top_k_weights, settings.top_k))
     best = scores.argmax(-1)
     horizontal = frames.horizontal.gather(1, best[:, None, None].expand(-1, 1, 3))[:, 0]
-    fallback = known_focal or 1.0 / math.tan(math.radians(settings.fallback_fov) / 2.0)
+    if known_focal is None:
+        fallback = 1.0 / math.tan(math.radians(settings.fallback_fov) / 2.0)
+    else:
+        fallback = torch.as_tensor(known_focal, dtype=focal.dtype, device=focal.device)
     focal = torch.where(valid, focal, fallback)
     level, ahead = constant_tensors(((0.0, 1.0, 0.0), (1.0, 0.0, 0.0)), zenith.dtype, zenith.device)
     zenith = torch.where(valid[:, None], zenith, level)

@@ -77,10 +77,10 @@ def _moved_images(images: Tensor, point: Tensor, lam: Tensor | None) -> Tensor:
 
 
 def _search_at(
-    search: FrameSearch, view: View, priors: Priors, point: Tensor, lam: Tensor | None, std: float
+    search: FrameSearch, view: View, priors: Priors, point: Tensor, lam: Tensor | None, std: float | Tensor
 ) -> Search:
     """The frame search on the photo brought to a centred pinhole (module docstring), its answer moved back;
-    ``std``, the uncertainty of the principal point as a fraction of the height."""
+    ``std``, the uncertainty of the principal point as a fraction of the height (one for all, or (B,))."""
     height, width = view.images.shape[-2:]
     centre = image_center(height, width, like=view.segments).expand(len(view.segments), 2)
     if lam is None and bool((point.to(centre) == centre).all()):
@@ -111,8 +111,8 @@ def calibrate_camera_model(search: FrameSearch, view: View, priors: Priors) -> S
     height, width = view.images.shape[-2:]
     B = len(view.segments)
     centre = image_center(height, width, like=view.segments.double()).expand(B, 2)
-    given = isinstance(priors.principal_point, tuple)
-    point = view.segments.new_tensor(priors.principal_point, dtype=torch.float64).expand(B, 2) if given else centre
+    given = priors.principal_point is not None and priors.principal_point != ESTIMATE
+    point = view.segments.new_tensor(priors.each("principal_point", B), dtype=torch.float64) if given else centre
     std = 0.0 if given else config.trust.principal_point_std
     lam = _distortion(search, view, priors, point)
     if priors.principal_point == ESTIMATE:
@@ -121,7 +121,7 @@ def calibrate_camera_model(search: FrameSearch, view: View, priors: Priors) -> S
         prior = config.trust.principal_point_std * height
         found = estimate_principal_point(frame.K, frame.R, undistorted, view.mask, prior)
         point, point_std = found.point.double(), found.std
-        std = float(point_std.mean()) / height
+        std = point_std.mean(-1).double() / height  # each image's own
     last = _search_at(search, view, priors, point, lam, std)
     result = last.result
     if priors.principal_point == ESTIMATE:
@@ -132,7 +132,8 @@ def calibrate_camera_model(search: FrameSearch, view: View, priors: Priors) -> S
         k1 = k1_from_units(lam.to(result.focal), result.focal, height, width)
         result = replace(result, camera=result.camera.replace(k1=k1))
     elif priors.k1 is not None:  # given: reported as given (undistorted at the first run's focal length)
-        result = replace(result, camera=result.camera.replace(k1=torch.full_like(result.focal, priors.k1)))
+        k1 = result.focal.new_tensor(priors.each("k1", B))
+        result = replace(result, camera=result.camera.replace(k1=k1))
     return last._replace(result=result)
 
 
@@ -152,8 +153,11 @@ def _distortion(search: FrameSearch, view: View, priors: Priors, point: Tensor) 
         bent = _search_at(search, view, priors, point, lam, std).result.confidence
         straight = _search_at(search, view, priors, point, None, std).result.confidence
         return torch.where(bent > straight, lam, torch.zeros_like(lam))
-    focal = priors.focal_pixels(height, width)
-    if focal is None:
-        focal = _search_at(search, view, priors, point, None, 0.0).result.focal
-    focal = torch.as_tensor(focal, dtype=torch.float64, device=view.segments.device).expand(len(view.segments))
-    return units_from_k1(torch.full_like(focal, priors.k1), focal.double(), height, width)
+    B = len(view.segments)
+    known = priors.focal_each(height, width, B)
+    if known is None:
+        focal = _search_at(search, view, priors, point, None, 0.0).result.focal.double()
+    else:
+        focal = torch.tensor(known, dtype=torch.float64, device=view.segments.device)
+    k1 = torch.tensor(priors.each("k1", B), dtype=torch.float64, device=focal.device)
+    return units_from_k1(k1, focal, height, width)

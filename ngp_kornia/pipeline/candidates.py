@@ -271,7 +271,7 @@ def sample_frames(
     count: int = 1024,
     focal_range: tuple[float, float] = (0.8, 4.0),
     generator: Generators = None,
-    focal: float | None = None,
+    focal: float | Tensor | None = None,
 ) -> FrameCandidates:
     """Manhattan-frame candidates: each pairs a zenith drawn by its weight (ZSNet score, or uniform over Z_c) with a
     uniformly drawn horizontal VP.
@@ -284,7 +284,7 @@ def sample_frames(
         count: number of frames F.
         focal_range: see :func:`frames_from_vps`.
         generator: random generator, or one per image.
-        focal: a known focal length (pseudo-camera units), see :func:`frames_from_vps`.
+        focal: a known focal length (pseudo-camera units), one for all or (B,), see :func:`frames_from_vps`.
 
     Returns:
         :class:`FrameCandidates` with F = ``count``.
@@ -327,7 +327,7 @@ def sample_horizontal_pair_frames(
     count: int = 512,
     focal_range: tuple[float, float] = (0.8, 4.0),
     generator: Generators = None,
-    focal: float | None = None,
+    focal: float | Tensor | None = None,
 ) -> FrameCandidates:
     """Manhattan-frame candidates from two horizontal VPs, one from each group of :func:`sample_horizontal_vps`
     (its first half is the right-hand group, its second half the left-hand one).
@@ -341,7 +341,7 @@ def sample_horizontal_pair_frames(
         count: number of frames.
         focal_range: see :func:`frames_from_vps`.
         generator: random generator, or one per image.
-        focal: a known focal length (pseudo-camera units), see :func:`frames_from_vps`.
+        focal: a known focal length (pseudo-camera units), one for all or (B,), see :func:`frames_from_vps`.
 
     Returns:
         :class:`FrameCandidates` with F = ``count``.
@@ -370,7 +370,7 @@ def sample_candidate_frames(
     pair_count: int = 512,
     focal_range: tuple[float, float] = (0.8, 4.0),
     generator: Generators = None,
-    focal: float | None = None,
+    focal: float | Tensor | None = None,
 ) -> FrameCandidates:
     """The parser's frame candidates: ``cat_frames(sample_frames(..., count, ...),
     sample_horizontal_pair_frames(..., pair_count, ...))``, the same draws in the same order, with all the frames

@@ -140,7 +140,7 @@ class FrameSearch:
         """Whether a stage reads the images' pixels (FSNet), so that a moved camera must move them too."""
         return self.fsnet is not None
 
-    def __call__(self, view: View, priors: Priors, centre_std: float | None = None) -> Search:
+    def __call__(self, view: View, priors: Priors, centre_std: float | Tensor | None = None) -> Search:
         """The answer for the view's centred, distortion-free camera.
 
         Args:
@@ -148,15 +148,13 @@ class FrameSearch:
             priors: the focal length and gravity priors (the principal point and distortion are the camera
                 model's, :mod:`~ngp_kornia.pipeline.camera_model`).
             centre_std: the uncertainty of the camera's centre as a fraction of the height, in place of the
-                trust setting's (0 where it is known); None: the setting's.
+                trust setting's (0 where it is known): one for all, or (B,); None: the setting's.
 
         Returns:
             the :class:`Search`.
         """
         cfg = self.config
-        trust = cfg.trust
-        if centre_std is not None and centre_std != trust.principal_point_std:
-            trust = replace(trust, principal_point_std=centre_std)
+        trust = cfg.trust if centre_std is None else centre_std
         images, segments, mask, weights = view
         height, width = images.shape[-2:]
         # one generator per image, each seeded alike: an image's answer does not depend on its batch or position
@@ -169,7 +167,7 @@ class FrameSearch:
         frames, scores, index, s_vh = found.frames, found.manhattan, None, None
         if self.fsnet is not None:
             frames, scores, index, s_vh = self.rescore(images, segments, mask, frames, scores, pseudo[1])
-        known = priors.focal_in_units(height, width)
+        known = priors.focal_units(height, width, like=pseudo[1])
         result, top_k_weights = topk_calibration(frames, scores, height, width, cfg.scoring, known)
         result = self._refined(result, view, priors, frames, scores, SharedInputs(*pseudo[1:], top_k_weights), trust)
         return Search(result, found, frames, scores, top_k_weights, index, s_vh)
@@ -194,8 +192,9 @@ class FrameSearch:
         )  # fmt: skip
         if priors.gravity is None:
             return result
-        given = result.focal.new_tensor([*priors.gravity, priors.gravity_std]).expand(len(result.focal), 3)
-        return replace(result, gravity=given)
+        count = len(result.focal)
+        given = zip(priors.each("gravity", count), priors.each("gravity_std", count), strict=True)
+        return replace(result, gravity=result.focal.new_tensor([[*up, std] for up, std in given]))
 
     def candidates(
         self,
@@ -224,7 +223,7 @@ class FrameSearch:
         horizontal = horizontal_line_mask(seg, mask, z_est, cfg.vertical_tol, cfg.junction_radius)
         right = split_by_pseudo_horizon(lines, z_est)
         h_vps, h_ok = sample_horizontal_vps(lines, lengths, horizontal, right, cfg.num_horizontal, generators)
-        known = None if priors is None else priors.focal_in_units(*size)
+        known = None if priors is None else priors.focal_units(*size, like=lines)
         frames = sample_candidate_frames(
             zenith, weights, h_vps, h_ok, cfg.num_frames, cfg.num_horizontal_frames, cfg.focal_range, generators, known
         )

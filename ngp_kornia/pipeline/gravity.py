@@ -45,19 +45,28 @@ GATE = 3.0
 FLOOR_DEG = 0.5
 
 
-def _spread(priors: Priors) -> float:
-    """The prior's standard deviation combined with :data:`FLOOR_DEG`, degrees."""
-    return math.hypot(priors.gravity_std, FLOOR_DEG)
+def _per_image(values: list[float], like: Tensor) -> Tensor:
+    """(B, 1) of one number per image, computed in float64 and rounded once to ``like``'s dtype (as a Python number
+    in an operation with ``like`` is)."""
+    return torch.tensor(values, dtype=torch.float64, device=like.device).to(like.dtype)[:, None]
+
+
+def _gates(priors: Priors, like: Tensor) -> tuple[Tensor, Tensor]:
+    """Per image (B, 1): :data:`GATE` times the prior's standard deviation combined with :data:`FLOOR_DEG`, and
+    twice that deviation's square, degrees, for the B = ``len(like)`` images."""
+    spreads = [math.hypot(std, FLOOR_DEG) for std in priors.each("gravity_std", len(like))]
+    return _per_image([GATE * s for s in spreads], like), _per_image([2.0 * s**2 for s in spreads], like)
 
 
 def prior_up(priors: Priors, like: Tensor) -> Tensor:
-    """The prior's unit up vector (3,) in camera coordinates, in ``like``'s dtype and device."""
-    pitch, roll = (like.new_tensor(float(v)) for v in priors.gravity)
-    return up_from_pitch_roll(pitch, roll)
+    """The prior's unit up vector of each image (B, 3) in camera coordinates, for the B = ``len(like)`` images, in
+    ``like``'s dtype and device."""
+    ups = priors.each("gravity", len(like))
+    return torch.stack([up_from_pitch_roll(like.new_tensor(float(p)), like.new_tensor(float(r))) for p, r in ups])
 
 
 def _angle_deg(up: Tensor, reference: Tensor) -> Tensor:
-    """Angles (...) in degrees between unit vectors (..., 3) and a unit vector (3,)."""
+    """Angles (B, ...) in degrees between unit vectors (B, ..., 3) and each image's unit vector (B, 1, 3)."""
     cosine = (up * reference).sum(-1).clamp(-1.0, 1.0)
     return torch.rad2deg(torch.acos(cosine))
 
@@ -68,11 +77,11 @@ def frame_agreement(frame_R: Tensor, priors: Priors) -> Tensor:
 
     Args:
         frame_R: (B, F, 3, 3) the frames' rotations (the pseudo camera's: the same as the camera's).
-        priors: with ``gravity``.
+        priors: with ``gravity``, one for all images or one per image.
     """
-    spread = _spread(priors)
-    angle = _angle_deg(-frame_R[..., :, 1], prior_up(priors, frame_R))
-    return torch.exp(-(angle - GATE * spread).clamp_min(0.0).square() / (2.0 * spread**2))
+    gate, width = _gates(priors, frame_R)
+    angle = _angle_deg(-frame_R[..., :, 1], prior_up(priors, frame_R)[:, None])
+    return torch.exp(-(angle - gate).clamp_min(0.0).square() / width)
 
 
 def zenith_agreement(zenith: Tensor, priors: Priors) -> Tensor:
@@ -82,14 +91,17 @@ def zenith_agreement(zenith: Tensor, priors: Priors) -> Tensor:
     sign = torch.where(zenith[..., 1:2] > 0, -1.0, 1.0).to(zenith)  # the up vector points up in the image
     x, y = (zenith[..., :2] * sign).unbind(-1)
     roll = torch.rad2deg(torch.atan2(x, -y))
-    off = (roll - float(priors.gravity[1]) + 180.0).remainder(360.0) - 180.0
+    prior_roll = _per_image([float(up[1]) for up in priors.each("gravity", len(zenith))], zenith)
+    off = (roll - prior_roll + 180.0).remainder(360.0) - 180.0
     centred = torch.linalg.vector_norm(zenith[..., :2], dim=-1) < 1e-6 * zenith[..., 2].abs()
-    return (off.abs() <= GATE * _spread(priors)) | centred
+    return (off.abs() <= _gates(priors, zenith)[0]) | centred
 
 
 def allowed_ups(ups: Tensor, priors: Priors) -> Tensor:
-    """Which horizon hypotheses (B, H, 3) unit up vectors lie within the gate of the prior: (B, H) bool."""
-    return _angle_deg(ups, prior_up(priors, ups)) <= GATE * _spread(priors)
+    """Which horizon hypotheses (B, ..., H, 3) unit up vectors lie within the gate of the prior: (B, ..., H) bool."""
+    between = [1] * (ups.dim() - 2)  # each image's prior over all of its hypotheses
+    reference = prior_up(priors, ups).view(len(ups), *between, 3)
+    return _angle_deg(ups, reference) <= _gates(priors, ups)[0].view(len(ups), *between)
 
 
 def gravity_zenith_weights(weights: Tensor, zenith: Tensor, priors: Priors | None) -> Tensor:

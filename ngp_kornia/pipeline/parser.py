@@ -13,12 +13,13 @@ FSNet, gradients flow from the outputs to FSNet's parameters and to the image's 
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
+from pathlib import Path
 
 import torch
 from torch import Tensor, nn
 
-from ngp_kornia.errors import ConfigError, InputError, shown
+from ngp_kornia.errors import InputError
 from ngp_kornia.geometry import FrameCandidates
 from ngp_kornia.pipeline.camera_model import calibrate_camera_model
 from ngp_kornia.pipeline.candidates import Generators
@@ -30,31 +31,9 @@ from ngp_kornia.pipeline.segments import detect_segments
 from ngp_kornia.pipeline.settings import ParserConfig
 from ngp_kornia.pipeline.trace import ParserTrace
 from ngp_kornia.pipeline.upright_check import apply_upright, read_beside, weigh_by_pitch
+from ngp_kornia.pipeline.weight_sets import check_weights, checked_config, network_roles, weight_set_config
 
-__all__ = ["NeuralGeometricParser", "ParserConfig", "checked_config", "checked_segments"]
-
-
-def checked_config(config: object) -> ParserConfig:
-    """The settings a caller passed as ``config``: a :class:`ParserConfig`, a mapping of the settings to change
-    (keys as :meth:`ParserConfig.replace` takes them), or None for the defaults.
-
-    Raises:
-        ConfigError: anything else, or an unknown setting or bad value in the mapping.
-
-    Example:
-        >>> checked_config({"horizon.refine": False}).horizon.refine
-        False
-    """
-    if config is None:
-        return ParserConfig()
-    if isinstance(config, ParserConfig):
-        return config
-    if isinstance(config, Mapping) and all(isinstance(key, str) for key in config):
-        return ParserConfig().replace(**config)
-    raise ConfigError(
-        f"config must be a ParserConfig, a mapping of settings such as {{'horizon.refine': False}}, or None; "
-        f"got {shown(config)}"
-    )
+__all__ = ["NeuralGeometricParser", "ParserConfig", "checked_segments"]
 
 
 def _checked_call(images: object, seed: object, priors: object) -> tuple[int, Priors]:
@@ -81,10 +60,12 @@ class NeuralGeometricParser(nn.Module):
             Manhattan score alone.
         evidence: a :class:`~ngp_kornia.nets.line_evidence.LineEvidenceNet` whose structure weights drop segments
             on no man-made structure (:class:`~ngp_kornia.pipeline.settings.EvidenceSettings`); None keeps every
-            segment. :func:`ngp_kornia.api.load_parser` gives every weight set the shipped one.
+            segment. :meth:`from_pretrained` gives every weight set the shipped one.
         upright: a :class:`~ngp_kornia.nets.upright.UprightNet`, the orientation and structure check that scales
             the confidence (:mod:`ngp_kornia.pipeline.upright_check`); None leaves the confidence to the lines alone.
-            :func:`ngp_kornia.api.load_parser` gives every weight set the shipped one.
+            :meth:`from_pretrained` gives every weight set the shipped one.
+
+    The bare constructor gives the geometric path without networks; :meth:`from_pretrained` the trained parser.
 
     Example:
         >>> img = torch.rand(1, 3, 96, 128)
@@ -108,6 +89,44 @@ class NeuralGeometricParser(nn.Module):
         self.evidence = evidence
         self.upright = upright
 
+    @classmethod
+    def from_pretrained(
+        cls,
+        weights: str | Path | Sequence[str | Path] = "default",
+        config: ParserConfig | Mapping | None = None,
+        device: str | torch.device | None = None,
+    ) -> NeuralGeometricParser:
+        """The parser of a weight set, with its networks loaded.
+
+        ``"none"`` is the geometric path: uniform zenith scores and frames ranked by the Manhattan score (Eq. 21).
+        ``"zsnet"`` scores the zenith candidates with the shipped ZSNet, ``"fsnet"`` rescores the best frames with
+        the shipped FSNet, ``"full"`` uses both (the paper's parser). ``"default"`` is
+        :data:`~ngp_kornia.pipeline.weight_sets.DEFAULT_WEIGHTS` with
+        :data:`~ngp_kornia.pipeline.weight_sets.DEFAULT_SETTINGS` (a mapping ``config`` changes settings on top of
+        them). A path (or a list of paths) loads weights files written by ``ngp-train export``: a ZSNet file, an
+        FSNet file, or one of each. Every weight set has the shipped line evidence and orientation check.
+
+        Args:
+            weights: the weight set's name or weights files.
+            config: a :class:`ParserConfig`, or a mapping of the settings to change.
+            device: where the networks go (None: the CPU).
+
+        Returns:
+            the parser; its networks are the caller's own copies, in eval mode: training them (as a layer of a
+            larger model) or moving them does not change what :func:`ngp_kornia.calibrate` computes.
+
+        Raises:
+            ValueError: an unknown weight set; WeightsError: a missing, corrupt or mismatched weights file;
+            ConfigError: a bad ``config``.
+
+        Example:
+            >>> parser = NeuralGeometricParser.from_pretrained("zsnet")
+            >>> parser.zsnet is not None, parser.fsnet is None, parser.config.evidence.enabled
+            (True, True, False)
+        """
+        parser = cls(weight_set_config(weights, config), **network_roles(check_weights(weights), copy=True))
+        return parser if device is None else parser.to(device)
+
     def forward(
         self,
         images: Tensor,
@@ -130,8 +149,9 @@ class NeuralGeometricParser(nn.Module):
             mask: (B, N) bool, required with ``segments``.
             seed: seed of the candidate sampling; every image draws from its own generator seeded with it, so an
                 image gets the same answer alone and at any place in any batch.
-            priors: what is known of the camera (:class:`~ngp_kornia.pipeline.priors.Priors`), for every image of
-                the batch.
+            priors: what is known of the camera (:class:`~ngp_kornia.pipeline.priors.Priors`): each prior one value
+                for every image, or one per image ((B,) or (B, 2)); a prior is given (or estimated) for every image
+                of the batch or for none. Each image gets what it gets alone with its own.
             return_trace: also return the intermediate stages.
 
         Returns:
@@ -139,6 +159,7 @@ class NeuralGeometricParser(nn.Module):
             :class:`ParserTrace` of the stages (the same computation: the calibration does not change).
         """
         seed, priors = _checked_call(images, seed, priors)
+        priors = priors.for_batch(len(images))  # one value for all, or one per image of the batch
         priors.check_image(*images.shape[-2:])  # a focal length no camera has on this image: a mistake of units
         if images.dtype in (torch.float16, torch.bfloat16):  # computed in float32, returned in the input's dtype
             low = None if segments is None else segments.float()
@@ -158,6 +179,14 @@ class NeuralGeometricParser(nn.Module):
         if reading is not None:
             result = self._check_upright(result, reading())
         return (result, _trace(found, view, detected, evidence)) if return_trace else result
+
+    @property
+    def reads_pixels(self) -> bool:
+        """Whether a network of the parser reads the images' pixels (FSNet, the line evidence or the orientation
+        check, where enabled); without one, a tensor of the images' shape will do beside given segments."""
+        cfg = self.config
+        return (self.fsnet is not None or (self.upright is not None and cfg.upright.enabled)
+                or (self.evidence is not None and cfg.evidence.enabled))  # fmt: skip
 
     def _search(self, seed: int = 0) -> FrameSearch:
         """The stages after the line evidence, with this parser's settings and networks (frame_search.py)."""

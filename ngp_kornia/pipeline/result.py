@@ -74,7 +74,7 @@ class Calibration:
             coordinates ``(p - c) / f`` of a pixel ``p`` (``k1 < 0``: barrel); None for a distortion-free pinhole.
             With it, every other field is that of the undistorted image (:mod:`ngp_kornia.geometry.lens`).
         shared_photos: (B,) long: how many photos the intrinsics were estimated from jointly
-            (``shared_intrinsics=True``); None when each photo was calibrated alone.
+            (the ``shared_intrinsics`` prior); None when each photo was calibrated alone.
         gravity: (B, 3) the gravity prior the calibration used: ``(pitch, roll, std)`` in degrees; None without.
         upright: (B,) probability that the image is the right way up and shows man-made structure (the
             orientation check, :mod:`ngp_kornia.pipeline.upright_check`); the confidence already includes it. None when

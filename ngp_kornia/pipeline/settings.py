@@ -283,7 +283,7 @@ class TrustSettings:
 
 @dataclass(frozen=True)
 class SharedSettings:
-    """One camera across many photos, ``calibrate(photos, shared_intrinsics=True)``
+    """One camera across many photos, ``calibrate(photos, priors={"shared_intrinsics": True})``
     (:mod:`ngp_kornia.pipeline.shared_camera`).
 
     Attributes:
@@ -308,7 +308,7 @@ class SharedSettings:
 
 @dataclass(frozen=True)
 class DistortionSettings:
-    """Radial distortion from the curvature of chained segments, ``calibrate(..., k1="estimate")``
+    """Radial distortion from the curvature of chained segments, the distortion prior ``"estimate"``
     (:mod:`ngp_kornia.pipeline.distortion`); the coefficients here are in units of half the image's long side.
 
     Attributes:

@@ -28,24 +28,32 @@ is the median of theirs (:func:`joint_k1`); the second pass then takes them as k
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import replace
 from typing import NamedTuple
 
 import torch
 from torch import Tensor
 
-from ngp_kornia.geometry import intrinsics_matrix, segment_lengths
+from ngp_kornia.errors import InputError, NGPError, NGPWarning
+from ngp_kornia.geometry import image_center, intrinsics_matrix, segment_lengths
+from ngp_kornia.io import read_rgb_oriented
 from ngp_kornia.pipeline.line_kernel import (
     camera_segments,
     closeness_kernel,
     scaled_camera_segments,
 )
 from ngp_kornia.pipeline.polish import refit_rotation
+from ngp_kornia.pipeline.priors import ESTIMATE, PerImage
 from ngp_kornia.pipeline.result import Calibration
+from ngp_kornia.pipeline.runner import Input, Run, calibrate_input, item_run, pixels, read_input
+from ngp_kornia.pipeline.segments import detect_segments
 from ngp_kornia.pipeline.settings import SamplingSettings, SharedSettings
+from ngp_kornia.threads import Lookahead
 
 __all__ = [
     "SharedFocal",
+    "calibrate_shared",
     "focal_grid",
     "focal_support",
     "joint_focal",
@@ -54,6 +62,7 @@ __all__ = [
     "nearest_rotation",
     "not_shared_folders",
     "not_shared_message",
+    "shared_camera",
     "with_shared_focal",
 ]
 
@@ -264,3 +273,162 @@ def not_shared_folders(folders: list[str], total: int) -> str:
     named = ", ".join(folders[:3]) + (f" and {len(folders) - 3} more" if len(folders) > 3 else "")
     return (f"{len(folders)} of the {total} folders have fewer than two photos with lines ({named}), so their photos "
             "share nothing: each is calibrated alone (its own focal length and uncertainty)")
+
+
+# --- the two passes over the photos (``ngp_kornia.calibrate(photos, priors={"shared_intrinsics": True})``) ---
+
+
+def calibrate_shared(items: list, run: Run) -> list[Calibration]:
+    """Every photo calibrated alone, one camera from the evidence of all of them (the module docstring), then every
+    photo again with that camera as a known one. Between the passes only each photo's segments are kept (the
+    pixels of a file are read again), so a long list fits in memory. With fewer than two photos that have lines,
+    the photos' own calibrations are returned and an ``NGPWarning`` says so.
+
+    Args:
+        items: the photos (paths, arrays, Pillow images or tensors), of one size (or its transpose).
+        run: the call (:class:`~ngp_kornia.pipeline.runner.Run`).
+
+    Raises:
+        ValueError: an empty list, photos of different sizes (not one camera), or ``run.exif`` (a focal length per
+            photo, where one is shared).
+    """
+    if run.exif:
+        raise ValueError("shared_intrinsics estimates one focal length for all the photos; exif gives each its own: "
+                         "use one of them (or give the known focal length as priors={'focal': ...})")
+    if not items:
+        raise ValueError("calibrate() got an empty list; give at least one image (path, array or tensor)")
+    run = _checked_run(run, len(items))
+    kept, shared, alone = _first_pass(items, run)
+    if alone and shared.photos < 2:  # one photo's lines, or none: nothing to share between photos
+        warnings.warn(NGPWarning(not_shared_message(shared.photos, len(items))), stacklevel=3)
+        return alone
+    priors = run.priors.with_focal(shared.focal)
+    if shared.principal_point is not None:
+        priors = replace(priors, principal_point=shared.principal_point)
+    if shared.k1 is not None:
+        priors = replace(priors, k1=shared.k1)
+    results = []
+    with Lookahead(lambda i: _pixels_again(items[i], kept[i])) as ahead:
+        for i, item in enumerate(items):
+            given = ahead.get(i, i + 1 if i < len(items) - 1 else None)
+            own = priors.image(i) if priors.count else priors  # a gravity prior per photo stays its own
+            results.append(with_shared_focal(calibrate_input(item, given._replace(priors=own), run), shared))
+    return results
+
+
+#: the priors of the camera itself, which photos that share it share
+_INTRINSICS = ("focal", "fov_v", "focal_35mm", "principal_point", "k1")
+
+
+def _checked_run(run: Run, photos: int) -> Run:
+    """The call with its priors for ``photos`` photos: the camera's own one for all (a gravity prior may differ)."""
+    priors = run.priors.for_batch(photos, "list")
+    for name in _INTRINSICS:
+        if isinstance(getattr(priors, name), PerImage):
+            raise InputError(f"shared_intrinsics: the photos are one camera, so {name} is one value for all of "
+                             "them, not one per photo")
+    return run._replace(priors=priors)
+
+
+def shared_camera(items: list, run: Run) -> SharedFocal:
+    """The camera :func:`calibrate_shared` gives every photo, without calibrating them again with it; photos that
+    cannot be read or calibrated are left out (they give no evidence).
+
+    Raises:
+        ValueError: photos of different sizes, or none readable.
+    """
+    return _first_pass(items, _checked_run(run, len(items)), skip_unreadable=True)[1]
+
+
+def _first_pass(items: list, run: Run, skip_unreadable: bool = False) -> tuple[list[Input], SharedFocal, list]:
+    """Each photo calibrated alone and scored on the common focal grid: what is kept of each photo's inputs (its
+    pixels only where they are the caller's tensor or a stand-in), the joint camera and the photos' own results
+    (none where nothing is estimated jointly). With ``skip_unreadable`` a photo that cannot be read or calibrated
+    is left out (and nothing is kept of any)."""
+    kept, found, sizes, alone = [], {"support": [], "valid": [], "point": [], "point_std": [], "k1": []}, [], []
+    priors = run.priors
+    estimates = priors.principal_point == ESTIMATE or priors.k1 == ESTIMATE
+    with Lookahead(lambda i: _with_segments(read_input(items[i], item_run(run, i)), run)) as ahead:
+        for i, item in enumerate(items):
+            try:
+                given = ahead.get(i, i + 1 if i < len(items) - 1 else None)
+            except (NGPError, ValueError, TypeError, OSError):
+                if not skip_unreadable:
+                    raise
+                continue
+            sizes.append(tuple(given.batch.shape[-2:]))
+            height, width = _one_size(sizes, priors.principal_point == ESTIMATE)
+            if not priors.known_focal or estimates:
+                alone.append(calibrate_input(item, given, run))
+                _evidence(found, alone[-1], given, run, height, width)
+            # the caller's pixels, or a stand-in, are kept; a file's are read again
+            keep_pixels = isinstance(item, Tensor) or given.batch.stride() == (0, 0, 0, 0)
+            kept.append(given._replace(batch=given.batch if keep_pixels else None))
+    if not kept:
+        raise ValueError("no photo could be read, so no focal length can be shared")
+    return kept, _joint_camera(found, run, len(kept), height, width), alone
+
+
+def _evidence(found: dict, alone: Calibration, given: Input, run: Run, height: int, width: int) -> None:
+    """What one photo's own calibration says of the camera: its support on the focal grid, its principal point
+    and distortion (where estimated), appended to ``found``."""
+    K, R, ok = (t if alone.batched else t[None] for t in (alone.K, alone.R, alone.valid))
+    config, priors = run.parser.config, run.priors
+    found["valid"].append(ok.cpu())  # the photos with lines to measure the camera by
+    if not priors.known_focal:
+        grid = focal_grid(height, width, config.shared, config.sampling)
+        found["support"].append(focal_support(K, R, given.segments.to(K), given.mask, grid, config.shared))
+    if priors.principal_point == ESTIMATE:
+        std = alone.principal_point_std
+        found["point"].append(K[:, :2, 2].cpu())
+        found["point_std"].append((std if alone.batched else std[None]).cpu())
+    if priors.k1 == ESTIMATE:
+        found["k1"].append((alone.k1 if alone.batched else alone.k1[None]).cpu())
+
+
+def _joint_camera(found: dict, run: Run, photos: int, height: int, width: int) -> SharedFocal:
+    """The shared camera of the photos' evidence (the module docstring)."""
+    config, priors = run.parser.config, run.priors
+    if priors.known_focal:  # nothing to estimate: the known focal length is every photo's
+        photos = int(torch.cat(found["valid"]).sum()) if found["valid"] else photos  # those that tell the rest
+        shared = SharedFocal(priors.focal_pixels(height, width), 0.0, photos)
+    else:
+        grid = focal_grid(height, width, config.shared, config.sampling)
+        shared = joint_focal(torch.cat(found["support"]), grid, torch.cat(found["valid"]), config.shared.bootstrap)
+    if found["point"]:
+        centre = image_center(height, width)
+        prior = config.trust.principal_point_std * height
+        point, std = joint_principal_point(torch.cat(found["point"]), torch.cat(found["point_std"]), centre, prior)
+        shared = shared._replace(principal_point=point, principal_point_std=std)
+    if found["k1"]:
+        shared = shared._replace(k1=joint_k1(torch.cat(found["k1"])))
+    return shared
+
+
+def _pixels_again(item: object, kept: Input) -> Input:
+    """The second pass's input of a photo: its kept input, with the pixels of a file or array read again."""
+    if kept.batch is not None:
+        return kept
+    rgb, _ = read_rgb_oriented(item)
+    return kept._replace(batch=pixels(rgb))
+
+
+def _with_segments(given: Input, run: Run) -> Input:
+    """An input with a tensor's segments detected here (the shared focal length reads them)."""
+    if given.segments is not None:
+        return given
+    segments, mask = detect_segments(given.batch, run.parser.config.segments)
+    return given._replace(segments=segments, mask=mask)
+
+
+def _one_size(sizes: list[tuple[int, int]], upright: bool = False) -> tuple[int, int]:
+    """The photos' ``(height, width)``, one for all (a turned photo's transpose counts as the same, unless
+    ``upright``: a shared principal point turns with the photo)."""
+    first = sizes[0]
+    for size in sizes[1:]:
+        if size not in ((first,) if upright else (first, first[::-1])):
+            raise ValueError(
+                f"shared_intrinsics needs photos of one camera, so of one size; got {first[1]}x{first[0]} and "
+                f"{size[1]}x{size[0]} pixels: calibrate photos of different sizes apart"
+            )
+    return first

@@ -163,7 +163,7 @@ class TrustModel:
 
 
 def principal_point_terms(
-    principal_point_std: float, focal: Tensor, height: int, pitch: Tensor
+    principal_point_std: float | Tensor, focal: Tensor, height: int, pitch: Tensor
 ) -> dict[str, Tensor] | None:
     """The errors (degrees, (B,)) a principal point ``principal_point_std * height`` pixels off the centre along
     each axis puts under the answer, before the model's per-parameter gains; None when the option is 0.
@@ -177,7 +177,7 @@ def principal_point_terms(
     (``benchmarks/fit_confidence.py principal-point``).
 
     Args:
-        principal_point_std: standard deviation per axis, a fraction of the image height.
+        principal_point_std: standard deviation per axis, a fraction of the image height: one for all, or (B,).
         focal: (B,) the answer's focal length, pixels.
         height: image height, pixels.
         pitch: (B,) the answer's pitch, degrees.
@@ -187,17 +187,26 @@ def principal_point_terms(
         >>> terms["pitch"], terms["roll"]  # 9.6 px at f = 480: 1.15 degrees, times tan(45) for the roll
         (tensor([1.1459]), tensor([1.1459]))
     """
-    if principal_point_std == 0:
+    # float64 until each term meets the focal length, then a reciprocal times it, as a Python number divided by a
+    # tensor is computed: the same bits for one deviation for all images and for one per image
+    std = torch.as_tensor(principal_point_std, dtype=torch.float64, device=focal.device)
+    if not bool((std != 0).any()):
         return None
-    sigma = principal_point_std * height
+    sigma = std * height
     f = focal.clamp_min(1e-6)
-    ray = torch.rad2deg(sigma / f)
+    ray = torch.rad2deg(f.reciprocal() * sigma.to(f))
     tilt = torch.tan(torch.deg2rad(pitch.abs().clamp_max(80.0)))
     return {
         "pitch": ray,
         "roll": ray * tilt,
-        "fov_v": torch.rad2deg(sigma * height / (f.square() + height**2 / 4.0)),
+        "fov_v": torch.rad2deg((f.square() + height**2 / 4.0).reciprocal() * (sigma * height).to(f)),
     }
+
+
+def _centre_std(trust: TrustSettings | float | Tensor | None) -> float | Tensor:
+    """The principal point's standard deviation of :func:`attach_trust`'s ``trust``."""
+    settings = trust is None or isinstance(trust, TrustSettings)
+    return (trust or TrustSettings()).principal_point_std if settings else trust
 
 
 def _detached(t: Tensor) -> Tensor:
@@ -217,7 +226,7 @@ def attach_trust(
     segments: Tensor,
     mask: Tensor,
     scoring: ScoringSettings | None = None,
-    trust: TrustSettings | None = None,
+    trust: TrustSettings | float | Tensor | None = None,
     known_focal: bool = False,
     model: TrustModel | None = None,
     shared: SharedInputs | None = None,
@@ -237,7 +246,8 @@ def attach_trust(
         segments: (B, N, 2, 2) segments, input pixels.
         mask: (B, N) bool.
         scoring: the frame scores' settings (``top_k``, ``kernel_angle``); None for the defaults.
-        trust: ``principal_point_std``, how uncertain the principal point is; None for the defaults.
+        trust: the settings' ``principal_point_std`` (how uncertain the principal point is), or that fraction of
+            the height itself (one number, or (B,) one per image); None for the defaults.
         known_focal: the focal length was given as a prior.
         model: coefficients; None uses the shipped ones.
         shared: the same call's lines, lengths and top-k weights (:class:`SharedInputs`), when already computed.
@@ -247,8 +257,7 @@ def attach_trust(
     Returns:
         a new :class:`Calibration`.
     """
-    model = model or _shipped()
-    scoring, trust = scoring or ScoringSettings(), trust or TrustSettings()
+    model, scoring, centre_std = model or _shipped(), scoring or ScoringSettings(), _centre_std(trust)
     with torch.no_grad():
         frames = FrameCandidates(**{k: _detached(v) for k, v in frames.__dict__.items()})
         if shared is not None:
@@ -261,7 +270,7 @@ def attach_trust(
         )  # fmt: skip
         conf = model.confidence(features)
         height = int(result.image_size[0, 0].item())
-        floor = principal_point_terms(trust.principal_point_std, result.focal.detach(), height, result.pitch.detach())
+        floor = principal_point_terms(centre_std, result.focal.detach(), height, result.pitch.detach())
         stds = model.stds(features, conf, floor)
     valid = result.valid
     conf = torch.where(valid, conf, 0.0)

@@ -43,7 +43,7 @@ def test_estimate_straightens_a_bent_photo_and_leaves_a_straight_one(bent):
 
 def test_calibrate_estimates_k1_and_its_horizon_improves(bent):
     plain = calibrate(bent.image, weights="none")
-    est = calibrate(bent.image, weights="none", k1="estimate")
+    est = calibrate(bent.image, weights="none", priors={"k1": "estimate"})
     assert plain.k1 is None and plain.to_dict()["distortion"] == [0.0] * 5
     assert float(est.k1) == pytest.approx(-0.25, abs=0.05)  # the focal length's error adds to the estimate's
 
@@ -61,12 +61,12 @@ def test_calibrate_estimates_k1_and_its_horizon_improves(bent):
 
 
 def test_a_given_k1_is_the_calibrations(bent):
-    given = calibrate(bent.image, weights="none", k1=-0.25, focal=float(bent.focal))
+    given = calibrate(bent.image, weights="none", priors={"k1": -0.25, "focal": float(bent.focal)})
     assert float(given.k1) == pytest.approx(-0.25, rel=1e-5)
-    unknown_focal = calibrate(bent.image, weights="none", k1=-0.25)
+    unknown_focal = calibrate(bent.image, weights="none", priors={"k1": -0.25})
     assert float(unknown_focal.k1) == pytest.approx(-0.25, rel=1e-5)
     with pytest.raises(ValueError, match="k1"):
-        calibrate(bent.image, weights="none", k1=3.0)
+        calibrate(bent.image, weights="none", priors={"k1": 3.0})
 
 
 def test_rectify_undistorts_lines_back_to_straight(bent):
@@ -81,7 +81,7 @@ def test_rectify_undistorts_lines_back_to_straight(bent):
     source = distort_points(back[..., :2] / back[..., 2:], K, k1)
     assert bool(((source >= 0) & (source <= torch.tensor([639.0, 479.0]))).all())
     # an upright warp of a calibrated bent photo keeps the shapes sane
-    cal = calibrate(bent.image, weights="none", k1="estimate")
+    cal = calibrate(bent.image, weights="none", priors={"k1": "estimate"})
     H = upright_homography(cal.K[None], cal.R[None])
     upright, _ = rectify(image, H, crop="valid", k1=cal.k1[None], K=cal.K[None])
     assert upright.shape[-2] > 100 and upright.shape[-1] > 100
@@ -93,5 +93,5 @@ def test_rectify_undistorts_lines_back_to_straight(bent):
 def test_strong_barrel_distortion_gives_a_finite_answer(bent, k1):
     """With k1 <= -0.5 the image's corners lie beyond the division model's reach, where undistorted points are
     thrown far out; the call still answers, with finite numbers."""
-    result = calibrate(bent.image, k1=k1)
+    result = calibrate(bent.image, priors={"k1": k1})
     assert bool(torch.isfinite(result.K).all()) and bool(torch.isfinite(result.horizon).all())

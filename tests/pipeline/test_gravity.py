@@ -36,7 +36,7 @@ def test_a_gravity_prior_out_of_range_is_refused_naming_the_angle():
 def test_a_prior_far_from_every_frame_gives_an_answer_not_an_error(seed, gravity):
     # every frame's score fell below 1e-38 (its agreement with the prior), the top-k weights summed to 1e-35, the
     # averaged up vector was zero and linalg.eigh raised from inside calibrate(); York Urban showed it at (45, 40)
-    result = calibrate(render_scene(seed).image, gravity=gravity)
+    result = calibrate(render_scene(seed).image, priors={"gravity": gravity})
     fields = torch.stack([result.pitch, result.roll, result.focal, result.confidence])
     assert bool(torch.isfinite(fields).all()) and bool(torch.isfinite(result.R).all())
     assert abs(float(torch.linalg.det(result.R)) - 1.0) < 1e-4
@@ -69,8 +69,9 @@ def scene():
 def test_a_true_prior_keeps_the_answer_and_a_wrong_one_lowers_the_confidence(scene):
     truth = (float(scene.pitch), float(scene.roll))
     alone = calibrate(scene.image, weights="none")
-    right = calibrate(scene.image, weights="none", gravity=truth, gravity_std=1.0)
-    wrong = calibrate(scene.image, weights="none", gravity=(truth[0] + 12.0, truth[1] - 9.0), gravity_std=1.0)
+    right = calibrate(scene.image, weights="none", priors={"gravity": truth, "gravity_std": 1.0})
+    off = (truth[0] + 12.0, truth[1] - 9.0)
+    wrong = calibrate(scene.image, weights="none", priors={"gravity": off, "gravity_std": 1.0})
     assert abs(float(right.pitch) - truth[0]) < 1.0 and abs(float(right.roll) - truth[1]) < 1.0
     assert float(right.confidence) > 0.5
     assert float(wrong.confidence) < 0.5 * float(right.confidence)

@@ -11,7 +11,8 @@ import pytest
 import torch
 
 from ngp_kornia import ConfigError, InputError, NeuralGeometricParser, ParserConfig, calibrate
-from ngp_kornia.api import shared_focal
+from ngp_kornia.api import CALL_PRIORS, shared_focal
+from ngp_kornia.pipeline.priors import PRIOR_NAMES
 
 
 @pytest.mark.parametrize(
@@ -78,33 +79,40 @@ def test_numpy_seeds_and_the_largest_seed_are_accepted():
     + [({"focal": 1e15}, r"focal must be a number of pixels in \(0, 1e8\)")]
     + [({"gravity": (0, 0), "gravity_std": 1e9}, r"gravity_std must be a number of degrees in \(0, 90\)")]
     + [({"focal": float("nan")}, "focal must be"), ({"num_threads": -1}, "expected a thread count")]
-    + [({"weights": None}, "weights must be one of default"), ({"exif": "yes"}, "exif must be True or False")],
+    + [({"weights": None}, "weights must be one of default")]
+    + [({"exif": "yes"}, r"priors\['exif'\] must be True or False")],
 )
 def test_bad_call_arguments_are_one_clear_error(kwargs, message):
     with pytest.raises((InputError, ValueError, TypeError), match=message):
-        calibrate(torch.rand(3, 64, 64), **kwargs)
+        _calibrate(**kwargs)
+
+
+def _calibrate(**kwargs):
+    """calibrate() on a small image, with the priors among ``kwargs`` passed as ``priors=``."""
+    priors = {name: kwargs.pop(name) for name in list(kwargs) if name in (*PRIOR_NAMES, *CALL_PRIORS)}
+    return calibrate(torch.rand(3, 64, 64), priors=priors, **kwargs)
 
 
 @pytest.mark.parametrize(
     "kwargs, message",
     [({"gravity": np.zeros(1000)}, r"gravity must be .* got <ndarray of shape \(1000,\)>$")]
     + [({"principal_point": np.zeros(1000)}, "principal_point must be .* got <ndarray of shape")]
-    + [({"k1": torch.zeros(500)}, r"k1 must be .* got <Tensor of shape \(500,\)>$")]
-    + [({"weights": NeuralGeometricParser()}, "NeuralGeometricParser.*; a parser from load_parser")]
+    + [({"k1": torch.zeros(5, 100)}, r"k1 must be .* got <Tensor of shape \(5, 100\)>$")]
+    + [({"weights": NeuralGeometricParser()}, "NeuralGeometricParser.*; a parser runs on tensors")]
     + [({"config": 5}, "config must be a ParserConfig, a mapping of settings"), ({"config": {"seed": 1}}, "'seed'")],
 )
 def test_what_a_caller_passed_is_quoted_in_one_line(kwargs, message):
     """A network or a large array passed where a number or a name belongs is named by its type, not printed."""
     with pytest.raises((InputError, ValueError), match=message) as err:
-        calibrate(torch.rand(3, 64, 64), **kwargs)
+        _calibrate(**kwargs)
     assert "\n" not in str(err.value)
 
 
 def test_pairs_and_settings_are_taken_in_the_forms_a_caller_has():
     image = torch.rand(3, 64, 80)
-    plain = calibrate(image, principal_point=(41.0, 30.0), gravity=(2.0, -1.0))
+    plain = calibrate(image, priors={"principal_point": (41.0, 30.0), "gravity": (2.0, -1.0)})
     for pp, gravity in ((np.array([41, 30]), torch.tensor([2.0, -1.0])), ([41, 30], np.array([2.0, -1.0]))):
-        other = calibrate(image, principal_point=pp, gravity=gravity)
+        other = calibrate(image, priors={"principal_point": pp, "gravity": gravity})
         assert torch.equal(other.K, plain.K) and torch.equal(other.R, plain.R)
     mapped = calibrate(image, config={"horizon.refine": False})
     built = calibrate(image, config=ParserConfig().replace(**{"horizon.refine": False}))

@@ -5,6 +5,8 @@ differentiable pass gradcheck in float64; a batch gives each image what it gets 
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 import pytest
 import torch
@@ -30,6 +32,7 @@ from ngp_kornia.pipeline import (
     parser,
     polish,
     principal_point,
+    runner,
     shared_camera,
     trust,
     trust_features,
@@ -38,6 +41,8 @@ from ngp_kornia.pipeline import (
 from ngp_kornia.pipeline import segments as segments_stage
 from ngp_kornia.pipeline.priors import Priors
 from ngp_kornia.pipeline.settings import DistortionSettings, SamplingSettings, ScoringSettings, SharedSettings
+from ngp_kornia.training.synth.render import render_scene
+from ngp_kornia.training.synth.render_config import RenderConfig
 from tests.rooms import check_output, inputs, public_functions, tensors
 
 F64 = torch.float64
@@ -75,6 +80,24 @@ class _FixedSearch(frame_search.FrameSearch):
         x = self.x
         cal = answer.calibration_from_camera(x.cal.K, x.cal.R, x.cal.score, x.cal.valid, x.height, x.width)
         return frame_search.Search(cal, None, None, None, None)
+
+
+def _run(x):
+    """A call on the geometric path, with the scenes' true focal length per image (one prior per image)."""
+    return runner.Run(pipeline_room.NeuralGeometricParser(), 0, Priors(focal=[300.0, 320.0]))
+
+
+def _one_input(x, i):
+    """Image ``i`` of the scenes as the runner reads a tensor, with its segments."""
+    return runner.Input(x.images[i : i + 1], x.segments[i : i + 1], x.mask[i : i + 1], None, Priors(focal=300.0))
+
+
+@lru_cache(maxsize=1)
+def _photos() -> torch.Tensor:
+    """Two rendered photos of one camera, (2, 3, 120, 160) float64 (whose lines the shared camera measures)."""
+    config = RenderConfig(fov_v=(50.0, 50.0), kinds={"street": 1.0})
+    scenes = [render_scene(seed, (160, 120), config).image for seed in (2, 5)]
+    return torch.stack([torch.from_numpy(image).permute(2, 0, 1) for image in scenes]).double() / 255
 
 
 def _frames_r(x):
@@ -200,9 +223,17 @@ CASES = {
         lambda x: principal_point.estimate_principal_point(x.cal.K, x.cal.R, x.segments, x.mask, 20.0),
         {"tol": False}),
     "principal_point.orthocentre": (lambda x: principal_point.orthocentre(x.cal.vps), {}),
+    "runner.calibrate_input": (
+        lambda x: runner.calibrate_input(x.images[:1], _one_input(x, 0), _run(x)), {"tol": False}),
+    "runner.calibrate_list": (lambda x: runner.calibrate_list(list(x.images), _run(x)), {"tol": False}),
+    "runner.read_input": (lambda x: runner.read_input(x.images, _run(x)).batch, {}),
+    "runner.with_orientation": (lambda x: runner.with_orientation(x.cal[0], 6), {}),
     "segments.detect_segments": (lambda x: segments_stage.detect_segments(x.images[:, :, :96, :128]), {"tol": False}),
     "segments.pad_segments": (
         lambda x: segments_stage.pad_segments([x.segments[0, :3], x.segments[1, :5]], like=x.images), {}),
+    "shared_camera.calibrate_shared": (
+        lambda x: shared_camera.calibrate_shared(list(_photos().to(x.device, x.dtype)), _run(x)._replace(
+            priors=Priors())), {"tol": False}),
     "shared_camera.focal_grid": (
         lambda x: shared_camera.focal_grid(x.height, x.width, SharedSettings(), SamplingSettings()),
         {"float_dtype": F64}),
@@ -255,7 +286,23 @@ CASES = {
 
 #: public functions with no tensor of a chosen dtype to test: their inputs and outputs are settings or plain values
 NOT_TENSORS = {
-    "parser.checked_config": "checks a ParserConfig or dict, no tensors",
+    "focal_prior.check_focal_on_image": "checks numbers of a focal-length prior",
+    "focal_prior.checked_focal": "checks a number",
+    "focal_prior.checked_focal_35mm": "checks a number",
+    "focal_prior.checked_fov_v": "checks a number",
+    "focal_prior.focal_pixels_of": "converts numbers",
+    "focal_prior.positive_number": "checks a number",
+    "priors.checked_priors": "checks a mapping of priors",
+    "runner.file_priors": "reads a file's EXIF focal length into the priors",
+    "runner.item_run": "picks a list item's priors",
+    "runner.naming_item": "the words of an error",
+    "runner.on_device": "moves a parser's networks (runner.calibrate_input runs it on every device)",
+    "runner.pixels": "an 8-bit numpy image to float32 (read_input's numpy path)",
+    "shared_camera.shared_camera": "the first pass of calibrate_shared over files (ngp predict --same-camera)",
+    "weight_sets.check_weights": "loads networks by name",
+    "weight_sets.checked_config": "checks a ParserConfig or dict, no tensors",
+    "weight_sets.network_roles": "names networks",
+    "weight_sets.weight_set_config": "the settings of a weight set",
     "priors.checked_seed": "checks an int seed",
     "segments.detect_segments_gray": "OpenCV's LSD on a uint8 numpy image; detect_segments is its tensor form",
     "segments.line_workers": "a context manager for LSD's threads",

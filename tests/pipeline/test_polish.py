@@ -46,7 +46,7 @@ def test_without_segments_nothing_changes():
 
 def test_calibrate_with_polish_keeps_a_known_focal_length_and_a_consistent_camera():
     scene = render_scene(11, (640, 480))
-    cal = calibrate(scene.image, config=ParserConfig().replace(**{"polish.enabled": True}), focal=510.0)
+    cal = calibrate(scene.image, config=ParserConfig().replace(**{"polish.enabled": True}), priors={"focal": 510.0})
     assert float(cal.focal) == pytest.approx(510.0)
     up = cal.up / torch.linalg.vector_norm(cal.up)
     zenith = cal.K @ up  # the horizon is the polar of the zenith

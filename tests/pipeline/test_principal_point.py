@@ -71,7 +71,7 @@ def off_centre():
 def test_a_given_principal_point_is_the_calibrations(off_centre):
     pp = tuple(off_centre.K[:2, 2].tolist())
     centred = calibrate(off_centre.image, weights="none")
-    given = calibrate(off_centre.image, weights="none", principal_point=pp)
+    given = calibrate(off_centre.image, weights="none", priors={"principal_point": pp})
     assert given.K[:2, 2].tolist() == pytest.approx(list(pp), abs=1e-3)
     assert given.principal_point_std.tolist() == [0.0, 0.0] and centred.principal_point_std is None
     assert given.to_dict()["cx"] == pytest.approx(pp[0], abs=1e-3)
@@ -97,7 +97,7 @@ def test_estimated_principal_points_come_nearer_the_truth():
     errors, offsets = [], []
     for seed in range(20, 30):  # ten scenes: one photo's estimate may miss, their median may not
         scene = render_scene(seed, (480, 360), config)
-        est = calibrate(scene.image, weights="none", principal_point="estimate")
+        est = calibrate(scene.image, weights="none", priors={"principal_point": "estimate"})
         errors.append(float((est.K[:2, 2].double() - scene.K[:2, 2]).norm()))
         offsets.append(float((scene.K[:2, 2] - torch.tensor([239.5, 179.5], dtype=torch.float64)).norm()))
         assert est.principal_point_std.shape == (2,) and bool((est.principal_point_std > 0).all())
@@ -107,6 +107,6 @@ def test_estimated_principal_points_come_nearer_the_truth():
 
 def test_bad_principal_points_are_refused():
     with pytest.raises(ValueError, match="principal_point"):
-        calibrate(torch.rand(3, 64, 64), principal_point=(1.0,))
+        calibrate(torch.rand(3, 64, 64), priors={"principal_point": (1.0,)})
     with pytest.raises(ValueError, match="principal_point"):
-        calibrate(torch.rand(3, 64, 64), principal_point="guess")
+        calibrate(torch.rand(3, 64, 64), priors={"principal_point": "guess"})

@@ -62,7 +62,8 @@ def test_zero_gives_the_line_term_alone(image):
 
 def test_known_focal_keeps_the_fov_std_at_zero(image):
     scene = render_scene(3, size=(320, 240))
-    out = calibrate(image, focal=float(scene.focal), config=ParserConfig().replace(principal_point_std=0.05))
+    config = ParserConfig().replace(principal_point_std=0.05)
+    out = calibrate(image, config=config, priors={"focal": float(scene.focal)})
     assert float(out.fov_v_std) == 0.0 and float(out.pitch_std) > 0
 
 

@@ -23,20 +23,21 @@ def test_two_focal_priors_are_refused_naming_both():
         with pytest.raises(InputError, match="were both given.*give one of focal="):
             Priors(**given)
     with pytest.raises(InputError, match=r"focal=500.0 and fov_v=90.0 were both given"):
-        calibrate(torch.rand(3, 64, 64), focal=500.0, fov_v=90.0)  # --fov was once dropped without a word
+        # --fov was once dropped without a word
+        calibrate(torch.rand(3, 64, 64), priors={"focal": 500.0, "fov_v": 90.0})
 
 
 def test_millimetres_given_as_pixels_are_refused_naming_the_mistake(photo):
     # focal=35 on a 640 x 480 photo was taken as a 163 degree field of view, valid, at confidence 0.999
     with pytest.raises(InputError, match=r"focal=35.0 px on this 640x480 image is a 163.4 degree .*millimetres.*"
                                          r"focal_35mm= \(--focal-35mm\)"):
-        calibrate(photo, focal=35.0)
+        calibrate(photo, priors={"focal": 35.0})
     with pytest.raises(InputError, match="fov_v=170.0 degrees on this 640x480 image.*wider than any rectilinear"):
-        calibrate(photo, fov_v=170.0)
+        calibrate(photo, priors={"fov_v": 170.0})
     with pytest.raises(InputError, match="narrower than a 2000 mm telephoto"):
-        calibrate(photo, focal=1e5)
+        calibrate(photo, priors={"focal": 1e5})
     with pytest.raises(InputError, match=r"item 1 of the list: focal=35.0 px"):
-        calibrate([torch.rand(3, 48, 64), photo], focal=35.0)  # checked on each image, named in a list
+        calibrate([torch.rand(3, 48, 64), photo], priors={"focal": 35.0})  # checked on each image, named in a list
 
 
 def test_the_plausible_range_in_pixels_follows_the_image():
@@ -54,8 +55,8 @@ def test_the_plausible_range_in_pixels_follows_the_image():
 def test_focal_35mm_is_converted_with_the_image_diagonal(photo):
     assert Priors(focal_35mm=35.0).focal_pixels(480, 640) == pytest.approx(35.0 * 800.0 / FILM_DIAGONAL_MM)
     assert FILM_DIAGONAL_MM == pytest.approx(43.27, abs=0.01)
-    by_mm = calibrate(photo, weights="none", focal_35mm=28.0)
-    by_px = calibrate(photo, weights="none", focal=28.0 * 800.0 / FILM_DIAGONAL_MM)
+    by_mm = calibrate(photo, weights="none", priors={"focal_35mm": 28.0})
+    by_px = calibrate(photo, weights="none", priors={"focal": 28.0 * 800.0 / FILM_DIAGONAL_MM})
     assert float(by_mm.focal) == pytest.approx(float(by_px.focal), rel=1e-6)
     assert float(by_mm.fov_v_std) == 0.0 and float(by_mm.pitch) == pytest.approx(float(by_px.pitch), abs=1e-4)
     assert Priors(focal_35mm=28.0).to_dict() == {"focal_35mm": 28.0}

@@ -23,7 +23,7 @@ def test_shared_intrinsics_give_every_photo_one_focal_length_near_the_truth(scen
     images = [s.image for s in scenes]
     truth = float(scenes[0].focal)
     alone = [float(r.focal) for r in calibrate(images, weights="none")]
-    shared = calibrate(images, weights="none", shared_intrinsics=True)
+    shared = calibrate(images, weights="none", priors={"shared_intrinsics": True})
     focals = [float(r.focal) for r in shared]
     # alone, each photo has its own error (several percent here); shared, one number for all
     assert max(alone) - min(alone) > 0.02 * truth
@@ -38,7 +38,8 @@ def test_shared_intrinsics_give_every_photo_one_focal_length_near_the_truth(scen
 def test_a_photo_without_lines_gets_its_own_flagged_answer_and_the_others_theirs(scenes):
     # a line-free photo once ended the whole call (RuntimeError: amin() of its empty segments)
     blank = np.full_like(scenes[0].image, 128)
-    results = calibrate([scenes[0].image, blank, scenes[1].image], weights="none", shared_intrinsics=True)
+    images = [scenes[0].image, blank, scenes[1].image]
+    results = calibrate(images, weights="none", priors={"shared_intrinsics": True})
     assert [bool(r.valid) for r in results] == [True, False, True]
     assert float(results[1].confidence) == 0.0
     assert [int(r.shared_photos) for r in results] == [2, 2, 2]  # the two photos with lines
@@ -50,13 +51,13 @@ def test_fewer_than_two_photos_with_lines_share_nothing_and_say_so(scenes):
     blank = np.full_like(scenes[0].image, 128)
     for images in ([scenes[0].image], [scenes[0].image, blank]):
         with pytest.warns(NGPWarning, match="calibrated alone"):
-            results = calibrate(images, weights="none", shared_intrinsics=True)
+            results = calibrate(images, weights="none", priors={"shared_intrinsics": True})
         # the photo keeps its own answer and uncertainty (it once said fov_v_std 0 at confidence 0.99)
         assert float(results[0].fov_v_std) == pytest.approx(float(alone.fov_v_std)) and float(alone.fov_v_std) > 0
         assert float(results[0].focal) == pytest.approx(float(alone.focal))
         assert results[0].shared_photos is None and "shared" not in results[0].to_dict()
     with pytest.warns(NGPWarning, match="one photo cannot share"):
-        assert calibrate(scenes[0].image, weights="none", shared_intrinsics=True).shared_photos is None
+        assert calibrate(scenes[0].image, weights="none", priors={"shared_intrinsics": True}).shared_photos is None
 
 
 def test_focal_support_of_a_photo_without_segments_is_zero():
@@ -68,14 +69,15 @@ def test_focal_support_of_a_photo_without_segments_is_zero():
 
 def test_a_batch_shares_its_focal_length_and_stays_batched(scenes):
     batch = torch.stack([torch.from_numpy(s.image).permute(2, 0, 1).float() / 255 for s in scenes[:4]])
-    result = calibrate(batch, weights="none", shared_intrinsics=True)
+    result = calibrate(batch, weights="none", priors={"shared_intrinsics": True})
     assert result.batched and len(result) == 4
     assert torch.allclose(result.focal, result.focal[:1].expand(4), rtol=1e-5)
     assert result.shared_photos.tolist() == [4, 4, 4, 4]
 
 
 def test_a_known_focal_length_is_every_photos(scenes):
-    results = calibrate([s.image for s in scenes[:2]], weights="none", focal=250.0, shared_intrinsics=True)
+    images = [s.image for s in scenes[:2]]
+    results = calibrate(images, weights="none", priors={"focal": 250.0, "shared_intrinsics": True})
     assert [float(r.focal) for r in results] == pytest.approx([250.0, 250.0], rel=1e-5)
     assert [float(r.fov_v_std) for r in results] == [0.0, 0.0]
 
@@ -83,16 +85,16 @@ def test_a_known_focal_length_is_every_photos(scenes):
 def test_photos_of_different_sizes_or_exif_are_refused(scenes):
     small = render_scene(3, (200, 160), CAMERA).image
     with pytest.raises(ValueError, match="of one size"):
-        calibrate([scenes[0].image, small], weights="none", shared_intrinsics=True)
+        calibrate([scenes[0].image, small], weights="none", priors={"shared_intrinsics": True})
     with pytest.raises(ValueError, match="exif"):
-        calibrate([scenes[0].image], weights="none", shared_intrinsics=True, exif=True)
-    with pytest.raises(TypeError, match="shared_intrinsics"):
-        calibrate(scenes[0].image, weights="none", shared_intrinsics="yes")
+        calibrate([scenes[0].image], weights="none", priors={"shared_intrinsics": True, "exif": True})
+    with pytest.raises(ValueError, match="shared_intrinsics.*True or False"):
+        calibrate(scenes[0].image, weights="none", priors={"shared_intrinsics": "yes"})
 
 
 def test_a_turned_photo_counts_as_the_same_camera(scenes):
     turned = np.ascontiguousarray(np.rot90(scenes[1].image))
-    results = calibrate([scenes[0].image, turned], weights="none", shared_intrinsics=True)
+    results = calibrate([scenes[0].image, turned], weights="none", priors={"shared_intrinsics": True})
     assert float(results[0].focal) == pytest.approx(float(results[1].focal), rel=1e-6)
 
 

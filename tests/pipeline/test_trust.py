@@ -10,7 +10,7 @@ from ngp_kornia import calibrate
 from ngp_kornia.geometry.frames import frames_from_vps
 from ngp_kornia.nets.fsnet import FSNet
 from ngp_kornia.pipeline import NeuralGeometricParser, ParserConfig
-from ngp_kornia.pipeline import parser as parser_module
+from ngp_kornia.pipeline import frame_search as search_module
 from ngp_kornia.pipeline.priors import Priors
 from ngp_kornia.pipeline.trust import TRUST_FILE, TrustModel
 from ngp_kornia.pipeline.trust_features import TrustFeatures, line_residual
@@ -68,18 +68,19 @@ def test_coefficients_file_must_match_the_inputs(tmp_path):
 
 
 def test_known_focal_is_kept_exactly_and_fov_std_is_zero(scene):
-    out = calibrate(scene.image, focal=scene.focal)
+    out = calibrate(scene.image, priors={"focal": scene.focal})
     assert float(out.focal) == pytest.approx(float(scene.focal), rel=1e-5)
     assert float(out.fov_v_std) == 0.0
-    by_fov = calibrate(scene.image, fov_v=scene.fov_v)
+    by_fov = calibrate(scene.image, priors={"fov_v": scene.fov_v})
     assert float(by_fov.focal) == pytest.approx(float(scene.focal), rel=1e-4)
-    assert float(calibrate(torch.zeros(3, 64, 64), focal=50.0).focal) == pytest.approx(50.0)  # no frame: the prior
+    no_frame = calibrate(torch.zeros(3, 64, 64), priors={"focal": 50.0})
+    assert float(no_frame.focal) == pytest.approx(50.0)  # no frame: the prior
 
 
-@pytest.mark.parametrize("kwargs", [{"focal": -3.0}, {"focal": math.nan}, {"fov_v": 0.0}, {"fov_v": 190.0}])
-def test_bad_prior_is_a_clear_error(kwargs):
+@pytest.mark.parametrize("priors", [{"focal": -3.0}, {"focal": math.nan}, {"fov_v": 0.0}, {"fov_v": 190.0}])
+def test_bad_prior_is_a_clear_error(priors):
     with pytest.raises(ValueError, match="focal|fov_v"):
-        calibrate(torch.rand(3, 64, 64), **kwargs)
+        calibrate(torch.rand(3, 64, 64), priors=priors)
 
 
 def test_convention_prior_focal_in_pseudo_camera_units():
@@ -122,8 +123,8 @@ def test_values_shared_by_the_parser_give_what_each_step_computes_alone(scene, m
     and the trust fields; each step computing them again from its own arguments gives the same answer bit for bit."""
     image = torch.from_numpy(scene.image).permute(2, 0, 1).float().div(255)
     shared = calibrate(image).to_dict()
-    attach = parser_module.attach_trust
-    monkeypatch.setattr(parser_module, "attach_trust", lambda *args, shared=None, **kwargs: attach(*args, **kwargs))
+    attach = search_module.attach_trust
+    monkeypatch.setattr(search_module, "attach_trust", lambda *args, shared=None, **kwargs: attach(*args, **kwargs))
     prepare = FSNet.prepare_inputs
     monkeypatch.setattr(FSNet, "prepare_inputs", lambda self, *args: prepare(self, *args[:4]))
     alone = calibrate(image).to_dict()
@@ -137,8 +138,8 @@ def test_the_parsers_horizon_search_gives_what_the_trust_fields_compute_alone(sc
     image = torch.from_numpy(scene.image).permute(2, 0, 1).float().div(255)
     config = ParserConfig().replace(refine=False)
     given = calibrate(image, config=config).to_dict()
-    attach = parser_module.attach_trust
-    monkeypatch.setattr(parser_module, "attach_trust", lambda *a, refinement=None, **kw: attach(*a, **kw))
+    attach = search_module.attach_trust
+    monkeypatch.setattr(search_module, "attach_trust", lambda *a, refinement=None, **kw: attach(*a, **kw))
     alone = calibrate(image, config=config).to_dict()
     for name in TRUST_FIELDS:
         assert given[name] == alone[name], name

@@ -69,7 +69,7 @@ def test_an_answer_without_evidence_is_a_level_camera_whichever_check_finds_it()
     out = calibrate(noise)
     assert not bool(out.valid) and float(out.confidence) == 0.0
     assert [float(v) for v in (out.pitch, out.roll, out.yaw)] == pytest.approx([0.0, 0.0, 0.0], abs=1e-5)
-    known = calibrate(noise, focal=500.0)  # a known focal length is kept
+    known = calibrate(noise, priors={"focal": 500.0})  # a known focal length is kept
     assert not bool(known.valid) and float(known.focal) == pytest.approx(500.0) and float(known.fov_v_std) == 0.0
 
 

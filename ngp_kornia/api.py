@@ -13,7 +13,7 @@ from torch import Tensor
 
 from ngp_kornia.errors import InputError, shown
 from ngp_kornia.pipeline import Calibration, NeuralGeometricParser, ParserConfig
-from ngp_kornia.pipeline.priors import PRIOR_NAMES, Priors, checked_priors, checked_seed
+from ngp_kornia.pipeline.priors import CALL_PRIORS, PRIOR_NAMES, Priors, checked_priors, checked_seed
 from ngp_kornia.pipeline.runner import (
     Run,
     calibrate_input,
@@ -47,11 +47,6 @@ __all__ = [
     "weight_set_config",
     "with_orientation",
 ]
-
-#: the entries of ``calibrate(priors=...)`` beside :class:`Priors`' own: whether to read a file's EXIF focal length,
-#: and whether the photos are one camera's
-CALL_PRIORS = ("exif", "shared_intrinsics")
-
 
 def load_parser(
     weights: str | Path | Sequence[str | Path] = "default", config: ParserConfig | Mapping | None = None

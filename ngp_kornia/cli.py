@@ -344,8 +344,8 @@ def _rectify(args: argparse.Namespace) -> int:
             homography = frontal_homography(K, R, axis=0 if args.axis == "x" else 2)
         image = torch.from_numpy(rgb).permute(2, 0, 1)[None].double().div(255.0)
         crop = args.crop or ("valid" if args.mode == "frontal" else "keep")
-        lens = {} if result.k1 is None else {"k1": result.k1[None].double(), "K": K}  # undistorted on the way
-        warped, _ = rectify(image, homography, crop=crop, **lens)  # too oblique for keep: the error names --crop
+        camera = result.camera.apply(lambda t: t[None]).to(torch.float64)  # a lens distortion is undone on the way
+        warped, _ = rectify(image, homography, crop=crop, camera=camera)  # too oblique for keep: the error names --crop
         out = warped[0].permute(1, 2, 0).mul(255.0).round().clamp(0, 255).to(torch.uint8).numpy()
         write_image(path, out)
     except _user_errors() as err:

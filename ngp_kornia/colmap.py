@@ -5,7 +5,7 @@ What is written, per photo (matched to the database's images by name: its path r
 as ``ngp predict`` names them relative to its folder):
 
 - **a camera** with ``prior_focal_length`` set, the model :meth:`Calibration.to_colmap` chooses (``SIMPLE_PINHOLE``,
-  ``RADIAL`` with ``k1``) or ``model=``;
+  ``RADIAL`` for a lens with a distortion) or ``model=``;
 - **a pose prior's gravity**: the direction of gravity in the camera frame (x right, y down, z forward, as ours), so
   ``(0, 1, 0)`` for a level camera; ``-up`` of the calibration (:func:`gravity_in_camera`). COLMAP's rotation
   averaging, gravity refinement and ``compute_rot90_from_gravity`` read it.

@@ -21,7 +21,7 @@ from torch import Tensor
 from ngp_kornia.evaluation.datasets import LabelledImage
 from ngp_kornia.geometry.camera import horizon_from_zenith, image_center, pitch_roll_from_up, zenith_from_up
 from ngp_kornia.pipeline import Calibration, NeuralGeometricParser, ParserConfig
-from ngp_kornia.pipeline.priors import Priors
+from ngp_kornia.pipeline.priors import CALL_PRIORS, PRIOR_NAMES, Priors
 from ngp_kornia.pipeline.segments import longest_segments, pad_segments
 from ngp_kornia.pipeline.settings import locate_setting
 
@@ -165,19 +165,20 @@ def _converted(value: str | bool, default: object, key: str, spec: str | None) -
         raise ValueError(f"{key}={value!r} in the weights spec {spec!r} is not a {kind.__name__}") from None
 
 
-#: the spec keys that are ``calibrate()``'s call arguments rather than settings: ``principal_point=estimate``,
-#: ``k1=estimate``, ``shared_intrinsics=true`` (the whole set as one camera), ``gravity_noise=DEG`` (a gravity prior
-#: from the image's true pitch and roll plus Gaussian noise of that standard deviation, drawn from the seed and the
-#: image's name) and ``gravity_std=DEG`` (the prior's stated standard deviation; ``gravity_noise`` by default)
-CALL_ARGUMENTS = ("principal_point", "k1", "shared_intrinsics", "gravity_noise", "gravity_std")
+#: the spec keys that are ``calibrate()``'s priors rather than settings: any prior as ``NAME=VALUE`` (a number, or
+#: ``estimate`` for the camera options that are estimated: ``principal_point=estimate``), ``shared_intrinsics=true``
+#: (the whole set as one camera), ``gravity_noise=DEG`` (a gravity prior from the image's true pitch and roll plus
+#: Gaussian noise of that standard deviation, drawn from the seed and the image's name) and ``gravity_std=DEG`` (the
+#: prior's stated standard deviation; ``gravity_noise`` by default)
+CALL_ARGUMENTS = (*PRIOR_NAMES, *CALL_PRIORS, "gravity_noise")
 
 
 def call_arguments(spec: str | None) -> dict:
     """The call arguments of a spec (:data:`CALL_ARGUMENTS`), their values converted.
 
     Example:
-        >>> call_arguments("default:k1=estimate,gravity_noise=1,top_k=4")
-        {'k1': 'estimate', 'gravity_noise': 1.0}
+        >>> call_arguments("default:principal_point=estimate,gravity_noise=1,top_k=4")
+        {'principal_point': 'estimate', 'gravity_noise': 1.0}
     """
     overrides = parse_weights_spec(spec)[1]
     out: dict = {}
@@ -186,9 +187,7 @@ def call_arguments(spec: str | None) -> dict:
             continue
         value = overrides[name]
         try:
-            out[name] = value if name in ("principal_point", "k1") and value == "estimate" else (
-                value if isinstance(value, bool) else float(value)
-            )
+            out[name] = value if value == "estimate" or isinstance(value, bool) else float(value)
         except ValueError:
             raise ValueError(f"{name}={value!r} in the weights spec {spec!r} is not a number or 'estimate'") from None
     return out
@@ -247,7 +246,8 @@ def calibration_method(
         if noise is not None:
             prior = {"gravity": gravity_prior(image, seed, noise), "gravity_std": stated or max(noise, 0.1)}
         if image.segments is not None:
-            return calibrate_segments(on_segments(), image, seed, Priors(**{**prior, **extra}))
+            known = {name: value for name, value in extra.items() if name in PRIOR_NAMES}
+            return calibrate_segments(on_segments(), image, seed, Priors(**{**prior, **known}))
         return calibrate(str(image.image_path), **options, priors={**extra, **prior})
 
     return run

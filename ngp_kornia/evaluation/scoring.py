@@ -26,7 +26,10 @@ from ngp_kornia.metrics import (
     up_vector_error,
 )
 
-__all__ = ["evaluate", "kind_table", "markdown_table"]
+__all__ = ["CAMERA_METRICS", "evaluate", "kind_table", "markdown_table"]
+
+#: the errors of the camera options where the truth and the estimate have them, with their words in tables
+CAMERA_METRICS = {"principal_point": "principal point error (px)", "k1": "k1 error"}
 
 #: scene kinds of ``ngp render`` in table order
 RENDER_KINDS = ("street", "indoor", "atlanta")

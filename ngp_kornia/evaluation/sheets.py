@@ -97,7 +97,7 @@ def sheet_name(set_name: str, spec: str) -> str:
     digits, ``.`` and ``-`` made ``_``.
 
     Example:
-        >>> sheet_name("York Urban", "default:k1=estimate")
-        'York_Urban__default_k1_estimate.png'
+        >>> sheet_name("York Urban", "default:gravity_noise=1")
+        'York_Urban__default_gravity_noise_1.png'
     """
     return re.sub(r"[^A-Za-z0-9.-]", "_", set_name) + "__" + re.sub(r"[^A-Za-z0-9.-]", "_", spec) + ".png"

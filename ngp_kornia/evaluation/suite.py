@@ -47,7 +47,7 @@ from ngp_kornia.evaluation.datasets import (
     load_yud,
 )
 from ngp_kornia.evaluation.methods import calibrate_method, run_interleaved
-from ngp_kornia.evaluation.scoring import evaluate
+from ngp_kornia.evaluation.scoring import CAMERA_METRICS, evaluate
 
 __all__ = [
     "DEFAULT_SEEDS",
@@ -170,8 +170,7 @@ def _variant_rows(title: str, set_name: str, result: dict, first: bool) -> dict[
     summary = result["summary"]
     if summary.get("horizon", {}).get("count"):
         rows[f"{title}: median horizon error (% of height)"] = 100 * summary["horizon"]["median"]
-    cameras = (("principal_point", "principal point error (px)"), ("k1", "k1 error"))
-    for key, what in (("up", "up error (deg)"), ("fov_v", "FoV_v error (deg)"), *cameras):
+    for key, what in (("up", "up error (deg)"), ("fov_v", "FoV_v error (deg)"), *CAMERA_METRICS.items()):
         if first and summary.get(key, {}).get("count"):
             rows[f"{set_name}: {what} mean"] = summary[key]["mean"]
             rows[f"{set_name}: {what} median"] = summary[key]["median"]

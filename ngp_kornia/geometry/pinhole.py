@@ -44,7 +44,7 @@ from ngp_kornia.geometry.camera import (
     vanishing_points_from_rotation,
     zenith_from_up,
 )
-from ngp_kornia.geometry.lens import opencv_radial
+from ngp_kornia.geometry.lens import distort_points, opencv_radial, undistort_points
 
 __all__ = ["Camera"]
 
@@ -176,6 +176,29 @@ class Camera:
     def image_size(self) -> Tensor:
         """(B, 2) ``(height, width)`` in pixels."""
         return self._image_size
+
+    @property
+    def distorted(self) -> bool:
+        """Whether the lens has a distortion (``k1`` is set)."""
+        return self._k1 is not None
+
+    def undistort(self, points: Tensor) -> Tensor:
+        """Pixels (B, N, 2) of the photos as taken -> those of the undistorted images (:mod:`~ngp_kornia.geometry.lens`,
+        in the points' dtype); as they are for a pinhole."""
+        if self._k1 is None:
+            return points
+        return undistort_points(points, self.K.to(points), self._k1.to(points))
+
+    def distort(self, points: Tensor) -> Tensor:
+        """Pixels (B, N, 2) of the undistorted images -> those of the photos as taken (the inverse of
+        :meth:`undistort`)."""
+        if self._k1 is None:
+            return points
+        return distort_points(points, self.K.to(points), self._k1.to(points))
+
+    def with_matrix(self, K: Tensor, R: Tensor) -> Camera:
+        """The camera of intrinsics ``K`` and rotations ``R`` in place of its own, its image size and lens kept."""
+        return Camera.from_matrix(K, R, self._image_size, self._k1)
 
     # --- kornia's types ---
 

@@ -24,7 +24,7 @@ from kornia.geometry.transform import remap, warp_perspective
 from torch import Tensor
 
 from ngp_kornia.geometry.camera import image_center
-from ngp_kornia.geometry.lens import distort_points, undistort_points
+from ngp_kornia.geometry.pinhole import Camera
 
 __all__ = ["frontal_homography", "level_homography", "rectify", "upright_homography"]
 
@@ -172,16 +172,15 @@ def _corners(height: int, width: int, inset: float, like: Tensor) -> Tensor:
 BORDER_POINTS = 64
 
 
-def _border(height: int, width: int, inset: float, Hm: Tensor, lens: tuple[Tensor, Tensor] | None) -> Tensor:
+def _border(height: int, width: int, inset: float, Hm: Tensor, lens: Camera | None) -> Tensor:
     """The image's border (B, P, 2) in order around it: its four corners, or, for a distorted image (``lens``: its
-    ``K`` (B, 3, 3) and ``k1`` (B,)), :data:`BORDER_POINTS` points per side, undistorted."""
+    batched camera), :data:`BORDER_POINTS` points per side, undistorted."""
     corners = _corners(height, width, inset, Hm)
     if lens is None:
         return corners.expand(Hm.shape[0], 4, 2)
     t = torch.arange(BORDER_POINTS, dtype=Hm.dtype, device=Hm.device)[:, None] / BORDER_POINTS
     sides = [corners[i] + t * (corners[(i + 1) % 4] - corners[i]) for i in range(4)]
-    K, k1 = lens
-    return undistort_points(torch.cat(sides).expand(Hm.shape[0], -1, 2), K.to(Hm), k1.to(Hm))
+    return lens.undistort(torch.cat(sides).expand(Hm.shape[0], -1, 2))
 
 
 def _keep_box(Hm: Tensor, height: int, width: int, lens=None) -> tuple[Tensor, Tensor]:
@@ -222,7 +221,7 @@ def _valid_box(Hm: Tensor, height: int, width: int, lens=None) -> tuple[Tensor, 
 
 
 def rectify(
-    images: Tensor, H: Tensor, size: tuple[int, int] | None = None, crop: str = "keep", k1=None, K=None
+    images: Tensor, H: Tensor, size: tuple[int, int] | None = None, crop: str = "keep", camera: Camera | None = None
 ) -> tuple[Tensor, Tensor]:
     r"""Warp images with a rectifying homography, choosing the output frame.
 
@@ -236,19 +235,20 @@ def rectify(
     on its own box. With ``size`` the chosen frame is scaled uniformly to fit into ``size`` and centred; without it
     the output may not exceed ``4x`` the input area, to stay sane for extreme homographies.
 
-    With ``k1`` (the division model's distortion, :mod:`ngp_kornia.geometry.lens`) the images are undistorted on the
-    way: ``H`` maps the undistorted image's pixels (a calibration with ``k1``'s), and the frame fits its curved border.
+    With ``camera``, the images' batched :class:`~ngp_kornia.geometry.pinhole.Camera` (a calibration's ``camera``),
+    a lens with a distortion (:mod:`ngp_kornia.geometry.lens`) is undone on the way: ``H`` maps the undistorted
+    image's pixels (as a calibration's ``K`` and ``R`` give it), and the frame fits its curved border.
 
     Args:
         images: (B, C, H, W) floating-point images.
         H: (B, 3, 3) homographies from input pixels to rectified pixels (e.g. :func:`upright_homography`).
         size: output ``(height, width)``; derived from the frame when None.
         crop: ``"keep"`` or ``"valid"``.
-        k1, K: (B,) radial distortion of the images (None: pinhole images) and (B, 3, 3) their intrinsics.
+        camera: the images' cameras (batch B), or None for pinhole images.
 
     Returns:
         The warped images (B, C, h, w) and the (B, 3, 3) homography actually applied (``H`` followed by the
-        output's scale and translation), from input (with ``k1``: undistorted input) pixels to output pixels.
+        output's scale and translation), from input (with a distortion: undistorted input) pixels to output pixels.
 
     Raises:
         ValueError: a bad ``crop`` or ``size``; a homography sending part of the image to infinity; an output above
@@ -267,26 +267,27 @@ def rectify(
         raise ValueError(f"crop must be 'keep' or 'valid', got {crop!r}")
     if size is not None and (len(size) != 2 or min(int(s) for s in size) < 1):
         raise ValueError(f"size must be (height, width) with positive entries, got {size!r}")
-    if k1 is not None and (K is None or K.shape != H.shape or k1.shape != H.shape[:1]):
-        raise ValueError("rectify() with k1 (B,) needs the images' intrinsics K (B, 3, 3) too")
+    if camera is not None and (not camera.batched or len(camera) != H.shape[0]):
+        raise ValueError(f"rectify() takes the cameras of the {H.shape[0]} images as one batched Camera "
+                         "(cal.camera of a batch; for one image, cal.camera.apply(lambda t: t[None]))")
     height, width = images.shape[-2:]
     Hm = H.to(images)
     Hm = Hm / Hm[:, 2:, 2:].where(Hm[:, 2:, 2:].abs() > _tiny(Hm), torch.ones_like(Hm[:, 2:, 2:]))
-    lens = None if k1 is None else (K, k1)
+    lens = camera if camera is not None and camera.distorted else None
     frame, out_h, out_w = _output_frame(Hm, height, width, crop, size, lens)
     applied = frame @ Hm
     if lens is None:
         return warp_perspective(images, applied, (out_h, out_w), align_corners=True), applied
-    return _undistorting_warp(images, applied, (out_h, out_w), K.to(images), k1.to(images)), applied
+    return _undistorting_warp(images, applied, (out_h, out_w), lens), applied
 
 
-def _undistorting_warp(images: Tensor, applied: Tensor, size: tuple[int, int], K: Tensor, k1: Tensor) -> Tensor:
+def _undistorting_warp(images: Tensor, applied: Tensor, size: tuple[int, int], lens: Camera) -> Tensor:
     """The images sampled at every output pixel taken back through ``applied`` and distorted (bilinear, zeros
     outside)."""
     B, (out_h, out_w) = images.shape[0], size
     grid = create_meshgrid(out_h, out_w, False, images.device, images.dtype).reshape(1, -1, 2).expand(B, -1, 2)
     back, _ = _project(torch.linalg.inv(applied), grid)
-    source = distort_points(back, K, k1).reshape(B, out_h, out_w, 2)
+    source = lens.distort(back).reshape(B, out_h, out_w, 2)
     return remap(images, source[..., 0], source[..., 1], align_corners=True)
 
 

@@ -20,6 +20,7 @@ With neither a principal point nor a distortion asked for, the stages run once o
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import NamedTuple
 
 import torch
 from kornia.geometry import create_meshgrid
@@ -27,13 +28,23 @@ from kornia.geometry.transform import remap
 from torch import Tensor
 
 from ngp_kornia.geometry import distort_points, image_center, pseudo_intrinsics, undistort_points
-from ngp_kornia.pipeline.distortion import estimate_distortion, k1_from_units, units_from_k1
+from ngp_kornia.pipeline.distortion import estimate_distortion, joint_k1, k1_from_units, units_from_k1
 from ngp_kornia.pipeline.frame_search import FrameSearch, Search, View
-from ngp_kornia.pipeline.principal_point import estimate_principal_point
+from ngp_kornia.pipeline.principal_point import estimate_principal_point, joint_principal_point
 from ngp_kornia.pipeline.priors import ESTIMATE, Priors
 from ngp_kornia.pipeline.result import Calibration
+from ngp_kornia.pipeline.settings import ParserConfig
 
-__all__ = ["calibrate_camera_model", "moved_calibration"]
+__all__ = [
+    "SharedOptions",
+    "calibrate_camera_model",
+    "estimates",
+    "joint_options",
+    "moved_calibration",
+    "option_evidence",
+    "tied_to_pixels",
+    "with_shared_options",
+]
 
 
 def moved_calibration(cal: Calibration, offset: Tensor) -> Calibration:
@@ -161,3 +172,66 @@ def _distortion(search: FrameSearch, view: View, priors: Priors, point: Tensor) 
         focal = torch.tensor(known, dtype=torch.float64, device=view.segments.device)
     k1 = torch.tensor(priors.each("k1", B), dtype=torch.float64, device=focal.device)
     return units_from_k1(k1, focal, height, width)
+
+
+# --- the options of one camera shared by many photos (pipeline/shared_camera.py) ---
+
+
+class SharedOptions(NamedTuple):
+    """The camera options photos of one camera share, where asked for as ``"estimate"`` (:func:`joint_options`).
+
+    Attributes:
+        priors: the values every photo then takes as known, as :class:`~ngp_kornia.pipeline.priors.Priors` names
+            them.
+        point_std: the shared principal point's standard deviation per axis, pixels; None where not estimated.
+    """
+
+    priors: dict
+    point_std: tuple[float, float] | None = None
+
+
+def estimates(priors: Priors) -> bool:
+    """Whether the priors ask for an option to be estimated (the principal point or the distortion)."""
+    return priors.principal_point == ESTIMATE or priors.k1 == ESTIMATE
+
+
+def tied_to_pixels(priors: Priors) -> bool:
+    """Whether an option the photos share is tied to their pixels, so that a turned photo is another camera (an
+    estimated principal point turns with the photo; a focal length or a radial distortion does not)."""
+    return priors.principal_point == ESTIMATE
+
+
+def option_evidence(alone: Calibration, priors: Priors) -> dict[str, Tensor]:
+    """What one photo's own calibration (batched or not) says of the options asked for as ``"estimate"``: its
+    principal point and that point's standard deviation (B, 2), its distortion (B,)."""
+    batch = (lambda t: t) if alone.batched else (lambda t: t[None])
+    out = {}
+    if priors.principal_point == ESTIMATE:
+        out["point"], out["point_std"] = batch(alone.principal_point), batch(alone.principal_point_std)
+    if priors.k1 == ESTIMATE:
+        out["k1"] = batch(alone.k1)
+    return out
+
+
+def joint_options(evidence: list[dict[str, Tensor]], config: ParserConfig, height: int, width: int) -> SharedOptions:
+    """The options photos of one camera share, from each photo's :func:`option_evidence`: the principal point
+    combines every photo's own estimate (:func:`~ngp_kornia.pipeline.principal_point.joint_principal_point`, each
+    photo's evidence added once to the prior ``trust.principal_point_std``), the distortion is the median of theirs
+    (:func:`~ngp_kornia.pipeline.distortion.joint_k1`)."""
+    found = {name: torch.cat([e[name] for e in evidence]) for name in (evidence[0] if evidence else {})}
+    priors, point_std = {}, None
+    if "point" in found:
+        prior = config.trust.principal_point_std * height
+        point, point_std = joint_principal_point(found["point"], found["point_std"], image_center(height, width), prior)
+        priors["principal_point"] = point
+    if "k1" in found:
+        priors["k1"] = joint_k1(found["k1"])
+    return SharedOptions(priors, point_std)
+
+
+def with_shared_options(result: Calibration, options: SharedOptions | None) -> Calibration:
+    """A photo's calibration with the shared options' uncertainty: the shared principal point's standard
+    deviation where it was estimated jointly."""
+    if options is None or options.point_std is None:
+        return result
+    return replace(result, principal_point_std=result.K.new_tensor(options.point_std).expand_as(result.K[..., 0, :2]))

@@ -32,7 +32,15 @@ from torch import Tensor
 
 from ngp_kornia.pipeline.settings import DistortionSettings
 
-__all__ = ["COARSE", "chained_pairs", "distortion_costs", "estimate_distortion", "k1_from_units", "units_from_k1"]
+__all__ = [
+    "COARSE",
+    "chained_pairs",
+    "distortion_costs",
+    "estimate_distortion",
+    "joint_k1",
+    "k1_from_units",
+    "units_from_k1",
+]
 
 
 #: the first search's step, in steps of the second's (which spans this many steps either side of its best)
@@ -174,3 +182,10 @@ def _parabola_minimum(lams: Tensor, cost: Tensor, step: float) -> Tensor:
     offset = torch.where(curve > 0, 0.5 * (y0 - y2) / curve.clamp_min(1e-300), torch.zeros_like(curve))
     lam = lams.gather(1, inner[:, None])[:, 0] + offset.clamp(-0.5, 0.5) * step
     return torch.where((i == inner) & torch.isfinite(lam), lam, lams.gather(1, i[:, None])[:, 0])
+
+
+def joint_k1(values: Tensor) -> float:
+    """One camera's distortion from each photo's own estimate (P,): the median of those that found one (an
+    estimate of 0 is a photo without evidence), 0 when none did."""
+    found = values[values != 0]
+    return float(found.median()) if len(found) else 0.0

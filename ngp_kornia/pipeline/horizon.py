@@ -44,7 +44,6 @@ import torch
 from torch import Tensor
 
 from ngp_kornia.geometry import (
-    Camera,
     canonical_manhattan_rotation,
     pitch_roll_from_up,
     rotation_from_up,
@@ -331,4 +330,4 @@ def _with_up(cal: Calibration, use: Tensor, K: Tensor, up: Tensor, horizontal: T
     if not bool(use.any()):  # every frame kept (the common case): K is the calibration's own
         return cal
     R = torch.where(use[:, None, None], canonical_manhattan_rotation(rotation_from_up(up, horizontal)), cal.R)
-    return replace(cal, camera=Camera.from_matrix(K, R, cal.image_size, cal.k1))
+    return replace(cal, camera=cal.camera.with_matrix(K, R))

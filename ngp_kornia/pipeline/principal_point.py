@@ -28,7 +28,7 @@ from torch import Tensor
 
 from ngp_kornia.geometry import intrinsics_matrix
 
-__all__ = ["PrincipalPoint", "estimate_principal_point", "orthocentre"]
+__all__ = ["PrincipalPoint", "estimate_principal_point", "joint_principal_point", "orthocentre"]
 
 #: fewer inliers than this leave the principal point at the prior
 MIN_INLIERS = 12
@@ -162,3 +162,27 @@ def estimate_principal_point(
     point, std = torch.where(ok, point, centre), torch.where(ok, std, prior_std_t)
     return PrincipalPoint(point.to(K.dtype), std.to(K.dtype))
 
+
+def joint_principal_point(
+    points: Tensor, stds: Tensor, centre: Tensor, prior_std: float
+) -> tuple[tuple[float, float], tuple[float, float]]:
+    """One camera's principal point from each photo's own estimate ``points`` (P, 2) with ``stds`` (P, 2)
+    (:func:`estimate_principal_point`, each under the prior
+    ``N(centre, prior_std^2)`` per axis): the prior counted once and every photo's evidence, its posterior's
+    precision less the prior's, added. Returns the point and its standard deviation, pixels.
+
+    Example:
+        >>> point, std = joint_principal_point(torch.tensor([[330.0, 240.0], [330.0, 240.0]]),
+        ...                                    torch.full((2, 2), 6.0), torch.tensor([320.0, 240.0]), 12.0)
+        >>> [round(v, 2) for v in point], [round(v, 2) for v in std]  # two photos' evidence: nearer, narrower
+        ([331.43, 240.0], [4.54, 4.54])
+    """
+    points, stds, centre = points.double(), stds.double(), centre.double()
+    if prior_std <= 0:
+        return tuple(centre.tolist()), (0.0, 0.0)
+    prior = 1.0 / prior_std**2
+    evidence = (1.0 / stds.clamp_min(1e-6).square() - prior).clamp_min(0.0)  # (P, 2) each photo's own precision
+    means = (points / stds.clamp_min(1e-6).square() - centre * prior) / evidence.clamp_min(1e-300)
+    precision = prior + evidence.sum(0)
+    point = (centre * prior + (evidence * torch.where(evidence > 0, means, 0.0)).sum(0)) / precision
+    return tuple(point.tolist()), tuple(precision.rsqrt().tolist())

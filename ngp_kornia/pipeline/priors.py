@@ -37,9 +37,11 @@ from ngp_kornia.pipeline.focal_prior import (
 from ngp_kornia.suggest import did_you_mean
 
 __all__ = [
+    "CALL_PRIORS",
     "DEFAULT_GRAVITY_STD",
     "ESTIMATE",
     "FOCAL_35MM_RANGE",
+    "INTRINSIC_PRIORS",
     "MAX_SEED",
     "PRIOR_NAMES",
     "PerImage",
@@ -77,6 +79,11 @@ def checked_seed(seed: object) -> int:
 _FOCAL_PRIORS = ("focal", "fov_v", "focal_35mm")
 #: every prior, as :class:`Priors` names them
 PRIOR_NAMES = (*_FOCAL_PRIORS, "gravity", "gravity_std", "principal_point", "k1")
+#: the priors of the camera itself (its lens and sensor), which photos of one camera share; gravity is the pose's
+INTRINSIC_PRIORS = (*_FOCAL_PRIORS, "principal_point", "k1")
+#: the entries of ``ngp_kornia.calibrate(priors=...)`` beside :class:`Priors`' own: whether to read a file's EXIF
+#: focal length, and whether the photos are one camera's (read where files are read and photos run together)
+CALL_PRIORS = ("exif", "shared_intrinsics")
 
 
 def _gravity_std(value: object) -> float | None:

@@ -20,9 +20,8 @@ lengths and the scores are summed:
    resamples of the photos (a fixed seed: the same photos give the same answer).
 
 Each photo's rotation is then found again with the shared focal length as a known one (``ngp_kornia.calibrate``).
-A principal point or distortion asked for as ``"estimate"`` is shared too: the principal point combines every
-photo's own estimate (:func:`joint_principal_point`, each photo's evidence added once to the prior), the distortion
-is the median of theirs (:func:`joint_k1`); the second pass then takes them as known.
+The camera options asked for as ``"estimate"`` (the principal point, the distortion) are shared too
+(:func:`~ngp_kornia.pipeline.camera_model.joint_options`); the second pass then takes them as known.
 """
 
 from __future__ import annotations
@@ -36,15 +35,23 @@ import torch
 from torch import Tensor
 
 from ngp_kornia.errors import InputError, NGPError, NGPWarning
-from ngp_kornia.geometry import image_center, intrinsics_matrix, segment_lengths
+from ngp_kornia.geometry import intrinsics_matrix, segment_lengths
 from ngp_kornia.io import read_rgb_oriented
+from ngp_kornia.pipeline.camera_model import (
+    SharedOptions,
+    estimates,
+    joint_options,
+    option_evidence,
+    tied_to_pixels,
+    with_shared_options,
+)
 from ngp_kornia.pipeline.line_kernel import (
     camera_segments,
     closeness_kernel,
     scaled_camera_segments,
 )
 from ngp_kornia.pipeline.polish import refit_rotation
-from ngp_kornia.pipeline.priors import ESTIMATE, PerImage
+from ngp_kornia.pipeline.priors import INTRINSIC_PRIORS, PerImage
 from ngp_kornia.pipeline.result import Calibration
 from ngp_kornia.pipeline.runner import Input, Run, calibrate_input, item_run, pixels, read_input
 from ngp_kornia.pipeline.segments import detect_segments
@@ -57,8 +64,6 @@ __all__ = [
     "focal_grid",
     "focal_support",
     "joint_focal",
-    "joint_k1",
-    "joint_principal_point",
     "nearest_rotation",
     "not_shared_folders",
     "not_shared_message",
@@ -74,17 +79,14 @@ class SharedFocal(NamedTuple):
         focal: the focal length, pixels.
         std: its standard deviation over resamples of the photos, pixels (0 for a single photo).
         photos: how many photos gave evidence (those with a valid frame).
-        principal_point: ``(cx, cy)``, the jointly estimated principal point, pixels; None where not estimated.
-        principal_point_std: its standard deviation per axis, pixels.
-        k1: the jointly estimated distortion (:mod:`ngp_kornia.geometry.lens`); None where not estimated.
+        options: the camera options the photos share where estimated
+            (:class:`~ngp_kornia.pipeline.camera_model.SharedOptions`); None where none is.
     """
 
     focal: float
     std: float
     photos: int
-    principal_point: tuple[float, float] | None = None
-    principal_point_std: tuple[float, float] | None = None
-    k1: float | None = None
+    options: SharedOptions | None = None
 
 
 def focal_grid(height: int, width: int, settings: SharedSettings, sampling: SamplingSettings) -> Tensor:
@@ -208,43 +210,7 @@ def with_shared_focal(result: Calibration, shared: SharedFocal) -> Calibration:
     f, height = result.focal, result.image_size[..., 0].to(result.focal)
     fov_std = torch.rad2deg(shared.std * height / (f.square() + height.square() / 4.0))
     photos = torch.full_like(result.focal, shared.photos, dtype=torch.long)
-    result = replace(result, fov_v_std=fov_std, shared_photos=photos)
-    if shared.principal_point_std is None:
-        return result
-    std = result.K.new_tensor(shared.principal_point_std).expand_as(result.K[..., 0, :2])
-    return replace(result, principal_point_std=std)
-
-
-def joint_principal_point(
-    points: Tensor, stds: Tensor, centre: Tensor, prior_std: float
-) -> tuple[tuple[float, float], tuple[float, float]]:
-    """One camera's principal point from each photo's own estimate ``points`` (P, 2) with ``stds`` (P, 2)
-    (:func:`~ngp_kornia.pipeline.principal_point.estimate_principal_point`, each under the prior
-    ``N(centre, prior_std^2)`` per axis): the prior counted once and every photo's evidence, its posterior's
-    precision less the prior's, added. Returns the point and its standard deviation, pixels.
-
-    Example:
-        >>> point, std = joint_principal_point(torch.tensor([[330.0, 240.0], [330.0, 240.0]]),
-        ...                                    torch.full((2, 2), 6.0), torch.tensor([320.0, 240.0]), 12.0)
-        >>> [round(v, 2) for v in point], [round(v, 2) for v in std]  # two photos' evidence: nearer, narrower
-        ([331.43, 240.0], [4.54, 4.54])
-    """
-    points, stds, centre = points.double(), stds.double(), centre.double()
-    if prior_std <= 0:
-        return tuple(centre.tolist()), (0.0, 0.0)
-    prior = 1.0 / prior_std**2
-    evidence = (1.0 / stds.clamp_min(1e-6).square() - prior).clamp_min(0.0)  # (P, 2) each photo's own precision
-    means = (points / stds.clamp_min(1e-6).square() - centre * prior) / evidence.clamp_min(1e-300)
-    precision = prior + evidence.sum(0)
-    point = (centre * prior + (evidence * torch.where(evidence > 0, means, 0.0)).sum(0)) / precision
-    return tuple(point.tolist()), tuple(precision.rsqrt().tolist())
-
-
-def joint_k1(values: Tensor) -> float:
-    """One camera's distortion from each photo's own estimate (P,): the median of those that found one (an
-    estimate of 0 is a photo without evidence), 0 when none did."""
-    found = values[values != 0]
-    return float(found.median()) if len(found) else 0.0
+    return with_shared_options(replace(result, fov_v_std=fov_std, shared_photos=photos), shared.options)
 
 
 def not_shared_message(photos: int, total: int) -> str:
@@ -303,10 +269,8 @@ def calibrate_shared(items: list, run: Run) -> list[Calibration]:
         warnings.warn(NGPWarning(not_shared_message(shared.photos, len(items))), stacklevel=3)
         return alone
     priors = run.priors.with_focal(shared.focal)
-    if shared.principal_point is not None:
-        priors = replace(priors, principal_point=shared.principal_point)
-    if shared.k1 is not None:
-        priors = replace(priors, k1=shared.k1)
+    if shared.options is not None:
+        priors = replace(priors, **shared.options.priors)
     results = []
     with Lookahead(lambda i: _pixels_again(items[i], kept[i])) as ahead:
         for i, item in enumerate(items):
@@ -316,14 +280,10 @@ def calibrate_shared(items: list, run: Run) -> list[Calibration]:
     return results
 
 
-#: the priors of the camera itself, which photos that share it share
-_INTRINSICS = ("focal", "fov_v", "focal_35mm", "principal_point", "k1")
-
-
 def _checked_run(run: Run, photos: int) -> Run:
     """The call with its priors for ``photos`` photos: the camera's own one for all (a gravity prior may differ)."""
     priors = run.priors.for_batch(photos, "list")
-    for name in _INTRINSICS:
+    for name in INTRINSIC_PRIORS:
         if isinstance(getattr(priors, name), PerImage):
             raise InputError(f"shared_intrinsics: the photos are one camera, so {name} is one value for all of "
                              "them, not one per photo")
@@ -345,9 +305,8 @@ def _first_pass(items: list, run: Run, skip_unreadable: bool = False) -> tuple[l
     pixels only where they are the caller's tensor or a stand-in), the joint camera and the photos' own results
     (none where nothing is estimated jointly). With ``skip_unreadable`` a photo that cannot be read or calibrated
     is left out (and nothing is kept of any)."""
-    kept, found, sizes, alone = [], {"support": [], "valid": [], "point": [], "point_std": [], "k1": []}, [], []
+    kept, found, sizes, alone = [], {"support": [], "valid": [], "options": []}, [], []
     priors = run.priors
-    estimates = priors.principal_point == ESTIMATE or priors.k1 == ESTIMATE
     with Lookahead(lambda i: _with_segments(read_input(items[i], item_run(run, i)), run)) as ahead:
         for i, item in enumerate(items):
             try:
@@ -357,8 +316,8 @@ def _first_pass(items: list, run: Run, skip_unreadable: bool = False) -> tuple[l
                     raise
                 continue
             sizes.append(tuple(given.batch.shape[-2:]))
-            height, width = _one_size(sizes, priors.principal_point == ESTIMATE)
-            if not priors.known_focal or estimates:
+            height, width = _one_size(sizes, tied_to_pixels(priors))
+            if not priors.known_focal or estimates(priors):
                 alone.append(calibrate_input(item, given, run))
                 _evidence(found, alone[-1], given, run, height, width)
             # the caller's pixels, or a stand-in, are kept; a file's are read again
@@ -370,20 +329,15 @@ def _first_pass(items: list, run: Run, skip_unreadable: bool = False) -> tuple[l
 
 
 def _evidence(found: dict, alone: Calibration, given: Input, run: Run, height: int, width: int) -> None:
-    """What one photo's own calibration says of the camera: its support on the focal grid, its principal point
-    and distortion (where estimated), appended to ``found``."""
+    """What one photo's own calibration says of the camera: its support on the focal grid and of the options
+    asked for as estimates (:func:`~ngp_kornia.pipeline.camera_model.option_evidence`), appended to ``found``."""
     K, R, ok = (t if alone.batched else t[None] for t in (alone.K, alone.R, alone.valid))
     config, priors = run.parser.config, run.priors
     found["valid"].append(ok.cpu())  # the photos with lines to measure the camera by
     if not priors.known_focal:
         grid = focal_grid(height, width, config.shared, config.sampling)
         found["support"].append(focal_support(K, R, given.segments.to(K), given.mask, grid, config.shared))
-    if priors.principal_point == ESTIMATE:
-        std = alone.principal_point_std
-        found["point"].append(K[:, :2, 2].cpu())
-        found["point_std"].append((std if alone.batched else std[None]).cpu())
-    if priors.k1 == ESTIMATE:
-        found["k1"].append((alone.k1 if alone.batched else alone.k1[None]).cpu())
+    found["options"].append({name: value.cpu() for name, value in option_evidence(alone, priors).items()})
 
 
 def _joint_camera(found: dict, run: Run, photos: int, height: int, width: int) -> SharedFocal:
@@ -395,13 +349,8 @@ def _joint_camera(found: dict, run: Run, photos: int, height: int, width: int) -
     else:
         grid = focal_grid(height, width, config.shared, config.sampling)
         shared = joint_focal(torch.cat(found["support"]), grid, torch.cat(found["valid"]), config.shared.bootstrap)
-    if found["point"]:
-        centre = image_center(height, width)
-        prior = config.trust.principal_point_std * height
-        point, std = joint_principal_point(torch.cat(found["point"]), torch.cat(found["point_std"]), centre, prior)
-        shared = shared._replace(principal_point=point, principal_point_std=std)
-    if found["k1"]:
-        shared = shared._replace(k1=joint_k1(torch.cat(found["k1"])))
+    if estimates(priors):
+        shared = shared._replace(options=joint_options(found["options"], config, height, width))
     return shared
 
 
@@ -423,7 +372,7 @@ def _with_segments(given: Input, run: Run) -> Input:
 
 def _one_size(sizes: list[tuple[int, int]], upright: bool = False) -> tuple[int, int]:
     """The photos' ``(height, width)``, one for all (a turned photo's transpose counts as the same, unless
-    ``upright``: a shared principal point turns with the photo)."""
+    ``upright``: an option tied to the pixels turns with the photo)."""
     first = sizes[0]
     for size in sizes[1:]:
         if size not in ((first,) if upright else (first, first[::-1])):

@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from ngp_kornia import calibrate
-from ngp_kornia.geometry import distort_points, rectify, upright_homography
+from ngp_kornia.geometry import Camera, distort_points, rectify, upright_homography
 from ngp_kornia.metrics import horizon_error
 from ngp_kornia.pipeline.distortion import estimate_distortion, k1_from_units, units_from_k1
 from ngp_kornia.pipeline.segments import detect_segments
@@ -73,7 +73,8 @@ def test_rectify_undistorts_lines_back_to_straight(bent):
     # the pinhole image's pixels, distorted, are where rectify() with k1 reads them: its identity warp undistorts
     K, k1 = bent.K[None].float(), torch.tensor([-0.25])
     image = torch.from_numpy(bent.image).permute(2, 0, 1)[None].float() / 255
-    out, applied = rectify(image, torch.eye(3)[None], size=(480, 640), crop="valid", k1=k1, K=K)
+    camera = Camera.from_matrix(K, torch.eye(3)[None], torch.tensor([[480, 640]]), k1)
+    out, applied = rectify(image, torch.eye(3)[None], size=(480, 640), crop="valid", camera=camera)
     assert out.shape == (1, 3, 480, 640) and float(out.amax()) > 0
     # a point of the output, taken back through the applied homography and distorted, is a pixel of the input
     point = torch.tensor([[[320.0, 240.0]]])
@@ -83,10 +84,10 @@ def test_rectify_undistorts_lines_back_to_straight(bent):
     # an upright warp of a calibrated bent photo keeps the shapes sane
     cal = calibrate(bent.image, weights="none", priors={"k1": "estimate"})
     H = upright_homography(cal.K[None], cal.R[None])
-    upright, _ = rectify(image, H, crop="valid", k1=cal.k1[None], K=cal.K[None])
+    upright, _ = rectify(image, H, crop="valid", camera=cal.camera.apply(lambda t: t[None]))
     assert upright.shape[-2] > 100 and upright.shape[-1] > 100
-    with pytest.raises(ValueError, match="intrinsics"):
-        rectify(image, H, k1=cal.k1[None])
+    with pytest.raises(ValueError, match="one batched Camera"):
+        rectify(image, H, camera=cal.camera)
 
 
 @pytest.mark.parametrize("k1", [-0.5, -1.0])

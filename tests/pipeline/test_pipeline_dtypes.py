@@ -5,6 +5,7 @@ differentiable pass gradcheck in float64; a batch gives each image what it gets 
 
 from __future__ import annotations
 
+from dataclasses import replace
 from functools import lru_cache
 
 import numpy as np
@@ -46,6 +47,8 @@ from ngp_kornia.training.synth.render_config import RenderConfig
 from tests.rooms import check_output, inputs, public_functions, tensors
 
 F64 = torch.float64
+#: the camera options asked for as estimates
+ESTIMATES = Priors(principal_point="estimate", k1="estimate")
 
 
 def _upright_net(x):
@@ -100,6 +103,12 @@ def _photos() -> torch.Tensor:
     return torch.stack([torch.from_numpy(image).permute(2, 0, 1) for image in scenes]).double() / 255
 
 
+def _with_options(x):
+    """The scenes' calibration with an estimated principal point's deviation and a distortion."""
+    cal = replace(x.cal, principal_point_std=torch.ones_like(x.cal.principal_point))
+    return replace(cal, camera=cal.camera.replace(k1=torch.full_like(cal.focal, -0.1)))
+
+
 def _frames_r(x):
     return x.trace.frames.R
 
@@ -132,6 +141,13 @@ CASES = {
         lambda x: camera_model.calibrate_camera_model(
             _FixedSearch(x), frame_search.View(x.images, x.segments, x.mask),
             Priors(principal_point=(150.0, 110.0), k1=-0.05, focal=300.0)).result, {}),
+    "camera_model.joint_options": (
+        lambda x: (lambda o: torch.tensor([*o.priors["principal_point"], o.priors["k1"], *o.point_std], dtype=F64))(
+            camera_model.joint_options([camera_model.option_evidence(_with_options(x), ESTIMATES)],
+                                       pipeline_room.ParserConfig(), x.height, x.width)), {"float_dtype": F64}),
+    "camera_model.option_evidence": (lambda x: camera_model.option_evidence(_with_options(x), ESTIMATES), {}),
+    "camera_model.with_shared_options": (
+        lambda x: camera_model.with_shared_options(x.cal, camera_model.SharedOptions({}, (2.0, 3.0))), {}),
     "camera_model.moved_calibration": (
         lambda x: camera_model.moved_calibration(x.cal, 0.01 * x.cal.principal_point), {}),
     "candidates.sample_horizontal_pair_frames": (
@@ -244,10 +260,10 @@ CASES = {
     "shared_camera.joint_focal": (
         lambda x: torch.tensor([float(v) for v in _shared_focal(x)[:2]], dtype=F64),
         {"float_dtype": F64, "tol": False}),
-    "shared_camera.joint_k1": (lambda x: torch.tensor([shared_camera.joint_k1(torch.tensor([-0.1, -0.12]).to(
+    "distortion.joint_k1": (lambda x: torch.tensor([distortion.joint_k1(torch.tensor([-0.1, -0.12]).to(
         x.cal.K))], dtype=F64), {"float_dtype": F64}),
-    "shared_camera.joint_principal_point": (
-        lambda x: torch.tensor(shared_camera.joint_principal_point(x.cal.principal_point, torch.ones_like(
+    "principal_point.joint_principal_point": (
+        lambda x: torch.tensor(principal_point.joint_principal_point(x.cal.principal_point, torch.ones_like(
             x.cal.principal_point), x.cal.principal_point[0], 10.0), dtype=F64), {"float_dtype": F64}),
     "shared_camera.nearest_rotation": (
         lambda x: shared_camera.nearest_rotation(x.cal.R + 0.01 * torch.ones_like(x.cal.R)), {}),
@@ -286,6 +302,8 @@ CASES = {
 
 #: public functions with no tensor of a chosen dtype to test: their inputs and outputs are settings or plain values
 NOT_TENSORS = {
+    "camera_model.estimates": "reads the priors",
+    "camera_model.tied_to_pixels": "reads the priors",
     "focal_prior.check_focal_on_image": "checks numbers of a focal-length prior",
     "focal_prior.checked_focal": "checks a number",
     "focal_prior.checked_focal_35mm": "checks a number",

@@ -46,7 +46,7 @@ from pathlib import Path
 import cv2
 import torch
 
-import ngp_kornia.api as api
+import ngp_kornia.pipeline.runner as runner
 from ngp_kornia import calibrate
 from ngp_kornia.evaluation import load_manifest, load_yud
 from ngp_kornia.evaluation import lu_vp_detect_method as make_lu
@@ -116,8 +116,8 @@ def lsd_alone():
 def run_condition(samples, weights: list[str], lu, passes: int, floor: bool = True) -> dict[str, dict]:
     """Per method, per stage, the seconds of every call (methods interleaved image by image)."""
     read, lsd = _Timer(), _Timer()
-    original = api.read_rgb_oriented, api.detect_segments
-    api.read_rgb_oriented, api.detect_segments = read.wrap(original[0]), lsd.wrap(original[1])
+    original = runner.read_rgb_oriented, runner.detect_segments  # where calibrate() reads files and finds lines
+    runner.read_rgb_oriented, runner.detect_segments = read.wrap(original[0]), lsd.wrap(original[1])
     times: dict[str, dict[str, list[float]]] = defaultdict(lambda: defaultdict(list))
 
     def ngp(spec):
@@ -151,7 +151,7 @@ def run_condition(samples, weights: list[str], lu, passes: int, floor: bool = Tr
                     for stage, seconds in fn(sample).items():
                         times[name][stage].append(seconds)
     finally:
-        api.read_rgb_oriented, api.detect_segments = original
+        runner.read_rgb_oriented, runner.detect_segments = original
     return times
 
 

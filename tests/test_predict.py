@@ -53,7 +53,7 @@ def test_a_row_for_every_file_and_error_rows_for_the_bad_ones(predicted):
     names = [row["image"] for row in rows]
     expected = ["corrupt.png", "empty.jpg", "scene00.png", "scene01.png", "scene02.png", "scene03.png"]
     assert names == [*expected, "sub/scene04.png"]
-    assert counts == {"images": 7, "errors": 2, "interrupted": False}
+    assert counts == {"images": 7, "errors": 2, "interrupted": False, "rank": 0}
     errors = {row["image"]: row["error"] for row in rows if "error" in row}
     assert set(errors) == {"corrupt.png", "empty.jpg"} and "file is empty" in errors["empty.jpg"]
     for row in rows:

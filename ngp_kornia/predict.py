@@ -288,13 +288,7 @@ def predict_list(image_list: str | Path, out: str | Path, **options) -> dict:
         FileNotFoundError: no list file, or none of the listed files exists.
         ManifestError: a list that names no image, or one image twice, or a CSV without a path column.
     """
-    images = read_image_list(image_list)
-    if not any(path.exists() or path.is_symlink() for path in images.paths):
-        raise FileNotFoundError(
-            f"{image_list}: none of its {len(images)} listed files exists (relative paths are taken from the list's "
-            f"folder {images.root}), e.g. {images.names[0]}"
-        )
-    return predict_images(images, out, **options)
+    return predict_images(read_image_list(image_list), out, **options)
 
 
 def predict_images(images: ImageList, out: str | Path, resume: bool = False, **options) -> dict:

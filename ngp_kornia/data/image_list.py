@@ -9,15 +9,16 @@ A list file is either
   labels (:class:`~ngp_kornia.data.manifest.CSVManifest`) serves as a list as it is.
 
 A relative path is relative to the list file's folder, an absolute one stands as it is (so one list may name files
-on several disks), and a leading ``~`` is the home folder. The files are not filtered by extension and not checked
-here: a file that is missing or cannot be read becomes its error row when it is calibrated. Each image may be listed
-once only.
+on several disks), and a leading ``~`` is the home folder. The files are not filtered by extension, and checked only
+so far as one of them must exist (else the paths are most likely relative to another folder): a file that is
+missing or cannot be read becomes its error row when it is calibrated. Each image may be listed once only.
 
 Example:
     >>> import tempfile
     >>> with tempfile.TemporaryDirectory() as tmp:
     ...     listed = Path(tmp, "photos.txt")
     ...     _ = listed.write_text("a.jpg\n\n  street/b.png\n/mnt/disk2/c.jpg\n")
+    ...     Path(tmp, "a.jpg").touch()
     ...     images = read_image_list(listed)
     ...     images.names, images.path(1) == Path(tmp, "street/b.png"), str(images.path(2))
     (['a.jpg', 'street/b.png', '/mnt/disk2/c.jpg'], True, '/mnt/disk2/c.jpg')
@@ -93,7 +94,7 @@ def read_image_list(path: str | Path) -> ImageList:
         the :class:`ImageList`, its root the list file's folder.
 
     Raises:
-        FileNotFoundError: no such list file.
+        FileNotFoundError: no such list file, or none of the files it lists exists.
         IsADirectoryError: a folder was given (give the folder itself as the argument instead).
         ManifestError: not UTF-8, a CSV without a path column, no path in it, or an image listed twice (naming
             both lines).
@@ -113,7 +114,13 @@ def read_image_list(path: str | Path) -> ImageList:
         names.append(name)
     if not names:
         raise ManifestError(f"{path} lists no image; give one image path per line (or a CSV with a path column)")
-    return ImageList(path.parent, names, path)
+    images = ImageList(path.parent, names, path)
+    if not any(file.exists() or file.is_symlink() for file in images.paths):  # stops at the first that exists
+        raise FileNotFoundError(
+            f"{path}: none of its {len(names)} listed files exists (relative paths are taken from the list's "
+            f"folder {path.parent}), e.g. {names[0]}"
+        )
+    return images
 
 
 def _decoded(path: Path) -> list[str]:

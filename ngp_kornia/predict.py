@@ -314,7 +314,7 @@ def run_plan(
     _check_counts(devices, batch_size, num_nodes, num_workers)
     accelerator = resolve_accelerator(accelerator, devices)
     if _strategy(devices, num_nodes) != "ddp" and accelerator == "cpu":
-        # forked here: at most one per core, and one per image (Lightning's sampler refuses a process without one)
+        # forked here: at most one per core, and one per image to calibrate
         devices = min(cap_devices(devices), max(1, len(plan.todo)))
     settings = plan.settings
     cameras = folder_cameras(plan.images, **settings) if settings["same_camera"] else None

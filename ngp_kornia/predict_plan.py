@@ -121,8 +121,9 @@ def _check_out(out: Path, images: ImageList) -> Path:
         raise OutputError(
             f"--out {out} exists and holds no rows of ngp predict, so it would be lost; give another file or remove it"
         )
-    if not os.access(target.parent if target.parent.exists() else Path.cwd(), os.W_OK):
-        raise OutputError(f"--out {out}: cannot write in {target.parent}; give a file in a folder you may write to")
+    folder = next(p for p in target.parents if p.exists())  # the folders below it are made
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise OutputError(f"--out {out}: cannot write in {folder}; give a file in a folder you may write to")
     return target
 
 

@@ -50,6 +50,7 @@ class JsonlWriter(BasePredictionWriter):
         errors: error rows, counted the same way.
         interrupted: the run was stopped (KeyboardInterrupt, SIGTERM or an exception) before every image was done.
         kept: the rows finished before the run stopped are in ``out``.
+        incomplete: at the end, rows were missing (:meth:`finish`).
     """
 
     def __init__(self, out: str | Path, count: int, state: dict, keep: bool = False, world: int = 1) -> None:
@@ -61,7 +62,7 @@ class JsonlWriter(BasePredictionWriter):
         self.attempt: str | None = None
         self.rows: RowsFile | None = None
         self.images = self.errors = 0
-        self.interrupted = self.kept = False
+        self.interrupted = self.kept = self.incomplete = False
 
     def setup(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
         """Before the data is shared out: rank 0 makes the run folder ready for this attempt, then every process
@@ -89,7 +90,7 @@ class JsonlWriter(BasePredictionWriter):
     def on_predict_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         stop_like_ctrl_c()  # in place of Lightning's SIGTERM handler, which lets a prediction run to its end
         self.images = self.errors = 0
-        self.interrupted = self.kept = False
+        self.interrupted = self.kept = self.incomplete = False
         self.rows = RowsFile(self.folder.rows_file(self.attempt, self.rank))
 
     def write_on_batch_end(
@@ -111,7 +112,7 @@ class JsonlWriter(BasePredictionWriter):
         attempt, in ``out``, in input order; the run folder stays for ``--resume``."""
         self.close()
         self.interrupted = True
-        if self.rank != 0:
+        if self.rank != 0 or self.incomplete:  # incomplete: finish() said out stays as it was
             return
         # the processes forked from this one (not those a launcher script started: they get the signal themselves)
         launched = getattr(trainer.strategy.launcher, "procs", []) if self.multi else []
@@ -131,6 +132,7 @@ class JsonlWriter(BasePredictionWriter):
         """
         written = self.folder.merge(self.count, complete=True)
         if written < self.count:
+            self.incomplete = True
             raise OutputError(
                 f"only {written} of {self.count} images have a row in {self.folder.path}: the processes of a run "
                 f"must write to the same folder (a file system every machine shares); {self.out} is unchanged, "

@@ -225,7 +225,7 @@ class RunFolder:
         deleted (a new run), and ``state`` (with the attempt's id) written to ``run.json``."""
         if not keep:
             shutil.rmtree(self.path, ignore_errors=True)
-        self.path.mkdir(exist_ok=True)
+        self.path.mkdir(parents=True, exist_ok=True)
         temporary = self.path / f"{_STATE}.{secrets.token_hex(4)}.tmp"
         with temporary.open("w", encoding="utf-8") as file:
             json.dump(state, file)

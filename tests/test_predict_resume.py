@@ -106,6 +106,29 @@ def test_a_killed_merge_is_merged_again(scenes, tmp_path, monkeypatch):
     assert _rows(out) == expected and _hidden(tmp_path) == []
 
 
+def test_rows_written_where_process_0_does_not_see_them_leave_out_as_it_was(scenes, tmp_path, monkeypatch):
+    from ngp_kornia.errors import OutputError
+    from ngp_kornia.predict import JsonlWriter
+
+    folder, expected = scenes
+    out = tmp_path / "results.jsonl"
+    out.write_text('{"image": "earlier.png", "error": "an earlier run"}\n')
+    written = JsonlWriter.write_on_batch_end
+
+    def elsewhere(self, trainer, module, prediction, *rest):  # scene03's row goes to another machine's disk
+        if prediction[0][1]["image"] != "scene03.png":
+            written(self, trainer, module, prediction, *rest)
+
+    monkeypatch.setattr(JsonlWriter, "write_on_batch_end", elsewhere)
+    with pytest.raises(OutputError, match=f"only 8 of 9 images have a row in .*; {out} is unchanged, and --resume"):
+        predict_folder(folder, out)
+    assert out.read_text() == '{"image": "earlier.png", "error": "an earlier run"}\n' and _hidden(tmp_path) == [RUN]
+    monkeypatch.undo()
+    calibrated = _spy(monkeypatch)
+    assert predict_folder(folder, out, resume=True)["images"] == 9 and calibrated == ["scene03.png"]
+    assert _rows(out) == expected and _hidden(tmp_path) == []
+
+
 def test_without_resume_a_run_starts_over(scenes, tmp_path):
     folder, expected = scenes
     out = tmp_path / "results.jsonl"

@@ -1,7 +1,8 @@
 """ngp predict over several machines, here two "nodes" of one process each on this machine's loopback, started as a
 scheduler starts them: two commands with --num-nodes 2 and the environment Lightning reads (NODE_RANK, MASTER_ADDR,
-MASTER_PORT, WORLD_SIZE, LOCAL_RANK). Every image gets its row exactly once, the rows of a single process; a
-resumed run whose last image is left to one node (the other has none) too."""
+MASTER_PORT, WORLD_SIZE, LOCAL_RANK; or SLURM's). Every image gets its row exactly once, the rows of a single
+process; a resumed run whose last image is left to one node (the other has none) too; and two processes that
+torchrun starts."""
 
 import json
 import os
@@ -41,15 +42,26 @@ def scenes(tmp_path_factory):
     return folder, _rows(out)
 
 
-def _two_nodes(folder, out, *options) -> list[subprocess.CompletedProcess]:
+def _scheduler_env(scheduler: str, rank: int, port: int) -> dict:
+    """What a scheduler sets for node ``rank`` of two, one process each: as Lightning documents for a cluster of
+    its own (NODE_RANK, MASTER_ADDR, MASTER_PORT), or as SLURM's srun sets it."""
+    if scheduler == "slurm":
+        return {"SLURM_NTASKS": "2", "SLURM_NTASKS_PER_NODE": "1", "SLURM_NNODES": "2", "SLURM_PROCID": str(rank),
+                "SLURM_LOCALID": "0", "SLURM_NODEID": str(rank), "SLURM_JOB_NAME": "ngp", "SLURM_JOB_ID": "4242",
+                "SLURM_NODELIST": "127.0.0.1", "MASTER_PORT": str(port)}
+    return {"MASTER_ADDR": "127.0.0.1", "MASTER_PORT": str(port), "NODE_RANK": str(rank), "WORLD_SIZE": "2",
+            "LOCAL_RANK": "0"}
+
+
+def _two_nodes(folder, out, *options, scheduler: str = "lightning") -> list[subprocess.CompletedProcess]:
     """``ngp predict`` as node 0 and node 1 of a two-node run on the loopback, run to their end."""
     port = _free_port()
+    clean = {k: v for k, v in os.environ.items() if not k.startswith("SLURM_")}
     nodes = []
     for rank in (0, 1):
-        env = {**os.environ, "MASTER_ADDR": "127.0.0.1", "MASTER_PORT": str(port), "NODE_RANK": str(rank),
-               "WORLD_SIZE": "2", "LOCAL_RANK": "0"}
         command = [sys.executable, "-m", "ngp_kornia.cli", "predict", str(folder), "--out", str(out),
                    "--num-nodes", "2", *options]
+        env = {**clean, **_scheduler_env(scheduler, rank, port)}
         nodes.append(subprocess.Popen(command, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True))
     done = []
     for node in nodes:
@@ -58,16 +70,28 @@ def _two_nodes(folder, out, *options) -> list[subprocess.CompletedProcess]:
     return done
 
 
-def test_two_nodes_write_every_row_exactly_once(scenes, tmp_path):
+@pytest.mark.parametrize("scheduler", ["lightning", "slurm"])
+def test_two_nodes_write_every_row_exactly_once(scenes, tmp_path, scheduler):
     folder, expected = scenes
     out = tmp_path / "rows.jsonl"
-    first, second = _two_nodes(folder, out)
+    first, second = _two_nodes(folder, out, scheduler=scheduler)
     assert first.returncode == 1, first.stderr[-3000:]  # 1: the broken file's row
     assert first.stdout.strip() == f"10 rows written to {out}" and "Traceback" not in first.stderr
     assert second.returncode == 0, second.stderr[-3000:]
     assert second.stdout.strip() == f"process 1: 5 rows calibrated; process 0 writes every row to {out}"
     assert _rows(out) == expected  # in folder order, each image once, the rows of one process
     assert sorted(p.name for p in tmp_path.iterdir()) == ["rows.jsonl"]  # no run folder left
+
+
+def test_two_processes_started_by_torchrun(scenes, tmp_path):
+    folder, expected = scenes
+    out = tmp_path / "rows.jsonl"
+    command = [sys.executable, "-m", "torch.distributed.run", "--nproc-per-node", "2", "--master-addr", "127.0.0.1",
+               "--master-port", str(_free_port()), "-m", "ngp_kornia.cli", "predict", str(folder), "--out", str(out),
+               "--devices", "2"]
+    run = subprocess.run(command, capture_output=True, text=True, timeout=240)
+    assert "10 rows written" in run.stdout and "process 1: 5 rows calibrated" in run.stdout, run.stderr[-3000:]
+    assert _rows(out) == expected and sorted(p.name for p in tmp_path.iterdir()) == ["rows.jsonl"]
 
 
 def test_two_nodes_resume_a_run_with_one_image_left(scenes, tmp_path):

@@ -99,7 +99,8 @@ def predict_command(args: argparse.Namespace, config, priors, user_errors: tuple
     except predict.AcceleratorError as err:
         print(f"ngp: error: {err}", file=sys.stderr)
         return 2
-    if args.accelerator == "cpu" and args.num_nodes == 1 and args.devices > (cores := predict.usable_cores()):
+    forked = predict.forks_processes(args.devices, args.num_nodes)
+    if args.accelerator == "cpu" and forked and args.devices > (cores := predict.usable_cores()):
         print(f"ngp: warning: --devices {args.devices} capped at {cores}, the CPU cores available", file=sys.stderr)
         args.devices = cores
     for name in ("lightning.pytorch", "lightning.fabric"):  # the rows go to --out; keep the terminal quiet

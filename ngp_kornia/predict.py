@@ -68,6 +68,7 @@ __all__ = [
     "RunPlan",
     "cap_devices",
     "folder_cameras",
+    "forks_processes",
     "merge_parts",
     "plan_run",
     "predict_folder",
@@ -193,6 +194,17 @@ def _launched_externally() -> bool:
     return "LOCAL_RANK" in os.environ or TorchElasticEnvironment.detect() or SLURMEnvironment.detect()
 
 
+def forks_processes(devices: int, num_nodes: int = 1) -> bool:
+    """Whether a run forks its processes from the calling one (and may cap them at the cores), rather than a
+    scheduler, torchrun or another machine starting each as a command of its own.
+
+    Example:
+        >>> forks_processes(1)
+        False
+    """
+    return _strategy(devices, num_nodes) == "ddp_fork"
+
+
 def _strategy(devices: int, num_nodes: int) -> str:
     if devices * num_nodes == 1:
         return "auto"
@@ -313,7 +325,7 @@ def run_plan(
     :func:`predict_folder`)."""
     _check_counts(devices, batch_size, num_nodes, num_workers)
     accelerator = resolve_accelerator(accelerator, devices)
-    if _strategy(devices, num_nodes) != "ddp" and accelerator == "cpu":
+    if forks_processes(devices, num_nodes) and accelerator == "cpu":
         # forked here: at most one per core, and one per image to calibrate
         devices = min(cap_devices(devices), max(1, len(plan.todo)))
     settings = plan.settings

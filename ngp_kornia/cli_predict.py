@@ -21,43 +21,25 @@ __all__ = ["add_predict_arguments", "check_predict", "predict_command"]
 def add_predict_arguments(pred: argparse.ArgumentParser) -> None:
     """The options of ``ngp predict`` but the priors and settings (which it shares with ``ngp calibrate``)."""
     pred.add_argument("folder", nargs="?", help="folder of images (or give --list)")
-    pred.add_argument(
-        "--list", dest="image_list", metavar="FILE",
-        help="the images as a list file instead of a folder: one path per line, or a .csv file with a 'path' (or "
-        "'image') column; relative paths are relative to the list file's folder",
-    )
-    pred.add_argument(
-        "-o", "--out", required=True,
-        help="the .jsonl file to write: one JSON object per image (an existing file only if it holds such rows); "
-        "every machine of a run must see it",
-    )
-    pred.add_argument(
-        "--resume", action="store_true",
-        help="continue the unfinished run for --out (stopped, killed or preempted): calibrate only the images "
-        "without a row; the same images and options are needed",
-    )
-    pred.add_argument(
-        "--accelerator", choices=("cpu", "gpu", "auto"), default="cpu",
-        help="where the networks run (auto: a GPU where there is one); rows equal ngp calibrate's on the CPU",
-    )
-    pred.add_argument(
-        "--devices", type=int, default=1,
-        help="processes per machine: CPU processes (DDP, gloo; at most one per core) or GPUs",
-    )
-    pred.add_argument(
-        "--num-nodes", type=int, default=1,
-        help="machines; start the command on each with the environment Lightning reads (NODE_RANK, MASTER_ADDR, "
-        "MASTER_PORT; torchrun and SLURM set it)",
-    )
-    pred.add_argument(
-        "--workers", type=int, default=0,
-        help="DataLoader processes per device that read the images and find their lines (0: a thread of each "
-        "process reads the next image)",
-    )
-    pred.add_argument("--weights", default="default", help="a weight set as for calibrate, or a weights file")
+    pred.add_argument("--list", dest="image_list", metavar="FILE",
+                      help="the images instead: a path a line, or a .csv with a path column (relative to the file)")
+    pred.add_argument("-o", "--out", metavar="JSONL", required=True,
+                      help="the file of rows to write (replaces only a file of such rows)")
+    pred.add_argument("--resume", action="store_true",
+                      help="continue a stopped run for --out: only the images without a row")
+    pred.add_argument("--accelerator", choices=("cpu", "gpu", "auto"), default="cpu",
+                      help="where the networks run (auto: a GPU where there is one)")
+    pred.add_argument("--devices", metavar="N", type=int, default=1,
+                      help="processes per machine: CPU processes (at most one per core) or GPUs")
+    pred.add_argument("--num-nodes", metavar="N", type=int, default=1,
+                      help="machines, each running this command (as torchrun or SLURM start it)")
+    pred.add_argument("--workers", metavar="N", type=int, default=0,
+                      help="loader processes per device that read the images (0: a thread)")
+    pred.add_argument("--weights", metavar="NAME", default="default",
+                      help="default, none, zsnet, fsnet, full, or a .pt file")
     pred.add_argument("--recursive", action="store_true", help="also calibrate the images of sub-folders")
-    pred.add_argument("--batch-size", type=int, default=1, help="images per loader batch")
-    pred.add_argument("--seed", type=int, default=0, help="seed of the candidate sampling")
+    pred.add_argument("--batch-size", metavar="N", type=int, default=1, help="images per loader batch")
+    pred.add_argument("--seed", metavar="N", type=int, default=0, help="seed of the random sampling")
 
 
 def check_predict(args: argparse.Namespace) -> int | None:

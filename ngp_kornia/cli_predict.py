@@ -22,19 +22,15 @@ def add_predict_arguments(pred: argparse.ArgumentParser) -> None:
     """The options of ``ngp predict`` but the priors and settings (which it shares with ``ngp calibrate``)."""
     pred.add_argument("folder", nargs="?", help="folder of images (or give --list)")
     pred.add_argument("--list", dest="image_list", metavar="FILE",
-                      help="the images instead: a path a line, or a .csv with a path column (relative to the file)")
+                      help="image paths instead (a line each, or a .csv)")
     pred.add_argument("-o", "--out", metavar="JSONL", required=True,
                       help="the file of rows to write (replaces only a file of such rows)")
-    pred.add_argument("--resume", action="store_true",
-                      help="continue a stopped run for --out: only the images without a row")
-    pred.add_argument("--accelerator", choices=("cpu", "gpu", "auto"), default="cpu",
-                      help="where the networks run (auto: a GPU where there is one)")
-    pred.add_argument("--devices", metavar="N", type=int, default=1,
-                      help="processes per machine: CPU processes (at most one per core) or GPUs")
-    pred.add_argument("--num-nodes", metavar="N", type=int, default=1,
-                      help="machines, each running this command (as torchrun or SLURM start it)")
-    pred.add_argument("--workers", metavar="N", type=int, default=0,
-                      help="loader processes per device that read the images (0: a thread)")
+    pred.add_argument("--resume", action="store_true", help="continue a stopped run: the images without a row")
+    pred.add_argument("--accelerator", metavar="DEVICE", choices=("cpu", "gpu", "auto"), default="cpu",
+                      help="cpu, gpu, or auto (a GPU if any)")
+    pred.add_argument("--devices", metavar="N", type=int, default=1, help="CPU processes or GPUs per machine")
+    pred.add_argument("--num-nodes", metavar="N", type=int, default=1, help="machines, each running this command")
+    pred.add_argument("--workers", metavar="N", type=int, default=0, help="processes per device reading images")
     pred.add_argument("--weights", metavar="NAME", default="default",
                       help="default, none, zsnet, fsnet, full, or a .pt file")
     pred.add_argument("--recursive", action="store_true", help="also calibrate the images of sub-folders")

@@ -188,6 +188,8 @@ CASES = {
         {"tol": False}),
     "principal_point.orthocentre": (lambda x: principal_point.orthocentre(x.cal.vps), {}),
     "segments.detect_segments": (lambda x: segments_stage.detect_segments(x.images[:, :, :96, :128]), {"tol": False}),
+    "segments.longest_segments": (lambda x: torch.from_numpy(segments_stage.longest_segments(
+        x.segments[0].double().cpu().numpy(), 10.0, 5)).to(x.segments), {}),
     "segments.pad_segments": (
         lambda x: segments_stage.pad_segments([x.segments[0, :3], x.segments[1, :5]], like=x.images), {}),
     "shared_camera.focal_grid": (

@@ -15,6 +15,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from ngp_kornia.nets.upright import CLASSES, UprightNet
+from ngp_kornia.nets.weights import load_network
 from ngp_kornia.training.base import NetworkModule
 from ngp_kornia.training.upright_data import ThumbBatch
 
@@ -83,12 +84,16 @@ class UprightModule(NetworkModule):
         lr: Adam learning rate.
         lr_step: epochs between halvings of the learning rate.
         crop: the smallest share of a training thumbnail's area a random crop keeps (1: no crop).
+        init: a weights file of the same network to start from (fine-tuning; its temperature is not kept), or None.
     """
 
-    def __init__(self, net: UprightNet, lr: float = 2e-3, lr_step: int = 4, crop: float = 1.0) -> None:
+    def __init__(self, net: UprightNet, lr: float = 2e-3, lr_step: int = 4, crop: float = 1.0,
+                 init: str | None = None) -> None:
         super().__init__()
         self.save_hyperparameters(ignore=["net"])
         self.net = net
+        if init is not None:
+            self.net.load_state_dict(load_network(init, "UprightNet").state_dict())
 
     def forward(self, thumbs: Tensor) -> Tensor:
         return self.net(thumbs)

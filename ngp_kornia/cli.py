@@ -228,8 +228,8 @@ def _calibrate(args: argparse.Namespace) -> int:
                 failed += 1
                 continue
             result = with_orientation(result, orientation)
-            print_result(image, result, table, _config(args).upright.sure)
-            warn_if_turned(image, result, _config(args).upright.sure)
+            print_result(image, result, table, _config(args).upright.doubt)
+            warn_if_turned(image, result, _config(args).upright.doubt)
             try:
                 if args.overlay:
                     given = truth.get(Path(image).resolve())

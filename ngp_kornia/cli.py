@@ -21,7 +21,7 @@ from ngp_kornia.cli_options import (
     short_usage,
     subcommand,
 )
-from ngp_kornia.cli_output import Table, print_result, warn_if_turned
+from ngp_kornia.cli_output import Table, orientation_doubt, print_result, warn_if_turned
 from ngp_kornia.cli_predict import add_predict_arguments, check_predict, predict_command
 from ngp_kornia.cli_render import add_render_command, render_command
 from ngp_kornia.errors import ConfigError, NGPError, NGPWarning
@@ -134,6 +134,9 @@ def _add_rectify(sub) -> None:
     rect.add_argument("--seed", metavar="N", type=int, default=0, help="seed of the random sampling")
     rect.add_argument("--force", action="store_true", help=FORCE_HELP)
     rect.add_argument("--force-invalid", action="store_true", help="write it even where no camera was found")
+    rect.add_argument("--allow-turned", action="store_true",
+                      help="rectify it even where the orientation check reads it as turned or doubts it is upright "
+                      "(--upright.doubt)")  # fmt: skip
     _add_prior_arguments(rect)
 
 
@@ -281,6 +284,10 @@ def _rectify(args: argparse.Namespace) -> int:
             print(f"ngp: error: {args.image}: no camera found (valid false, confidence 0: too few lines of man-made "
                   "structure), so there is nothing to rectify; add --force-invalid to write it anyway (a level "
                   "camera: the image as it is)", file=sys.stderr, flush=True)
+            return 1
+        doubted = orientation_doubt(args.image, result, _config(args).upright.doubt)
+        if doubted is not None and not args.allow_turned:
+            print(f"ngp: error: {doubted}; add --allow-turned to rectify it as read", file=sys.stderr, flush=True)
             return 1
         K, R = result.K[None].double(), result.R[None].double()
         if args.mode == "level":

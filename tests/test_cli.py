@@ -419,3 +419,14 @@ def test_a_doubted_photo_is_warned_about_with_its_upright_probability(tmp_path, 
     assert err.startswith(f"ngp: warning: {path}: upright probability") and "(below 1)" in err
     assert main(["calibrate", str(path), "--upright.sure", "1", "--upright.doubt", "0"]) == 0  # nothing doubted
     assert capsys.readouterr().err == ""
+
+
+def test_rectify_refuses_a_doubted_photo_unless_allowed(tmp_path, capsys):
+    path, target = _turned_render(tmp_path), tmp_path / "straight.png"
+    assert main(["rectify", str(path), "-o", str(target), "--upright.doubt", "1"]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith(f"ngp: error: {path}: upright probability")
+    assert err.endswith("add --allow-turned to rectify it as read\n") and err.count("\n") == 1
+    assert not target.exists()
+    assert main(["rectify", str(path), "-o", str(target), "--upright.doubt", "1", "--allow-turned"]) == 0
+    assert cv2.imread(str(target)) is not None

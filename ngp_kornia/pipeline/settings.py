@@ -128,10 +128,8 @@ class UprightSettings:
         prior: the share of photos with structure that are handed over upright, before their appearance is seen
             (the network's probabilities are calibrated for the four turns equally often; they are weighed by this
             prior, so an unsure reading leans to upright, as most photos are).
-        sure: the probability one turn needs for the image to be reported turned by it (``turned``; below it
-            ``turned`` is 0 and the confidence is multiplied by ``upright``).
-        doubt: the upright probability below which the orientation is doubted: ``ngp calibrate`` warns and
-            ``ngp rectify`` refuses the photo unless told otherwise (the answer itself is not changed by it).
+        sure: the probability one turn needs to be reported (``turned``; below it 0, the confidence times ``upright``).
+        doubt: the upright probability below which ``ngp calibrate`` warns and ``ngp rectify`` refuses the photo.
         pitch_spread: how far from level, in degrees, photos are taken: the answered pitch as a further cue, since a
             photo turned by 90 or 270 degrees is answered with a steep pitch (0: the pitch is not used).
         turn_back: where a turn is reported, answer the camera of the turned photo (the frame's axis that turn

@@ -123,13 +123,13 @@ class UprightSettings:
 
     Attributes:
         enabled: report the image's turn and the probability that it is upright and shows man-made structure, and
-            multiply the confidence by the probability that the answer's orientation is right (where the parser has
-            the network: every weight set of :func:`ngp_kornia.calibrate` has it).
+            lower the confidence where it is doubted (every weight set of :func:`ngp_kornia.calibrate` has it).
         prior: the share of photos with structure that are handed over upright, before their appearance is seen
             (the network's probabilities are calibrated for the four turns equally often; they are weighed by this
             prior, so an unsure reading leans to upright, as most photos are).
-        sure: the probability one turn needs to be reported (``turned``; below it 0, the confidence times ``upright``).
-        doubt: the upright probability below which ``ngp calibrate`` warns and ``ngp rectify`` refuses the photo.
+        sure: the probability one turn needs to be reported (``turned``; below it 0).
+        doubt: the upright probability below which the confidence is multiplied by ``upright / doubt``, ``ngp
+            calibrate`` warns and ``ngp rectify`` refuses the photo.
         pitch_spread: how far from level, in degrees, photos are taken: the answered pitch as a further cue, since a
             photo turned by 90 or 270 degrees is answered with a steep pitch (0: the pitch is not used).
         turn_back: where a turn is reported, answer the camera of the turned photo (the frame's axis that turn

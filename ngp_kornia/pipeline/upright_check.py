@@ -130,20 +130,26 @@ def turned_answer(result: Calibration, turns: Tensor, use: Tensor) -> Calibratio
 
 
 def apply_upright(
-    result: Calibration, probs: Tensor, sure: float = 0.9, turn_back: bool = False, fallback_fov: float = 60.0
+    result: Calibration,
+    probs: Tensor,
+    sure: float = 0.9,
+    turn_back: bool = False,
+    fallback_fov: float = 60.0,
+    doubt: float = 0.0,
 ) -> Calibration:
-    """The answer with ``upright`` and ``turned`` filled in and its confidence multiplied by the probability that
-    the orientation it answers for is right.
+    """The answer with ``upright`` and ``turned`` filled in and its confidence lowered where the check doubts the
+    orientation it answers for.
 
-    ``upright`` is the probability that the image is upright and shows structure. ``turned`` is the image's
-    counter-clockwise turn from upright in degrees (90, 180 or 270) where one turn's probability is at least
-    ``sure``, else 0: a turn is reported only where the check is sure of it. The confidence, the probability that
-    the answer is right, is the lines' own times ``upright`` (an answer for the wrong way up is never right); with
-    ``turn_back``, where a turn is reported the answer is that of the turned camera (:func:`turned_answer`; its
-    roll then lies beyond 45 degrees, which no upright answer has) and its confidence is multiplied by that turn's
-    probability instead; not where a gravity prior says which way is up. The probabilities are the network's,
-    calibrated on real photos held back from its training and weighed by the prior, so the factor means what it
-    says. ``valid`` becomes False where no structure is likelier than every reading with structure: the answer then
+    ``upright`` is the probability that the image is upright and shows structure (the network's, calibrated on real
+    photos held back from its training and weighed by the prior). ``turned`` is the image's counter-clockwise turn
+    from upright in degrees (90, 180 or 270) where one turn's probability is at least ``sure``, else 0: a turn is
+    reported only where the check is sure of it. Where ``upright`` is below ``doubt`` the confidence is multiplied
+    by ``upright / doubt`` (down to 0 as the doubt grows, continuous at the level); at or above it, it is the lines'
+    own: the network reads real photos far from perfectly, and multiplying every confidence by its reading would
+    reorder the upright photos' answers by its noise. With ``turn_back``, where a turn is reported the answer is
+    that of the turned camera (:func:`turned_answer`; its roll then lies beyond 45 degrees, which no upright answer
+    has) and its confidence is multiplied by that turn's probability instead; not where a gravity prior says which
+    way is up. ``valid`` becomes False where no structure is likelier than every reading with structure: the answer then
     rests on no line evidence worth the name, so it is that of an image without a frame
     (:func:`~ngp_kornia.pipeline.answer.level_answer`: a level camera with the known focal length or
     ``fallback_fov`` degrees on the long side), with confidence 0 and the standard deviations of an answer without
@@ -157,7 +163,8 @@ def apply_upright(
     likeliest = structured.gather(-1, turns[:, None])[:, 0]
     reported = (turns > 0) & (likeliest >= sure) & valid
     back = reported & turn_back & (result.gravity is None)
-    factor = torch.where(back, likeliest, upright)
+    doubted = (upright / doubt).clamp(max=1.0) if doubt > 0 else torch.ones_like(upright)
+    factor = torch.where(back, likeliest, doubted)
     result = level_answer(turned_answer(result, turns, back), result.valid & ~valid, fallback_fov)
     confidence = None if result.confidence is None else torch.where(valid, result.confidence * factor, 0.0)
     stds = {}

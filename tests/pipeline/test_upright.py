@@ -25,13 +25,14 @@ def _batched(result):
     return result.apply(lambda t: t[None])
 
 
-def test_confidence_is_scaled_by_the_upright_probability():
+def test_confidence_is_the_lines_own_unless_doubted_then_lowered_continuously():
     result = _batched(_answer())
-    probs = torch.tensor([[0.5, 0.3, 0.1, 0.05, 0.05]])
-    out = apply_upright(result, probs)
-    assert torch.allclose(out.confidence, result.confidence * 0.5)
-    assert out.turned.tolist() == [0] and out.valid.tolist() == result.valid.tolist()
-    assert out.upright.tolist() == pytest.approx([0.5])
+    for upright, factor in ((0.9, 1.0), (0.5, 1.0), (0.499, 0.998), (0.25, 0.5), (0.0, 0.0)):
+        probs = torch.tensor([[upright, 1.0 - upright, 0.0, 0.0, 0.0]])
+        out = apply_upright(result, probs, sure=1.0, doubt=0.5)
+        assert torch.allclose(out.confidence, result.confidence * factor)
+        assert out.turned.tolist() == [0] and out.upright.tolist() == pytest.approx([upright])
+    assert torch.equal(apply_upright(result, probs, sure=1.0).confidence, result.confidence)  # doubt 0: never
 
 
 def _sure_answer(confidence=0.9):
@@ -41,20 +42,21 @@ def _sure_answer(confidence=0.9):
 
 def test_a_turn_is_reported_only_where_the_check_is_sure_of_it():
     result = _sure_answer()
-    doubted = apply_upright(result, torch.tensor([[0.3, 0.6, 0.05, 0.03, 0.02]]), sure=0.9)
+    doubted = apply_upright(result, torch.tensor([[0.3, 0.6, 0.05, 0.03, 0.02]]), sure=0.9, doubt=0.5)
     assert doubted.turned.tolist() == [0] and doubted.upright.tolist() == pytest.approx([0.3])
-    assert torch.allclose(doubted.confidence, result.confidence * 0.3)  # the answer is upright's, right with 0.3
-    sure = apply_upright(result, torch.tensor([[0.02, 0.01, 0.95, 0.01, 0.01]]), sure=0.9)
-    assert sure.turned.tolist() == [180] and torch.allclose(sure.confidence, result.confidence * 0.02)
-    spread = apply_upright(result, torch.tensor([[0.05, 0.3, 0.35, 0.3, 0.0]]), sure=0.9)
-    assert spread.turned.tolist() == [0] and torch.allclose(spread.confidence, result.confidence * 0.05)
+    assert torch.allclose(doubted.confidence, result.confidence * 0.6)  # 0.3 / 0.5
+    sure = apply_upright(result, torch.tensor([[0.02, 0.01, 0.95, 0.01, 0.01]]), sure=0.9, doubt=0.5)
+    assert sure.turned.tolist() == [180] and torch.allclose(sure.confidence, result.confidence * 0.04)
+    spread = apply_upright(result, torch.tensor([[0.05, 0.3, 0.35, 0.3, 0.0]]), sure=0.9, doubt=0.5)
+    assert spread.turned.tolist() == [0] and torch.allclose(spread.confidence, result.confidence * 0.1)
 
 
 def test_an_upside_down_reading_is_never_answered_confidently_upside_down():
     result = _sure_answer(0.95)
     for probs in ([0.1, 0.05, 0.8, 0.05, 0.0], [0.02, 0.0, 0.97, 0.01, 0.0]):
-        out = apply_upright(result, torch.tensor([probs]), sure=0.9, turn_back=False)
-        assert float(out.confidence) <= 0.95 * probs[0] + 1e-6  # flagged: the upright answer keeps its odds
+        out = apply_upright(result, torch.tensor([probs]), sure=0.9, turn_back=False, doubt=0.5)
+        assert float(out.upright) < 0.5  # doubted: warned about, refused by rectify
+        assert float(out.confidence) <= 0.95 * probs[0] / 0.5 + 1e-6  # and its confidence lowered with the doubt
 
 
 def test_no_structure_makes_the_answer_a_level_camera_with_nothing_known():
@@ -238,11 +240,11 @@ def test_a_sure_turn_is_answered_as_turned_and_an_unsure_one_is_scaled():
     columns = torch.cat([result.R, -result.R], -1)[0].T
     assert torch.isclose(columns, back.up).all(-1).any()  # one of the frame's axes is now up
     assert float(back.confidence) == pytest.approx(0.9 * 0.997)
-    scaled = apply_upright(result, sure, sure=0.9, turn_back=False)
-    assert float(scaled.roll) == pytest.approx(2.0) and float(scaled.confidence) == pytest.approx(0.9 * 0.002)
-    spread = apply_upright(result, torch.tensor([[0.002, 0.5, 0.4, 0.098, 0.0]]), sure=0.9, turn_back=True)
+    scaled = apply_upright(result, sure, sure=0.9, turn_back=False, doubt=0.5)
+    assert float(scaled.roll) == pytest.approx(2.0) and float(scaled.confidence) == pytest.approx(0.9 * 0.004)
+    spread = apply_upright(result, torch.tensor([[0.002, 0.5, 0.4, 0.098, 0.0]]), sure=0.9, turn_back=True, doubt=0.5)
     assert float(spread.roll) == pytest.approx(2.0)  # not upright, but no turn alone is sure: scaled, not turned
-    assert float(spread.confidence) == pytest.approx(0.9 * 0.002)
+    assert float(spread.confidence) == pytest.approx(0.9 * 0.004)
     given = type(result)(**{**result.__dict__, "gravity": torch.tensor([[5.0, 2.0, 1.0]], dtype=torch.float64)})
     assert float(apply_upright(given, sure, sure=0.9, turn_back=True).roll) == pytest.approx(2.0)
 

@@ -23,6 +23,19 @@ def _rows(path):
     return [json.loads(line) for line in path.read_text().splitlines()]
 
 
+def _close(got, expected) -> bool:
+    """The same rows in the same order, numbers equal to the rounding of their sixth significant digit: processes
+    laid out otherwise may sum in another order (another thread count, say), and a last digit may round otherwise."""
+    if isinstance(expected, dict):
+        return isinstance(got, dict) and got.keys() == expected.keys() and all(
+            _close(got[k], expected[k]) for k in expected)
+    if isinstance(expected, list):
+        return isinstance(got, list) and len(got) == len(expected) and all(map(_close, got, expected))
+    if isinstance(expected, float) and isinstance(got, (int, float)) and not isinstance(got, bool):
+        return got == pytest.approx(expected, rel=2e-5, abs=1e-6)
+    return got == expected
+
+
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -79,7 +92,7 @@ def test_two_nodes_write_every_row_exactly_once(scenes, tmp_path, scheduler):
     assert first.stdout.strip() == f"10 rows written to {out}" and "Traceback" not in first.stderr
     assert second.returncode == 0, second.stderr[-3000:]
     assert second.stdout.strip() == f"process 1: 5 rows calibrated; process 0 writes every row to {out}"
-    assert _rows(out) == expected  # in folder order, each image once, the rows of one process
+    assert _close(_rows(out), expected)  # in folder order, each image once, the rows of one process
     assert sorted(p.name for p in tmp_path.iterdir()) == ["rows.jsonl"]  # no run folder left
 
 
@@ -91,7 +104,7 @@ def test_two_processes_started_by_torchrun(scenes, tmp_path):
                "--devices", "2"]
     run = subprocess.run(command, capture_output=True, text=True, timeout=240)
     assert "10 rows written" in run.stdout and "process 1: 5 rows calibrated" in run.stdout, run.stderr[-3000:]
-    assert _rows(out) == expected and sorted(p.name for p in tmp_path.iterdir()) == ["rows.jsonl"]
+    assert _close(_rows(out), expected) and sorted(p.name for p in tmp_path.iterdir()) == ["rows.jsonl"]
 
 
 def test_two_nodes_resume_a_run_with_one_image_left(scenes, tmp_path):
@@ -111,4 +124,4 @@ def test_two_nodes_resume_a_run_with_one_image_left(scenes, tmp_path):
     assert first.stderr.splitlines()[0] == f"ngp: resuming {out}: 9 of 10 images have their row; calibrating 1"
     assert second.returncode == 0 and "process 1: 0 rows calibrated" in second.stdout, second.stderr[-3000:]
     assert second.stderr == ""  # only the first process says what it resumes
-    assert _rows(out) == expected and sorted(p.name for p in tmp_path.iterdir()) == ["rows.jsonl"]
+    assert _close(_rows(out), expected) and sorted(p.name for p in tmp_path.iterdir()) == ["rows.jsonl"]

@@ -1,16 +1,21 @@
-"""Photos outside the parser's world: York Urban photos turned by 90, 180 and 270 degrees with no orientation tag,
-and images without man-made structure.
+"""Photos outside the parser's world: photos turned by 90, 180 and 270 degrees with no orientation tag, and images
+without man-made structure.
 
 Usage::
 
-    python benchmarks/out_of_world.py --yud ../shared/data/YorkUrbanDB [--weights default] [--seeds 0]
-        [--structureless 200] [--json out.json]
+    python benchmarks/out_of_world.py --yud ../shared/data/YorkUrbanDB \
+        --manifest ../shared/data/EurasianCities/manifest.csv --photos ../shared/data/RealPhotos \
+        [--weights default] [--seeds 0] [--structureless 200] [--json out.json]
 
 * turned photos: each photo is turned counter-clockwise by k quarter turns (``np.rot90``) and handed over as an
-  array (so no tag can say how it was turned). The true roll of the turned photo follows from its up vector. Per
-  turn: the share of answers whose roll is within 5 degrees of the truth *or* whose confidence is below 0.2 (the
-  answer is right or says it is unsure), the share wrong (roll off by more than 5) with confidence above 0.5, the
-  mean confidence and the share the orientation check calls turned.
+  array (so no tag can say how it was turned). The true roll of the turned photo is the upright photo's true roll
+  minus 90 k degrees. York Urban and the manifest's photos (Eurasian Cities) have a true roll; the held-back
+  ``test`` part of a folder of upright photos (:mod:`ngp_kornia.data.photo_split`, never trained on) has none, so
+  there the roll the parser answers for the upright photo stands in for it. Per set and turn: the share of answers
+  whose roll is within 5 degrees of the truth *or* whose confidence is below 0.2 (the answer is right or says it is
+  unsure), the share wrong (roll off by more than 5) with confidence above 0.5, the share within 5 degrees, the mean
+  confidence, the share the orientation check reports turned (``turned`` != 0) and the share it doubts (upright
+  probability below ``UprightSettings.doubt``; ``ngp calibrate`` warns for those).
 * structure-free images: ``--structureless`` images of the kinds of
   :func:`ngp_kornia.training.synth.structureless.structureless_image`, on seeds from 5,000,000 (the training data
   of the orientation check draws below 3,000,000): the share with confidence below 0.1, the largest confidence and
@@ -22,25 +27,18 @@ from __future__ import annotations
 import argparse
 import json
 
-import cv2
 import numpy as np
 import torch
 
 from ngp_kornia.api import calibrate
-from ngp_kornia.evaluation.datasets import load_yud
-from ngp_kornia.geometry.camera import pitch_roll_from_up
+from ngp_kornia.data.photo_split import split_photos
+from ngp_kornia.evaluation.datasets import load_manifest, load_yud
+from ngp_kornia.io import read_image_file
 from ngp_kornia.metrics import roll_error
+from ngp_kornia.pipeline import ParserConfig
 from ngp_kornia.training.synth.structureless import KINDS, structureless_image
 
 STRUCTURELESS_SEED = 5_000_000
-
-
-def turned_up(up: torch.Tensor, turns: int) -> torch.Tensor:
-    """The up vector of a photo turned counter-clockwise by ``turns`` quarter turns (x right, y down)."""
-    u = up.clone()
-    for _ in range(turns % 4):
-        u = torch.stack([u[1], -u[0], u[2]])
-    return u
 
 
 def _turn(out) -> int:
@@ -52,17 +50,32 @@ def _upright(out) -> float:
     return 1.0 if out.upright is None else float(out.upright)
 
 
-def turned_rows(yud: str, parser, seeds: list[int]) -> list[dict]:
+def photo_sets(args: argparse.Namespace) -> dict[str, list[tuple[str, str, float | None]]]:
+    """Per set, its photos as ``(name, path, true roll)`` (None: the upright answer's roll stands in)."""
+    sets = {}
+    if args.yud:
+        sets["York Urban"] = [(x.name, str(x.image_path), x.roll) for x in load_yud(args.yud)]
+    if args.manifest:
+        sets["Eurasian Cities"] = [(x.name, str(x.image_path), x.roll) for x in load_manifest(args.manifest)]
+    if args.photos:
+        names = split_photos(args.photos, "test")
+        sets["RealPhotos test part"] = [(n, f"{args.photos}/{n}", None) for n in names]
+    return sets
+
+
+def turned_rows(photos: list[tuple[str, str, float | None]], parser, seeds: list[int]) -> list[dict]:
     rows = []
-    for item in load_yud(yud):
-        rgb = cv2.cvtColor(cv2.imread(str(item.image_path)), cv2.COLOR_BGR2RGB)
-        for turns in range(4):
-            _, roll = pitch_roll_from_up(turned_up(item.up.double(), turns)[None])
-            image = np.ascontiguousarray(np.rot90(rgb, turns))
-            for seed in seeds:
-                out = calibrate(image, parser, seed=seed)
-                err = float(roll_error(out.roll.double().reshape(1), roll.reshape(1)))
-                rows.append({"name": item.name, "turn": 90 * turns, "seed": seed, "roll_error": err,
+    for name, path, truth in photos:
+        rgb = read_image_file(path)
+        for seed in seeds:
+            roll = truth
+            for turns in range(4):
+                out = calibrate(np.ascontiguousarray(np.rot90(rgb, turns)), parser, seed=seed)
+                if roll is None:  # no truth: the upright answer's roll stands in
+                    roll = float(out.roll)
+                want = torch.tensor([roll - 90.0 * turns], dtype=torch.float64)
+                err = float(roll_error(out.roll.double().reshape(1), want))
+                rows.append({"name": name, "turn": 90 * turns, "seed": seed, "roll_error": err,
                              "confidence": float(out.confidence), "turned": _turn(out), "upright": _upright(out)})
     return rows
 
@@ -77,16 +90,17 @@ def structureless_rows(count: int, parser) -> list[dict]:
     return rows
 
 
-def print_turned(rows: list[dict]) -> None:
-    print("| turn | photos | right or conf < 0.2 | wrong with conf > 0.5 | roll within 5 | mean conf | called turned |")
-    print("|---|---|---|---|---|---|---|")
+def print_turned(title: str, rows: list[dict], doubt: float) -> None:
+    print(f"\n{title}\n| turn | answers | right or conf < 0.2 | wrong with conf > 0.5 | roll within 5 | mean conf | "
+          "reported turned | doubted |\n|---|---|---|---|---|---|---|---|")
     for turn in (0, 90, 180, 270):
         r = [x for x in rows if x["turn"] == turn]
         right = np.array([x["roll_error"] <= 5.0 for x in r])
         conf = np.array([x["confidence"] for x in r])
         called = np.array([x["turned"] != 0 for x in r])
+        doubted = np.array([x["upright"] < doubt for x in r])
         print(f"| {turn} | {len(r)} | {np.mean(right | (conf < 0.2)):.1%} | {np.mean(~right & (conf > 0.5)):.1%} | "
-              f"{right.mean():.1%} | {conf.mean():.3f} | {called.mean():.1%} |")
+              f"{right.mean():.1%} | {conf.mean():.3f} | {called.mean():.1%} | {doubted.mean():.1%} |")
 
 
 def print_structureless(rows: list[dict]) -> None:
@@ -101,7 +115,9 @@ def print_structureless(rows: list[dict]) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--yud", help="York Urban DB folder (turned photos skipped without it)")
+    ap.add_argument("--yud", help="York Urban DB folder")
+    ap.add_argument("--manifest", help="a CSV manifest with true horizons (Eurasian Cities)")
+    ap.add_argument("--photos", help="a folder of upright photos: its held-back test part")
     ap.add_argument("--weights", default="default")
     ap.add_argument("--seeds", default="0", help="comma-separated seeds of the turned photos")
     ap.add_argument("--structureless", type=int, default=200, help="structure-free images (0: none)")
@@ -109,9 +125,10 @@ def main() -> None:
     args = ap.parse_args()
     parser = args.weights  # loaded once, then shared by every call
     out = {}
-    if args.yud:
-        out["turned"] = turned_rows(args.yud, parser, [int(s) for s in args.seeds.split(",")])
-        print_turned(out["turned"])
+    doubt = ParserConfig().upright.doubt
+    for title, photos in photo_sets(args).items():
+        out[title] = turned_rows(photos, parser, [int(s) for s in args.seeds.split(",")])
+        print_turned(title, out[title], doubt)
     if args.structureless:
         out["structureless"] = structureless_rows(args.structureless, parser)
         print_structureless(out["structureless"])

@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ngp_kornia.cli_camera import add_camera_arguments, camera_arguments, images_after_the_point, load_truth
-from ngp_kornia.cli_colmap import add_colmap_argument, check_colmap, write_colmap
+from ngp_kornia.cli_colmap import add_colmap_argument
 from ngp_kornia.cli_files import check_output, check_overlays, overlay_path, write_image, write_overlay
 from ngp_kornia.cli_options import (
     add_setting_options,
@@ -21,10 +21,10 @@ from ngp_kornia.cli_options import (
     short_usage,
     subcommand,
 )
-from ngp_kornia.cli_output import Table, print_result, warn_if_turned
+from ngp_kornia.cli_output import Table, orientation_doubt, print_result, warn_if_turned
+from ngp_kornia.cli_predict import add_predict_arguments, check_predict, predict_command
 from ngp_kornia.cli_render import add_render_command, render_command
 from ngp_kornia.errors import ConfigError, NGPError, NGPWarning
-from ngp_kornia.preflight import check_extra, check_folder
 
 if TYPE_CHECKING:
     import numpy as np
@@ -97,16 +97,9 @@ def _parser() -> argparse.ArgumentParser:
     cal.add_argument("--truth", metavar="FILE", help="also draw the true horizon: a CSV or an ngp render folder")
     cal.add_argument("--force", action="store_true", help=FORCE_HELP)
     _add_prior_arguments(cal, "one camera took them all: one focal length")
-    pred = sub.add_parser("predict", help="calibrate every image of a folder into a JSON Lines file",
+    pred = sub.add_parser("predict", help="calibrate every image of a folder or a list into a JSON Lines file",
                           epilog=SETTINGS_EPILOG)
-    pred.add_argument("folder", help="folder of images")
-    pred.add_argument("-o", "--out", metavar="JSONL", required=True,
-                      help="the file of rows to write (replaces only a file of such rows)")
-    pred.add_argument("--devices", metavar="N", type=int, default=1, help="CPU processes, at most one per core")
-    pred.add_argument("--weights", metavar="NAME", default="default", help=WEIGHTS_HELP)
-    pred.add_argument("--recursive", action="store_true", help="also calibrate the images of sub-folders")
-    pred.add_argument("--batch-size", metavar="N", type=int, default=1, help="images per loader batch")
-    pred.add_argument("--seed", metavar="N", type=int, default=0, help="seed of the random sampling")
+    add_predict_arguments(pred)
     add_colmap_argument(pred)
     _add_prior_arguments(pred, "one camera per folder: one focal length each")
     _add_rectify(sub)
@@ -141,6 +134,9 @@ def _add_rectify(sub) -> None:
     rect.add_argument("--seed", metavar="N", type=int, default=0, help="seed of the random sampling")
     rect.add_argument("--force", action="store_true", help=FORCE_HELP)
     rect.add_argument("--force-invalid", action="store_true", help="write it even where no camera was found")
+    rect.add_argument("--allow-turned", action="store_true",
+                      help="rectify it even where the orientation check reads it as turned or doubts it is upright "
+                      "(--upright.doubt)")  # fmt: skip
     _add_prior_arguments(rect)
 
 
@@ -237,8 +233,8 @@ def _calibrate(args: argparse.Namespace) -> int:
                 failed += 1
                 continue
             result = with_orientation(result, orientation)
-            print_result(image, result, table, _config(args).upright.sure)
-            warn_if_turned(image, result, _config(args).upright.sure)
+            print_result(image, result, table, _config(args).upright.doubt)
+            warn_if_turned(image, result, _config(args).upright.doubt)
             try:
                 if args.overlay:
                     given = truth.get(Path(image).resolve())
@@ -266,54 +262,10 @@ def _one_line(err: BaseException) -> str:
 
 
 def _predict(args: argparse.Namespace) -> int:
-    import logging
-
     from ngp_kornia.pipeline.priors import Priors
-    from ngp_kornia.predict import predict_folder, usable_cores
 
-    if args.devices > (cores := usable_cores()):
-        print(f"ngp: warning: --devices {args.devices} capped at {cores}, the CPU cores available", file=sys.stderr)
-        args.devices = cores
-    for name in ("lightning.pytorch", "lightning.fabric"):  # the rows go to --out; keep the terminal quiet
-        logging.getLogger(name).setLevel(logging.WARNING)
-
-    try:
-        counts = predict_folder(
-            args.folder,
-            args.out,
-            devices=args.devices,
-            weights=args.weights,
-            recursive=args.recursive,
-            batch_size=args.batch_size,
-            seed=args.seed,
-            config=_settings(args),
-            priors=Priors(args.focal, args.fov, focal_35mm=args.focal_35mm, **camera_arguments(args)),
-            exif=args.exif,
-            same_camera=args.same_camera,
-            progress_bar=sys.stdout.isatty(),
-        )
-    except _user_errors() as err:
-        print(f"ngp: error: {_one_line(err)}", file=sys.stderr, flush=True)
-        return 1
-    if counts["interrupted"]:
-        print(
-            f"ngp: interrupted: the {counts['images']} images finished are in {args.out}; "
-            "the run does not resume: run the command again to calibrate the whole folder",
-            file=sys.stderr,
-            flush=True,
-        )
-        return 130
-    print(f"{counts['images']} rows written to {args.out}")
-    if args.colmap:
-        write_colmap(args.colmap, args.out)
-    if counts["errors"]:
-        print(
-            f"ngp: error: {counts['errors']} of {counts['images']} images could not be read; "
-            f'see the rows with "error" in {args.out}',
-            file=sys.stderr,
-        )
-        return 1
-    return 0
+    priors = Priors(args.focal, args.fov, focal_35mm=args.focal_35mm, **camera_arguments(args))
+    return predict_command(args, _settings(args), priors, _user_errors())
 
 
 def _rectify(args: argparse.Namespace) -> int:
@@ -334,6 +286,10 @@ def _rectify(args: argparse.Namespace) -> int:
             print(f"ngp: error: {args.image}: no camera found (valid false, confidence 0: too few lines of man-made "
                   "structure), so there is nothing to rectify; add --force-invalid to write it anyway (a level "
                   "camera: the image as it is)", file=sys.stderr, flush=True)
+            return 1
+        doubted = orientation_doubt(args.image, result, _config(args).upright.doubt)
+        if doubted is not None and not args.allow_turned:
+            print(f"ngp: error: {doubted}; add --allow-turned to rectify it as read", file=sys.stderr, flush=True)
             return 1
         K, R = result.K[None].double(), result.R[None].double()
         if args.mode == "level":
@@ -416,18 +372,8 @@ def parse(argv: list[str] | None = None) -> argparse.Namespace | int:
             _config(args)
         except ConfigError as err:  # it names the setting, e.g. SegmentSettings.working_size
             parser.error(str(err))
-    if args.command == "predict":
-        for option, value in (("--devices", args.devices), ("--batch-size", args.batch_size)):
-            if value < 1:
-                print(f"ngp: error: {option} must be at least 1, got {value}", file=sys.stderr)
-                return 2
-        try:
-            check_extra(["lightning"], "ngp predict", "train")
-            check_folder(args.folder, args.recursive)
-            check_colmap(args)
-        except (ImportError, OSError, ValueError) as err:
-            print(f"ngp: error: {_one_line(err)}", file=sys.stderr)
-            return 1
+    if args.command == "predict" and (code := check_predict(args)) is not None:
+        return code
     images = {"calibrate": getattr(args, "images", []), "rectify": [getattr(args, "image", "")]}.get(args.command, [])
     if images and not any(Path(image).exists() for image in images):  # nothing to calibrate
         for image in images:

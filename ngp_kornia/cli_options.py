@@ -133,5 +133,6 @@ def subcommand(parser: argparse.ArgumentParser, name: str) -> argparse.ArgumentP
 def short_usage(command: argparse.ArgumentParser) -> str:
     """``ngp calibrate [options] images ...``: argparse's own usage lists every setting (forty lines), and prints it
     before every usage error; ``--help`` lists the options."""
-    names = [a.dest + (" ..." if a.nargs in ("*", "+") else "") for a in command._actions if not a.option_strings]
+    shown = {"*": "{} ...", "+": "{} ...", "?": "[{}]"}  # several, or none (ngp predict: a folder or --list)
+    names = [shown.get(a.nargs, "{}").format(a.dest) for a in command._actions if not a.option_strings]
     return " ".join(["%(prog)s [options]", *names])

@@ -1,37 +1,35 @@
-"""Calibrating a whole folder with Lightning's ``Trainer.predict``, one JSON line per image, in one or several
-processes (``ngp predict FOLDER --out results.jsonl --devices N``).
+"""Calibrating a whole collection with Lightning's ``Trainer.predict``, one JSON line per image: the images of a
+folder (``ngp predict FOLDER --out results.jsonl``) or of a list file (``--list FILE``), on the CPU or GPUs
+(``--accelerator``), in one or several processes (``--devices``) on one or several machines (``--num-nodes``).
 
-Rows are written as batches finish and nothing is kept in memory, so a folder of any size can be processed. They go
-to a hidden temporary file beside ``out`` (``.<out name>.<run id>.tmp``) that is renamed to ``out`` at the end, so
-``out`` is never half-written. With several processes (forked from this one; DDP on the CPU, gloo backend) each
-rank writes its own part file ``.<out name>.<run id>.part<R>`` holding ``<dataset index>\\t<json>`` lines; after a
-barrier rank 0 merges the parts in dataset order, keeping each index once, and deletes them (the run id is drawn
-per run, so no other file is ever touched). An ``out`` that is one of the input images is refused.
+Rows are written as batches finish and nothing is kept in memory, so a collection of any size can be processed.
+Each process appends its rows to its own file in a hidden run folder beside ``out`` (:mod:`ngp_kornia.rowfiles`);
+at the end the process of global rank 0 merges them in input order, each image once, into ``out`` through a
+temporary file renamed over it, so ``out`` is never half-written. ``out`` must be on a file system that every
+process sees. Lightning's strategies share out the work: the processes of one machine are forked from the calling
+one (``ddp_fork``); over several machines, or where torchrun or SLURM started the processes, each process is a
+command of its own (``ddp``), and Lightning reads the environment they set (``NODE_RANK``, ``MASTER_ADDR``,
+``MASTER_PORT``, ``LOCAL_RANK``, ``WORLD_SIZE``, SLURM's variables). The networks run on the accelerator; the
+images are read and their lines detected on a thread of each process, or in ``num_workers`` DataLoader workers.
 
 Every image is isolated: any exception while reading or calibrating it becomes its error row, never the end of the
-run. An interrupted run (Ctrl+C, SIGINT, or SIGTERM as ``kill`` and service managers send) still leaves ``out``
-holding the rows of the images finished so far, in folder order, and the run reports it; it does not resume:
-running the command again starts over. A run stopped by an error (a full disk, a file-size limit) keeps them the
-same way when it can, and removes its hidden files whatever happens. A process killed outright (SIGKILL) cannot
-clean up: the next run for the same ``out`` deletes the hidden files of runs that are gone (each run holds a lock on
-the files it writes, so a run still going is told apart; without ``fcntl``, on Windows, they are left).
+run. An interrupted run (Ctrl+C, SIGINT, or SIGTERM as ``kill``, service managers and job schedulers send) still
+leaves ``out`` holding the rows of the images finished so far, in input order, and the run reports it. A run stopped
+at any point, SIGKILL and a power cut included, keeps the rows it finished in its run folder: ``resume=True``
+(``--resume``) calibrates only the images without a row and ends with one row per image, as if the run had never
+stopped, provided the images and the options are the same (checked: a digest of both is in the run folder).
+Without it a run starts over: it deletes what an earlier run left (unless a run still going holds it).
 
 Every image is calibrated on its own, exactly as :func:`ngp_kornia.calibrate` does for a file (LSD on the decoded
-8-bit image, the candidate sampling seeded per image), so a row equals what ``ngp calibrate`` prints for that file.
+8-bit image, the candidate sampling seeded per image), so on the CPU a row equals what ``ngp calibrate`` prints for
+that file.
 """
 
 from __future__ import annotations
 
-import json
 import os
-import secrets
-import signal
-import threading
 import warnings
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
-from typing import IO
 
 from torch import Tensor
 from torch.multiprocessing.spawn import ProcessException
@@ -39,7 +37,8 @@ from torch.utils.data import DataLoader
 
 try:  # an optional dependency: calibrate() and the rest of the core run without it
     import lightning as L
-    from lightning.pytorch.callbacks import BasePredictionWriter
+    from lightning.fabric.plugins.environments import SLURMEnvironment, TorchElasticEnvironment
+    from lightning.pytorch.accelerators import CUDAAccelerator, MPSAccelerator
 except ImportError as err:
     raise ImportError(
         f"folder prediction needs Lightning ({err}); install it with: pip install 'ngp-kornia[train]'"
@@ -47,38 +46,57 @@ except ImportError as err:
 
 from ngp_kornia.api import file_priors, load_parser, shared_focal, with_orientation
 from ngp_kornia.data.folder import ImageFolder
-from ngp_kornia.errors import NGPWarning, OutputError
+from ngp_kornia.data.image_list import ImageList, read_image_list
+from ngp_kornia.errors import NGPError, NGPWarning, OutputError
 from ngp_kornia.folder_items import FolderImages, FolderItem, collate_items, error_reason
 from ngp_kornia.pipeline import Calibration, NeuralGeometricParser, ParserConfig
 from ngp_kornia.pipeline.priors import Priors, checked_seed
 from ngp_kornia.pipeline.segments import line_workers
 from ngp_kornia.pipeline.shared_camera import SharedFocal, not_shared_folders, with_shared_focal
-from ngp_kornia.preflight import check_folder, same_file
-from ngp_kornia.rowfiles import count_rows, merge_parts, open_locked, remove_stale_files
+from ngp_kornia.predict_plan import RunPlan, plan_run
+from ngp_kornia.predict_writer import JsonlWriter, ProgressBar, signals_restored, stop_like_ctrl_c
+from ngp_kornia.preflight import check_folder
+from ngp_kornia.rowfiles import count_rows, merge_parts, remove_stale_files
 from ngp_kornia.rows import result_row
 from ngp_kornia.threads import pipeline_threads, usable_cores
 
 __all__ = [
+    "ACCELERATORS",
+    "AcceleratorError",
     "FolderPredictor",
     "JsonlWriter",
+    "RunPlan",
     "cap_devices",
     "folder_cameras",
+    "forks_processes",
     "merge_parts",
+    "plan_run",
     "predict_folder",
+    "predict_images",
+    "predict_list",
     "remove_stale_files",
+    "resolve_accelerator",
+    "run_plan",
     "usable_cores",
 ]
+
+#: what ``accelerator`` may be
+ACCELERATORS = ("cpu", "gpu", "auto")
+
+
+class AcceleratorError(NGPError, ValueError):
+    """An accelerator or a device count this machine does not have (``--accelerator gpu`` without a GPU)."""
 
 
 class FolderPredictor(L.LightningModule):
     """The parser as a LightningModule whose ``predict_step`` turns a batch of :class:`FolderItem` into
-    ``(index, row)`` pairs, ``row`` being :func:`~ngp_kornia.rows.result_row` (``ngp calibrate --json``'s) or
-    ``{"image": name, "error": reason}``.
+    ``(index, row)`` pairs (none for an item of index -1), ``row`` being :func:`~ngp_kornia.rows.result_row`
+    (``ngp calibrate --json``'s) or ``{"image": name, "error": reason}``.
 
     Args:
         parser: the pipeline (see :func:`ngp_kornia.api.load_parser`).
-        root: the folder the item names are relative to; with ``exif`` the files' EXIF focal lengths are read
-            from there.
+        root: the folder the item names are relative to (for items that do not carry their file's path); with
+            ``exif`` the files' EXIF focal lengths are read from there.
         seed: the sampling seed of every image.
         priors: what is known of every image's camera.
         exif: take each file's EXIF focal length where ``priors`` gives none (:func:`ngp_kornia.api.file_priors`).
@@ -102,14 +120,21 @@ class FolderPredictor(L.LightningModule):
         self.cameras = cameras
 
     def calibrate(
-        self, image: Tensor, name: str | None = None, segments: Tensor | None = None, mask: Tensor | None = None
+        self,
+        image: Tensor,
+        name: str | None = None,
+        segments: Tensor | None = None,
+        mask: Tensor | None = None,
+        path: str | Path | None = None,
     ) -> Calibration:
-        """Calibrate one (3, H, W) image as :func:`ngp_kornia.calibrate` does for a file (``name``, relative to
-        ``root``, is where an EXIF focal length is read from; ``segments`` (1, N, 2, 2) and ``mask`` (1, N): its
-        lines when already detected)."""
+        """Calibrate one (3, H, W) image as :func:`ngp_kornia.calibrate` does for a file (``path``, else ``name``
+        relative to ``root``, is where an EXIF focal length is read from; ``segments`` (1, N, 2, 2) and ``mask``
+        (1, N): its lines when already detected)."""
         priors = self.priors
-        if name is not None and self.root is not None:  # the image's own prior, where its file records one
-            priors = file_priors(self.root / name, image.shape[-2], image.shape[-1], priors, self.exif)
+        if path is None and name is not None and self.root is not None:
+            path = self.root / name
+        if path is not None:  # the image's own prior, where its file records one
+            priors = file_priors(path, image.shape[-2], image.shape[-1], priors, self.exif)
         # the parser detects lines on the image rounded to 8 bits, which are the exact pixels the file decoded to
         # (the float image is uint8 / 255): the same lines, hence the same answer, as calibrate() on the file
         if segments is not None:
@@ -123,11 +148,13 @@ class FolderPredictor(L.LightningModule):
     def predict_step(self, batch: list[FolderItem], batch_idx: int) -> list[tuple[int, dict]]:
         rows = []
         for item in batch:  # one by one: the seeded sampling then gives calibrate()'s answer for every image
+            if item.index < 0:  # a place that evens out the processes' shares: no image, no row
+                continue
             if item.error is not None:
                 rows.append((item.index, {"image": item.name, "error": item.error}))
                 continue
             try:
-                result = self.calibrate(item.image, item.name, item.segments, item.mask)
+                result = self.calibrate(item.image, item.name, item.segments, item.mask, item.path)
                 if item.orientation is not None:
                     result = with_orientation(result, item.orientation)
                 rows.append((item.index, result_row(item.name, result)))
@@ -136,214 +163,56 @@ class FolderPredictor(L.LightningModule):
         return rows
 
 
-class JsonlWriter(BasePredictionWriter):
-    """Writes each batch's rows as soon as it is predicted: to a temporary file beside ``out`` in a single process,
-    to a part file per rank (lines ``<index>\\t<json>``) in a multi-process run, which rank 0 merges; the result
-    is renamed to ``out`` at the end, or when the run is interrupted or fails (then holding the images finished so
-    far, cut back to whole rows). Each file is locked while it is written (see :func:`remove_stale_files`).
+def resolve_accelerator(accelerator: str, devices: int = 1) -> str:
+    """The accelerator a run uses, ``"cpu"`` or ``"gpu"`` (CUDA, or Apple's MPS): ``"auto"`` takes a GPU where
+    there is one.
 
-    In a multi-process run the processes are forked from the calling one, which only waits for them: its writer
-    never sees a row, and when the run stops early it stops the processes and merges the part files they left.
+    Raises:
+        AcceleratorError: an unknown name, ``"gpu"`` where there is none, or more devices than GPUs.
 
-    Attributes:
-        images: rows written; in the calling process of a multi-process run, after it, the rows of the merged file.
-        errors: error rows, counted the same way.
-        interrupted: the run was stopped (KeyboardInterrupt, SIGTERM or an exception) before every image was done.
-        kept: the rows finished before the run stopped are in ``out``.
+    Example:
+        >>> resolve_accelerator("cpu")
+        'cpu'
     """
-
-    def __init__(self, out: str | Path, world: int = 1) -> None:
-        super().__init__(write_interval="batch")
-        self.out = Path(out)
-        self.file: IO[bytes] | None = None
-        self.multi = world > 1
-        self.rank, self.world = 0, world
-        self.run_id = secrets.token_hex(4)  # made before the fork, so every process names the same files
-        self.images = self.errors = self.whole = 0  # whole: bytes of the file up to its last complete row
-        self.interrupted = self.kept = False
-
-    def part(self, rank: int) -> Path:
-        """The part file of a rank (hidden, named by this run's id so no other file is ever touched)."""
-        return self.out.with_name(f".{self.out.name}.{self.run_id}.part{rank}")
-
-    @property
-    def temporary(self) -> Path:
-        """The file the rows go to before it is renamed to ``out``."""
-        return self.out.with_name(f".{self.out.name}.{self.run_id}.tmp")
-
-    def on_predict_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        _stop_like_ctrl_c()  # in place of Lightning's SIGTERM handler, which lets a prediction run to its end
-        self.multi = trainer.world_size > 1
-        self.rank, self.world = trainer.global_rank, trainer.world_size
-        self.images = self.errors = self.whole = 0
-        self.interrupted = self.kept = False
-        self.out.parent.mkdir(parents=True, exist_ok=True)
-        self.file = open_locked(self.part(self.rank) if self.multi else self.temporary)
-
-    def write_on_batch_end(
-        self, trainer, pl_module, prediction, batch_indices, batch, batch_idx: int, dataloader_idx: int = 0
-    ) -> None:
-        lines = (json.dumps(row) for _, row in prediction)
-        if self.multi:
-            lines = (f"{index}\t{line}" for (index, _), line in zip(prediction, lines, strict=True))
-        data = "".join(line + "\n" for line in lines).encode("utf-8")
-        self.file.write(data)
-        self.file.flush()  # rows survive an interruption or a crash later in the run
-        self.whole += len(data)
-        self.images += len(prediction)
-        self.errors += sum("error" in row for _, row in prediction)
-
-    def on_predict_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        self.close()
-        if not self.multi:
-            self.temporary.replace(self.out)
-            return
-        trainer.strategy.barrier("ngp_predict_parts_written")
-        if trainer.is_global_zero:
-            self.finish()  # the calling process counts the merged rows
-
-    def on_exception(self, trainer: L.Trainer, pl_module: L.LightningModule, exception: BaseException) -> None:
-        """Stopped early: the main process keeps the rows finished so far, in folder order, as ``out``."""
-        self.close()
-        self.interrupted = True
-        if self.rank != 0:
-            return
-        if self.multi:
-            processes = getattr(trainer.strategy.launcher, "procs", [])
-            _stop(processes)
-            _wait_for(processes)
-            self.images = self.finish()
-        elif self.temporary.exists():
-            self.temporary.replace(self.out)
-            self.kept = True
-
-    def finish(self) -> int:
-        """Merge the part files that exist into ``out`` (through the temporary file), delete them; rows written.
-        The part files and the temporary file are deleted even when the merge fails (a full disk)."""
-        parts = [p for p in (self.part(rank) for rank in range(self.world)) if p.exists()]
-        try:
-            written = merge_parts(parts, self.temporary)
-            self.temporary.replace(self.out)
-            self.kept = True
-        finally:
-            for path in (*parts, self.temporary):
-                path.unlink(missing_ok=True)
-        return written
-
-    def close(self) -> None:
-        """Close the file and cut it back to its last complete row: a write that failed (a full disk) or was
-        interrupted may have left part of one."""
-        if self.file is None:
-            return
-        file, self.file = self.file, None
-        try:
-            file.close()
-        except OSError:  # the flush of rows that did not fit; the file is closed all the same
-            pass
-        os.truncate(file.name, self.whole)
+    if accelerator not in ACCELERATORS:
+        raise AcceleratorError(f"--accelerator {accelerator!r}: give one of {', '.join(ACCELERATORS)}")
+    if accelerator == "cpu":
+        return "cpu"
+    gpus = CUDAAccelerator.auto_device_count() if CUDAAccelerator.is_available() else int(MPSAccelerator.is_available())
+    if accelerator == "auto":
+        return "gpu" if gpus else "cpu"
+    if not gpus:
+        raise AcceleratorError("--accelerator gpu: this machine has no GPU that torch can use (no CUDA or MPS "
+                               "device); use --accelerator cpu, or auto to take a GPU only where there is one")
+    if devices > gpus:
+        raise AcceleratorError(f"--devices {devices}: this machine has {gpus} GPU(s); give at most {gpus}")
+    return "gpu"
 
 
-def _stop(processes: list) -> None:
-    """Stop the forked processes of a run that ends early (each at its next image, as SIGTERM does there)."""
-    for process in processes:
-        if process.is_alive() and process.pid is not None:
-            try:
-                os.kill(process.pid, signal.SIGTERM)
-            except ProcessLookupError:  # ended in the meantime
-                pass
+def _launched_externally() -> bool:
+    """Whether torchrun, SLURM's srun or Lightning's own launcher started this process as one of a run's."""
+    return "LOCAL_RANK" in os.environ or TorchElasticEnvironment.detect() or SLURMEnvironment.detect()
 
 
-def _wait_for(processes: list, timeout: float = 30.0) -> None:
-    """Let the forked processes of an interrupted run end (each stops at its next image) before their files are read."""
-    for process in processes:
-        process.join(timeout)
+def forks_processes(devices: int, num_nodes: int = 1) -> bool:
+    """Whether a run forks its processes from the calling one (and may cap them at the cores), rather than a
+    scheduler, torchrun or another machine starting each as a command of its own.
+
+    Example:
+        >>> forks_processes(1)
+        False
+    """
+    return _strategy(devices, num_nodes) == "ddp_fork"
 
 
-class _StopOnce:
-    """A SIGINT / SIGTERM handler that raises KeyboardInterrupt the first time only: a second signal must not cut
-    the keeping of the rows short. (Setting the signals to SIG_IGN instead would turn a signal already on its way
-    into an OSError, "ignored due to race condition".)"""
-
-    def __init__(self) -> None:
-        self.seen = False
-
-    def __call__(self, signum, frame) -> None:
-        if not self.seen:
-            self.seen = True
-            raise KeyboardInterrupt
-
-
-def _stop_like_ctrl_c() -> None:
-    """Make SIGINT and SIGTERM raise KeyboardInterrupt once, in this process (from its main thread only)."""
-    if threading.current_thread() is threading.main_thread():
-        stop = _StopOnce()
-        for number in (signal.SIGINT, signal.SIGTERM):
-            signal.signal(number, stop)
-
-
-@contextmanager
-def _signals_restored() -> Iterator[None]:
-    """The caller's SIGINT and SIGTERM handlers back after the block, whatever the run set."""
-    saved = {number: signal.getsignal(number) for number in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        yield
-    finally:
-        if threading.current_thread() is threading.main_thread():
-            for number, handler in saved.items():
-                signal.signal(number, handler)
-
-
-def _check_folder(folder: Path, recursive: bool) -> ImageFolder:
-    check_folder(folder, recursive)  # missing, a file, or no image in it: one line naming the fix
-    return ImageFolder(folder, recursive=recursive)
-
-
-def _trainer(devices: int, writer: JsonlWriter, progress_bar: bool) -> L.Trainer:
-    return L.Trainer(
-        accelerator="cpu",  # LSD and the candidate sampling run on the CPU anyway
-        devices=devices,
-        # forked processes start at once, with the imports and the weights of this one; a fresh interpreter per
-        # process (Lightning's "ddp") costs seconds, more than a second process saves on a few hundred images
-        strategy="ddp_fork" if devices > 1 else "auto",
-        callbacks=[writer],
-        logger=False,
-        enable_progress_bar=progress_bar,
-        enable_model_summary=False,
-    )
-
-
-def _check_out(out: Path, images: ImageFolder) -> Path:
-    """The file the rows replace: ``out``, or the file it links to (the link stays a link). Refused: a folder, a
-    device or pipe, one of the images (by any name, hard links too), and an existing file that holds no rows of
-    ``ngp predict`` (it would be lost)."""
-    if out.is_dir():
-        raise OutputError(f"--out {out} is a folder; give the .jsonl file to write, e.g. {out / 'results.jsonl'}")
-    target = out.resolve()
-    if target.exists() and not target.is_file():
-        raise OutputError(f"--out {out} is not a regular file (a device or a pipe); give a file, e.g. results.jsonl")
-    if any(same_file(path, target) for path in images.paths):
-        raise OutputError(f"--out {out} is one of the input images; give another file, e.g. results.jsonl")
-    if target.is_file() and not _holds_rows(target):
-        raise OutputError(
-            f"--out {out} exists and holds no rows of ngp predict, so it would be lost; give another file or remove it"
-        )
-    return target
-
-
-def _holds_rows(path: Path) -> bool:
-    """Whether a file may be replaced: empty, or its first line a row as :class:`JsonlWriter` writes them."""
-    try:
-        with path.open("rb") as f:
-            first = f.readline(1 << 20)
-    except OSError:
-        return False
-    if not first.strip():
-        return True
-    try:
-        row = json.loads(first)
-    except (ValueError, UnicodeDecodeError):
-        return False
-    return isinstance(row, dict) and "image" in row
+def _strategy(devices: int, num_nodes: int) -> str:
+    if devices * num_nodes == 1:
+        return "auto"
+    if num_nodes > 1 or _launched_externally():  # each process is a command of its own
+        return "ddp"
+    # forked processes start at once, with the imports and the weights of this one; a fresh interpreter per
+    # process (Lightning's "ddp") costs seconds, more than a second process saves on a few hundred images
+    return "ddp_fork"
 
 
 def cap_devices(devices: int) -> int:
@@ -371,59 +240,119 @@ def predict_folder(
     priors: Priors | None = None,
     exif: bool = False,
     same_camera: bool = False,  # each folder's photos share a focal length: folder_cameras()
-) -> dict | None:
+    accelerator: str = "cpu",
+    num_nodes: int = 1,
+    resume: bool = False,
+) -> dict:
     """Calibrate every image of a folder into a JSON Lines file, one row per image in sorted path order.
 
     A row is :func:`~ngp_kornia.rows.result_row` of its path relative to folder (``ngp calibrate --json``'s), or
     ``{"image": ..., "error": <reason>}`` for a file that cannot be read or calibrated, whatever the reason. An
     interrupted run (Ctrl+C or SIGTERM; the caller's handlers are back after) leaves ``out`` holding the rows of the
-    images finished so far and returns with ``"interrupted": True``; it does not resume. What killed runs left
-    beside ``out`` goes first (:func:`remove_stale_files`). With ``devices > 1`` the work is split over that many CPU
-    processes forked from this one (``"ddp_fork"``, gloo; not on Windows), at most one per image and per core.
+    images finished so far and returns with ``"interrupted": True``; ``resume=True`` then calibrates the rest.
 
     Args:
         folder: the folder of images.
         out: the ``.jsonl`` file to write (replaced at the end if it holds an earlier run's rows; see Raises).
-        devices: number of processes.
+        devices: processes per machine: CPU processes (at most one per core), or GPUs.
         weights: a weight set name or weights file, as for :func:`ngp_kornia.calibrate`.
         recursive: also calibrate the images of sub-folders.
         batch_size: images per loader batch (each image is still calibrated on its own).
         seed: seed of the candidate sampling, as for :func:`ngp_kornia.calibrate`.
-        num_workers: loader worker processes per device, to read images while the parser runs.
+        num_workers: DataLoader worker processes per device that read the images and detect their lines (0: a
+            thread of each process reads the next image while the parser works).
         config, priors, exif: settings, priors (or, with ``exif``, read from the file), as for ``calibrate()``.
-        progress_bar: show Lightning's progress bar.
+        progress_bar: show a progress bar (on stderr) with the rate and the time left.
+        same_camera: the photos of each folder share one focal length (:func:`folder_cameras`).
+        accelerator: ``"cpu"``, ``"gpu"`` or ``"auto"`` (a GPU where there is one) for the networks.
+        num_nodes: machines; each runs this call (the same arguments) with the environment Lightning reads.
+        resume: continue the unfinished run for ``out``: only the images without a row are calibrated.
 
     Returns:
-        ``{"images": rows written, "errors": error rows, "interrupted": bool}``.
+        ``{"images": rows written, "errors": error rows, "interrupted": bool, "rank": global rank}``; the counts
+        are those of ``out`` in the process that wrote it (rank 0), of the process's own rows in the others.
 
     Raises:
         FileNotFoundError: ``folder`` does not exist.
         NotADirectoryError: ``folder`` is a file.
-        ValueError: no images in ``folder``, ``devices`` or ``batch_size`` below 1, unknown weights.
-        OutputError: ``out`` an image, a folder, a device or a file of no rows (a link's file gets the rows); or the
-            run stopped on an error (full disk, size limit, a process died): the message says where the rows are.
+        ValueError: no images in ``folder``, ``devices``, ``num_nodes`` or ``batch_size`` below 1, unknown weights.
+        AcceleratorError: ``accelerator="gpu"`` without a GPU, or more devices than GPUs.
+        OutputError: ``out`` an image, a folder, a device or a file of no rows (a link's file gets the rows);
+            another run writing it; with ``resume``, an unfinished run of other images or options; or the run
+            stopped on an error (full disk, size limit, a process died): the message says where the rows are.
     """
-    _check_counts(devices, batch_size)
-    images = _check_folder(Path(folder), recursive)
-    out = _check_out(Path(out), images)
-    devices = min(cap_devices(devices), len(images))  # Lightning's predict sampler refuses a process without an image
-    cameras = folder_cameras(images, weights, seed, config, priors, exif) if same_camera else None
-    module = FolderPredictor(parser := load_parser(weights, config), images.root, seed, priors, exif, cameras)
-    files = FolderImages(images, parser.config.segments, devices if num_workers == 0 else None)  # reads ahead
+    check_folder(Path(folder), recursive)  # missing, a file, or no image in it: one line naming the fix
+    options = {k: v for k, v in locals().items() if k not in ("folder", "out", "recursive")}
+    return predict_images(ImageList.from_folder(ImageFolder(folder, recursive=recursive)), out, **options)
+
+
+def predict_list(image_list: str | Path, out: str | Path, **options) -> dict:
+    """:func:`predict_folder` for the images a list file names (one path per line, or a CSV file with a ``path``
+    or ``image`` column; paths relative to the list file's folder; see :mod:`ngp_kornia.data.image_list`), one
+    row per listed image in list order, its ``"image"`` the path as listed.
+
+    Args:
+        image_list: the list file.
+        out: the ``.jsonl`` file to write.
+        options: as for :func:`predict_folder` (but ``recursive``).
+
+    Raises:
+        FileNotFoundError: no list file, or none of the listed files exists.
+        ManifestError: a list that names no image, or one image twice, or a CSV without a path column.
+    """
+    return predict_images(read_image_list(image_list), out, **options)
+
+
+def predict_images(images: ImageList, out: str | Path, resume: bool = False, **options) -> dict:
+    """:func:`predict_folder` for an :class:`~ngp_kornia.data.image_list.ImageList`: :func:`plan_run`, then
+    :func:`run_plan`."""
+    settings = {key: options.pop(key) for key in ("weights", "seed", "config", "priors", "exif", "same_camera")
+                if key in options}
+    _check_counts(options.get("devices", 1), options.get("batch_size", 1), options.get("num_nodes", 1))
+    return run_plan(plan_run(images, out, resume, **settings), **options)
+
+
+def run_plan(
+    plan: RunPlan,
+    devices: int = 1,
+    batch_size: int = 1,
+    num_workers: int = 0,
+    progress_bar: bool = False,
+    accelerator: str = "cpu",
+    num_nodes: int = 1,
+) -> dict:
+    """Calibrate the images a :class:`RunPlan` has still to do (arguments and result as for
+    :func:`predict_folder`)."""
+    _check_counts(devices, batch_size, num_nodes, num_workers)
+    accelerator = resolve_accelerator(accelerator, devices)
+    if forks_processes(devices, num_nodes) and accelerator == "cpu":
+        # forked here: at most one per core, and one per image to calibrate
+        devices = min(cap_devices(devices), max(1, len(plan.todo)))
+    settings = plan.settings
+    cameras = folder_cameras(plan.images, **settings) if settings["same_camera"] else None
+    parser = load_parser(settings["weights"], settings["config"])
+    module = FolderPredictor(parser, plan.images.root, settings["seed"], settings["priors"], settings["exif"], cameras)
+    writer = JsonlWriter(plan.out, len(plan.images), plan.state, plan.keep, devices * num_nodes)
+    trainer = _trainer(accelerator, devices, num_nodes, writer, progress_bar, batch_size)
+    world = trainer.world_size  # places past the images to do give every process one (a resumed run near its end)
+    files = FolderImages(plan.images, parser.config.segments, world if num_workers == 0 else None, plan.todo, world)
     loader = DataLoader(files, batch_size=batch_size, num_workers=num_workers, collate_fn=collate_items)
-    writer = JsonlWriter(out, devices)
     try:
-        _run(_trainer(devices, writer, progress_bar), module, loader, writer)
+        _run(trainer, module, loader, writer, num_workers)
     finally:
         files.close()
-    return {"images": writer.images, "errors": writer.errors, "interrupted": writer.interrupted}
+    return {"images": writer.images, "errors": writer.errors, "interrupted": writer.interrupted,
+            "rank": trainer.global_rank}
 
 
-def folder_cameras(images: ImageFolder, weights, seed: int, config, priors, exif: bool) -> dict[str, SharedFocal]:
-    """The focal length shared by the photos of each folder (:func:`ngp_kornia.api.shared_focal`), by the folder's
-    path relative to the root (``"."`` for the root): estimated in this process before the run, whose every
-    photo then takes its folder's as known (``shared_photos`` in its row). A folder where fewer than two photos
-    have lines shares nothing (its photos are calibrated alone) and is left out, with one
+def folder_cameras(
+    images: ImageList | ImageFolder, weights="default", seed: int = 0, config=None, priors=None, exif: bool = False,
+    **ignored,
+) -> dict[str, SharedFocal]:
+    """The focal length shared by the photos of each folder (:func:`ngp_kornia.api.shared_focal`), by the folder
+    of the photo's name (its path relative to the root; ``"."`` for the root): estimated in this process before
+    the run, whose every photo then takes its folder's as known (``shared_photos`` in its row). A folder where fewer
+    than two photos have lines shares nothing (its photos are calibrated alone) and is left out, with one
     :class:`~ngp_kornia.errors.NGPWarning` naming such folders.
 
     Raises:
@@ -433,9 +362,10 @@ def folder_cameras(images: ImageFolder, weights, seed: int, config, priors, exif
     if exif:
         raise ValueError("--same-camera estimates one focal length per folder; --exif gives each photo its own: "
                          "use one of them")
+    images = images if isinstance(images, ImageList) else ImageList.from_folder(images)
     groups: dict[str, list[Path]] = {}
-    for path in images.paths:
-        groups.setdefault(path.relative_to(images.root).parent.as_posix(), []).append(path)
+    for index, name in enumerate(images.names):
+        groups.setdefault(Path(name).parent.as_posix(), []).append(images.path(index))
     cameras = {name: shared_focal(paths, weights, seed, config, priors) for name, paths in groups.items()}
     alone = sorted(name for name, camera in cameras.items() if camera.photos < 2)
     if alone:  # said once for all such folders: a tree of one photo per folder would say it hundreds of times
@@ -443,27 +373,42 @@ def folder_cameras(images: ImageFolder, weights, seed: int, config, priors, exif
     return {name: camera for name, camera in cameras.items() if camera.photos >= 2}
 
 
-def _check_counts(devices: int, batch_size: int) -> None:
-    if devices < 1:
-        raise ValueError(f"devices must be at least 1, got {devices}")
-    if batch_size < 1:
-        raise ValueError(f"batch size must be at least 1, got {batch_size}")
+def _check_counts(devices: int, batch_size: int, num_nodes: int = 1, num_workers: int = 0) -> None:
+    for name, value, least in (("devices", devices, 1), ("batch size", batch_size, 1), ("num_nodes", num_nodes, 1),
+                               ("num_workers", num_workers, 0)):
+        if value < least:
+            raise ValueError(f"{name} must be at least {least}, got {value}")
 
 
-def _run(trainer: L.Trainer, module: FolderPredictor, loader: DataLoader, writer: JsonlWriter) -> None:
+def _trainer(accelerator: str, devices: int, num_nodes: int, writer: JsonlWriter, progress_bar: bool,
+             batch_size: int = 1) -> L.Trainer:
+    bar = ProgressBar("image" if batch_size == 1 else "batch")
+    return L.Trainer(
+        accelerator=accelerator,
+        devices=devices,
+        num_nodes=num_nodes,
+        strategy=_strategy(devices, num_nodes),
+        callbacks=[writer, bar] if progress_bar else [writer],
+        logger=False,
+        enable_progress_bar=progress_bar,
+        enable_model_summary=False,
+    )
+
+
+def _run(trainer: L.Trainer, module: FolderPredictor, loader: DataLoader, writer: JsonlWriter, workers: int) -> None:
     """``trainer.predict`` with Lightning's noise filtered, and Ctrl+C ending the run with the finished rows kept."""
-    remove_stale_files(writer.out)
     # fork from one thread (OpenCV's worker pool does not survive a fork: a child would wait for threads that are
     # not there); each process runs LSD's strips on its share of the cores less the one its parser runs on
-    strip_threads = max(1, usable_cores() // trainer.num_devices - 1)
+    readers = trainer.num_devices * max(1, workers)
+    strip_threads = max(1, usable_cores() // readers - (workers == 0))
     with pipeline_threads(1), line_workers(strip_threads), warnings.catch_warnings():
         # the parser, not the loader, is the bottleneck; and the pytree notice is between Lightning and torch
         warnings.filterwarnings("ignore", message=".*does not have many workers.*")
         warnings.filterwarnings("ignore", message=".*LeafSpec.*is deprecated.*", category=FutureWarning)
         # Lightning lets a prediction run on through SIGTERM, and ignores Ctrl+C once it has seen one: both are
         # stops here (forked processes inherit it), and the caller's handlers come back after
-        with _signals_restored():
-            _stop_like_ctrl_c()
+        with signals_restored():
+            stop_like_ctrl_c()
             try:
                 trainer.predict(module, loader, return_predictions=False)
             except SystemExit:  # Lightning's answer to Ctrl+C: the writer has kept the finished rows
@@ -471,7 +416,7 @@ def _run(trainer: L.Trainer, module: FolderPredictor, loader: DataLoader, writer
                     raise
             except (OSError, ProcessException) as err:  # a full disk, a file-size limit, a forked process that died
                 raise OutputError(_stopped(err, writer)) from None
-    if writer.multi and not writer.interrupted:  # the forked processes wrote and merged; this one only waited
+    if trainer.is_global_zero and not (writer.interrupted or writer.kept):  # forked processes wrote and merged
         writer.images, writer.errors = count_rows(writer.out)
 
 

@@ -372,6 +372,19 @@ def _(tmp: Path) -> str:
     return "kept"
 
 
+@case("input", "ngp predict --list naming a device, a pipe, a folder, a missing file and a good image")
+def _(tmp: Path) -> str:
+    scene_png(tmp / "a.png")
+    os.mkfifo(tmp / "pipe")
+    (tmp / "folder").mkdir()
+    (tmp / "list.txt").write_text("/dev/zero\npipe\nfolder\nmissing.png\na.png\n")
+    proc = ngp("predict", "--list", tmp / "list.txt", "--out", tmp / "r.jsonl")
+    rows = [json.loads(line) for line in (tmp / "r.jsonl").read_text().splitlines()]
+    expect(proc.returncode == 1 and "Traceback" not in proc.stderr, proc.stderr[-300:])
+    expect([("error" in r) for r in rows] == [True, True, True, True, False], str(rows)[:300])
+    return "4 error rows, 1 row"
+
+
 @case("output", "--overlay, rectify -o, render into existing outputs need --force; inputs never overwritten")
 def _(tmp: Path) -> str:
     image = scene_png(tmp / "a.png")
@@ -416,7 +429,7 @@ def interrupt(tmp: Path, devices: int) -> str:
     )
     deadline = time.time() + 240
     while time.time() < deadline and proc.poll() is None:
-        partial = [p for p in tmp.iterdir() if p.name.startswith(".r.jsonl.")]
+        partial = list((tmp / ".r.jsonl.ngp-run").glob("*.rows"))
         if sum(p.read_text().count("\n") for p in partial if p.is_file()) >= 2 * devices:
             break
         time.sleep(0.2)
@@ -427,7 +440,8 @@ def interrupt(tmp: Path, devices: int) -> str:
     rows = [json.loads(line) for line in out.read_text().splitlines()] if out.exists() else []
     expect(proc.returncode == 130 and len(lines) == 1 and "Traceback" not in err, err[-400:])
     expect(rows and all("focal" in r for r in rows), f"{len(rows)} rows")
-    expect(sorted(p.name for p in tmp.iterdir()) == ["photos", "r.jsonl"], str(sorted(p.name for p in tmp.iterdir())))
+    left = sorted(p.name for p in tmp.iterdir())  # the run folder stays for --resume
+    expect(left == [".r.jsonl.ngp-run", "photos", "r.jsonl"], str(left))
     return lines[0][:90]
 
 

@@ -397,14 +397,36 @@ def test_ctrl_c_during_start_up_ends_with_a_message(entry, args, photo, tmp_path
     assert "Traceback" not in err and err.strip().endswith("interrupted")
 
 
-def test_a_turn_is_warned_about_only_where_the_check_acts_on_it(tmp_path, capsys):
+def _turned_render(tmp_path):
     from ngp_kornia.training.synth.render import render_scene
 
     path = tmp_path / "turned.png"
-    cv2.imwrite(str(path), cv2.cvtColor(np.rot90(render_scene(2_500_000, (320, 240)).image).copy(), cv2.COLOR_RGB2BGR))
-    assert main(["calibrate", str(path), "--upright.sure", "0"]) == 0  # every reading of a turn acts
+    image = render_scene(2_500_029, (320, 240)).image  # turned by 90, read so with probability 0.99
+    cv2.imwrite(str(path), cv2.cvtColor(np.rot90(image).copy(), cv2.COLOR_RGB2BGR))
+    return path
+
+
+def test_a_doubted_photo_is_warned_about_with_its_upright_probability(tmp_path, capsys):
+    path = _turned_render(tmp_path)
+    assert main(["calibrate", str(path)]) == 0
     out = capsys.readouterr()
-    assert json.loads(out.out)["turned"] == 90
-    assert out.err.startswith(f"ngp: warning: {path} looks turned by 90 degrees") and out.err.count("\n") == 1
-    assert main(["calibrate", str(path), "--upright.sure", "1"]) == 0  # no reading is that sure: no warning
+    answer = json.loads(out.out)
+    assert answer["turned"] == 90
+    assert out.err.startswith(f"ngp: warning: {path}: upright probability {answer['upright']:.2f}, looks turned by")
+    assert out.err.count("\n") == 1
+    assert main(["calibrate", str(path), "--upright.sure", "1", "--upright.doubt", "1"]) == 0  # doubted, no turn
+    err = capsys.readouterr().err
+    assert err.startswith(f"ngp: warning: {path}: upright probability") and "(below 1)" in err
+    assert main(["calibrate", str(path), "--upright.sure", "1", "--upright.doubt", "0"]) == 0  # nothing doubted
     assert capsys.readouterr().err == ""
+
+
+def test_rectify_refuses_a_doubted_photo_unless_allowed(tmp_path, capsys):
+    path, target = _turned_render(tmp_path), tmp_path / "straight.png"
+    assert main(["rectify", str(path), "-o", str(target), "--upright.doubt", "1"]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith(f"ngp: error: {path}: upright probability")
+    assert err.endswith("add --allow-turned to rectify it as read\n") and err.count("\n") == 1
+    assert not target.exists()
+    assert main(["rectify", str(path), "-o", str(target), "--upright.doubt", "1", "--allow-turned"]) == 0
+    assert cv2.imread(str(target)) is not None

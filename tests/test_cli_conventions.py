@@ -85,7 +85,8 @@ def test_several_images_give_what_the_list_api_gives(scenes, tmp_path, capsys, m
     expected = calibrate([str(p) for p in scenes], weights="none")
     for row, cal in zip(rows, expected, strict=True):
         assert row == json.loads(json.dumps(result_row(row["image"], cal)))
-    assert err.count("\n") == 1 and "missing.jpg: file not found" in err
+    errors = [line for line in err.splitlines() if line.startswith("ngp: error:")]  # warnings may come beside
+    assert len(errors) == 1 and "missing.jpg: file not found" in errors[0]
 
 
 def test_frontal_rectification_works_with_the_default_crop(tmp_path, capsys):
@@ -131,7 +132,8 @@ def test_an_image_failing_inside_a_chunk_is_reported_and_the_others_still_print(
     assert cli.main(["calibrate", *map(str, scenes), "--weights", "none"]) == 1
     out, err = capsys.readouterr()
     assert [json.loads(line)["image"] for line in out.splitlines()] == [str(scenes[0]), str(scenes[2])]
-    assert err.strip() == f"ngp: error: {scenes[1]}: cannot calibrate this one"
+    errors = [line for line in err.splitlines() if line.startswith("ngp: error:")]  # warnings may come beside
+    assert errors == [f"ngp: error: {scenes[1]}: cannot calibrate this one"]
 
 
 @pytest.mark.parametrize(

@@ -32,8 +32,9 @@ def test_package_data_ships_weights_configs_and_py_typed():
     assert {"weights/*.pt", "configs/*.yaml", "py.typed"} <= set(data)
     assert (package / "py.typed").is_file()
     configs = sorted(p.name for p in (package / "configs").glob("*.yaml"))
-    names = ["evidence", "evidence_nyu", "fsnet", "upright", "zsnet", "zsnet_nyu"]
-    assert configs == [f"{name}.yaml" for name in names]
+    assert configs == [
+        "evidence.yaml", "evidence_nyu.yaml", "fsnet.yaml", "upright.yaml", "zsnet.yaml", "zsnet_nyu.yaml"
+    ]
 
 
 def test_extras_for_notebooks_plots_and_tensorboard():

@@ -53,7 +53,7 @@ def test_a_row_for_every_file_and_error_rows_for_the_bad_ones(predicted):
     names = [row["image"] for row in rows]
     expected = ["corrupt.png", "empty.jpg", "scene00.png", "scene01.png", "scene02.png", "scene03.png"]
     assert names == [*expected, "sub/scene04.png"]
-    assert counts == {"images": 7, "errors": 2, "interrupted": False}
+    assert counts == {"images": 7, "errors": 2, "interrupted": False, "rank": 0}
     errors = {row["image"]: row["error"] for row in rows if "error" in row}
     assert set(errors) == {"corrupt.png", "empty.jpg"} and "file is empty" in errors["empty.jpg"]
     for row in rows:
@@ -287,3 +287,44 @@ def test_predict_keeps_the_callers_thread_count(folder, tmp_path):
         assert torch.get_num_threads() == 3
     finally:
         torch.set_num_threads(before)
+
+
+@pytest.mark.skipif(__import__("torch").cuda.is_available(), reason="this machine has a GPU")
+def test_accelerator_gpu_without_a_gpu_is_one_line_and_a_usage_error(folder, tmp_path, capsys):
+    out = tmp_path / "r.jsonl"
+    assert main(["predict", str(folder / "sub"), "--out", str(out), "--accelerator", "gpu"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("ngp: error: --accelerator gpu: this machine has no GPU") and err.count("\n") == 1
+    assert "--accelerator cpu" in err and not out.exists()
+
+
+def test_a_progress_bar_on_a_terminal_with_the_rate_and_the_time_left(folder, tmp_path):
+    # stderr on a terminal (a pseudo-terminal of 100 columns), stdout in a pipe: the bar goes to stderr only
+    import fcntl
+    import pty
+    import struct
+    import termios
+
+    primary, secondary = pty.openpty()
+    fcntl.ioctl(secondary, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 100, 0, 0))
+    command = [sys.executable, "-m", "ngp_kornia.cli", "predict", str(folder), "--out", str(tmp_path / "r.jsonl")]
+    run = subprocess.run(command, stdout=subprocess.PIPE, stderr=secondary, text=True, timeout=240)
+    os.close(secondary)
+    shown = b""
+    while chunk := _read_some(primary):
+        shown += chunk
+    os.close(primary)
+    last = shown.decode(errors="replace").replace("\r", "\n").split("ngp predict: 100%")[-1]
+    assert run.returncode == 1 and run.stdout.strip() == f"6 rows written to {tmp_path / 'r.jsonl'}"
+    assert "6/6 [" in last and "image/s]" in last and "<00:00" in last, shown[-500:]  # done, time left, rate
+
+
+def _read_some(fd) -> bytes:
+    import select
+
+    if not select.select([fd], [], [], 1)[0]:
+        return b""
+    try:
+        return os.read(fd, 1 << 16)
+    except OSError:  # the other end is closed: all was read
+        return b""

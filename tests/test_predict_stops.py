@@ -1,6 +1,7 @@
 """ngp predict stopped early: Ctrl+C and SIGTERM keep the finished rows as valid JSON Lines, in one process and in
-several; an error (a file-size limit, a full disk) leaves no hidden file; the hidden files of a killed run are
-deleted by the next run; the caller's signal handlers are back after a run."""
+several, and the run folder for --resume; an error (a file-size limit, a full disk) keeps them the same way and
+leaves no temporary file; the run folder of a killed run is deleted by the next run that does not resume, and a run
+still going is never touched; the caller's signal handlers are back after a run."""
 
 import errno
 import fcntl
@@ -41,6 +42,19 @@ def _hidden(folder):
     return sorted(p.name for p in folder.iterdir() if p.name.startswith("."))
 
 
+def _visible(folder):
+    return sorted(p.name for p in folder.iterdir() if not p.name.startswith("."))
+
+
+def _run_files(tmp_path):
+    """The files of the run folder of results.jsonl: its rows files and run.json (no temporary file)."""
+    return sorted(p.name.split("-")[-1] if p.suffix == ".rows" else p.name for p in (tmp_path / RUN).iterdir())
+
+
+#: the run folder of results.jsonl
+RUN = ".results.jsonl.ngp-run"
+
+
 def _start(tmp_path, devices, count=200):
     """``ngp predict`` on ``count`` images in its own session, once at least two rows per process are written."""
     folder, out = _photos(tmp_path / "photos", count), tmp_path / "results.jsonl"
@@ -49,7 +63,7 @@ def _start(tmp_path, devices, count=200):
     proc = subprocess.Popen([*command, "--devices", str(devices)], **pipes)
     deadline = time.time() + 240
     while time.time() < deadline and proc.poll() is None:
-        written = [p for p in tmp_path.iterdir() if p.name.startswith(".results.jsonl.")]
+        written = list((tmp_path / RUN).glob("*.rows")) if (tmp_path / RUN).is_dir() else []
         if sum(p.read_bytes().count(b"\n") for p in written if p.is_file()) >= 2 * devices:
             break
         time.sleep(0.2)
@@ -78,9 +92,12 @@ def test_a_stopped_run_keeps_the_finished_rows(tmp_path, signum, to, devices):
     assert len(lines) == 1 and lines[0].startswith("ngp: interrupted: the "), (stderr[-2000:], stdout[-2000:])
     rows = _rows(out)  # every line is whole JSON
     assert 2 <= len(rows) < 200 and f"the {len(rows)} images finished are in {out}" in lines[0]
+    assert lines[0].endswith("run the same command with --resume to calibrate the rest")
     names = [r["image"] for r in rows]
     assert names == sorted(set(names)) and all("focal" in r for r in rows)  # folder order, each once, complete
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["photos", "results.jsonl"]  # no part or temporary file
+    # the run folder stays for --resume, without a temporary file
+    assert _visible(tmp_path) == ["photos", "results.jsonl"] and _hidden(tmp_path) == [RUN]
+    assert _run_files(tmp_path) == [f"{rank}.rows" for rank in range(devices)] + ["run.json"]
 
 
 _LIMITED = textwrap.dedent(
@@ -99,7 +116,7 @@ _LIMITED = textwrap.dedent(
 
 
 @pytest.mark.parametrize("devices", [1, 2])
-def test_a_file_size_limit_leaves_no_hidden_file(tmp_path, devices):
+def test_a_file_size_limit_keeps_the_rows_and_leaves_no_temporary_file(tmp_path, devices):
     folder, out = _photos(tmp_path / "photos", 6 if devices == 1 else 24), tmp_path / "results.jsonl"
     out.write_text(OLD_RESULTS)
     row = len(json.dumps({"image": "scene000.png", **_one_row(folder, tmp_path)})) + 1
@@ -121,7 +138,8 @@ def test_a_file_size_limit_leaves_no_hidden_file(tmp_path, devices):
         rows = _rows(out)
         assert message.endswith(f"the {len(rows)} rows finished are in {out}") and 0 < len(rows) <= limit // row
         assert all("focal" in r for r in rows)
-    assert _hidden(tmp_path) == [] and sorted(p.name for p in tmp_path.iterdir()) == ["photos", "results.jsonl"]
+    assert _hidden(tmp_path) == [RUN] and _visible(tmp_path) == ["photos", "results.jsonl"]
+    assert _run_files(tmp_path) == [f"{rank}.rows" for rank in range(devices)] + ["run.json"]
 
 
 def _one_row(folder, tmp_path):
@@ -137,13 +155,13 @@ def _one_row(folder, tmp_path):
     return {k: v for k, v in row.items() if k != "image"}
 
 
-def test_a_full_disk_leaves_no_hidden_file_and_the_handlers_as_they_were(tmp_path, monkeypatch):
+def test_a_full_disk_keeps_whole_rows_and_the_handlers_as_they_were(tmp_path, monkeypatch):
     folder, out = _photos(tmp_path / "photos", 4), tmp_path / "results.jsonl"
     written = JsonlWriter.write_on_batch_end
 
     def full_after_two(self, *args, **kwargs):
         if self.images == 2:
-            self.file.write(b'{"image": "scene002.png", "fo')  # part of a row reaches the file, then the disk is full
+            self.rows.file.write(b'2\t{"image": "scene002.png", "fo')  # part of a row reaches the file: disk full
             raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
         return written(self, *args, **kwargs)
 
@@ -152,27 +170,39 @@ def test_a_full_disk_leaves_no_hidden_file_and_the_handlers_as_they_were(tmp_pat
     with pytest.raises(OutputError, match=r"the run stopped: \[Errno 28\] No space left on device; the 2 rows"):
         predict_folder(folder, out)
     assert [r["image"] for r in _rows(out)] == ["scene000.png", "scene001.png"]
-    assert _hidden(tmp_path) == [] and [signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)] == handlers
+    assert [signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)] == handlers
+    (rows_file,) = (tmp_path / RUN).glob("*.rows")  # cut back to its whole rows: --resume takes them
+    text = rows_file.read_text()
+    assert _hidden(tmp_path) == [RUN] and text.count("\n") == 2 and text.endswith("}\n")
 
 
 def test_the_next_run_deletes_what_a_killed_run_left(tmp_path):
     proc, out = _start(tmp_path, 1)
     os.killpg(proc.pid, signal.SIGKILL)  # no chance to clean up
     proc.communicate(timeout=60)
-    (stale,) = _hidden(tmp_path)
-    assert stale.startswith(".results.jsonl.") and stale.endswith(".tmp")
-    live = tmp_path / ".results.jsonl.0123abcd.part1"  # a file another run still writes: locked
-    live.write_text("0\t{}\n")
+    assert _hidden(tmp_path) == [RUN] and _run_files(tmp_path) == ["0.rows", "run.json"]
     unrelated = tmp_path / ".results.jsonl.notes"
     unrelated.write_text("someone else's file\n")
     folder = tmp_path / "photos"
     for path in sorted(folder.iterdir())[3:]:
         path.unlink()
+    predict_folder(folder, out)  # without resume: starts over
+    assert len(_rows(out)) == 3
+    assert _hidden(tmp_path) == [".results.jsonl.notes"] and unrelated.read_text() == "someone else's file\n"
+
+
+def test_a_run_still_going_is_never_touched(tmp_path, capsys):
+    folder, out = _photos(tmp_path / "photos", 2), tmp_path / "results.jsonl"
+    live = tmp_path / RUN / "0123abcd-1.rows"  # a file another run still writes: locked
+    live.parent.mkdir()
+    live.write_text('0\t{"image": "scene000.png"}\n')
     with live.open("rb") as held:
         fcntl.flock(held.fileno(), fcntl.LOCK_EX)
-        predict_folder(folder, out)
-    assert len(_rows(out)) == 3
-    assert _hidden(tmp_path) == [".results.jsonl.0123abcd.part1", ".results.jsonl.notes"]
+        for resume in ([], ["--resume"]):
+            assert main(["predict", str(folder), "--out", str(out), *resume]) == 1
+            err = capsys.readouterr().err
+            assert err.count("\n") == 1 and "another ngp predict is writing" in err and "give another --out" in err
+    assert live.read_text() == '0\t{"image": "scene000.png"}\n' and not out.exists()
 
 
 def test_the_callers_signal_handlers_are_back_after_a_run(tmp_path, capsys):

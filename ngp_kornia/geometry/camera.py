@@ -239,8 +239,8 @@ def angles_from_rotation(R: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     """
     KORNIA_CHECK_SHAPE(R, ["*", "3", "3"])
     pitch, roll = pitch_roll_from_up(up_from_rotation(R))
-    yaw_only = axis_rotations((2, roll), (0, -pitch)).inverse().matrix() @ R
-    yaw = torch.rad2deg(torch.atan2(yaw_only[..., 2, 0], yaw_only[..., 0, 0]))
+    # the camera's forward axis in the world, R^T e_z = R[2] = (sin(yaw) cos(pitch), -sin(pitch), cos(yaw) cos(pitch))
+    yaw = torch.rad2deg(torch.atan2(R[..., 2, 0], R[..., 2, 2]))
     return pitch, roll, yaw
 
 

@@ -47,13 +47,17 @@ class UprightNet(nn.Module):
     Args:
         size: thumbnail side in pixels (a multiple of 16).
         width: channels of the first block (doubled in the second and third).
+        temperature: what the logits are divided by before the softmax of :meth:`probabilities`, fitted after
+            training on photos held back from it so that the probabilities are calibrated (1: as trained).
     """
 
-    def __init__(self, size: int = 64, width: int = 16) -> None:
+    def __init__(self, size: int = 64, width: int = 16, temperature: float = 1.0) -> None:
         super().__init__()
         if size % 16 or size < 16:
             raise ValueError(f"size must be a positive multiple of 16, got {size}")
-        self.size, self.width = size, width
+        if not 0.0 < temperature < float("inf"):
+            raise ValueError(f"temperature must be a positive number, got {temperature}")
+        self.size, self.width, self.temperature = size, width, float(temperature)
         w = (width, 2 * width, 4 * width, 4 * width)
         self.features = nn.Sequential(_block(3, w[0]), _block(w[0], w[1]), _block(w[1], w[2]), _block(w[2], w[3]))
         cells = (size // 16) ** 2
@@ -62,7 +66,7 @@ class UprightNet(nn.Module):
 
     def settings(self) -> dict:
         """The constructor arguments that rebuild this network (stored with its weights)."""
-        return {"size": self.size, "width": self.width}
+        return {"size": self.size, "width": self.width, "temperature": self.temperature}
 
     def forward(self, thumbs: Tensor) -> Tensor:
         """(B, 3, size, size) thumbnails in [0, 1] -> (B, 5) logits."""
@@ -70,5 +74,6 @@ class UprightNet(nn.Module):
 
     @torch.no_grad()
     def probabilities(self, images: Tensor) -> Tensor:
-        """(B, 3, H, W) RGB images in [0, 1] -> (B, 5) probabilities of :data:`CLASSES`."""
-        return torch.softmax(self(thumbnail(images, self.size)), -1)
+        """(B, 3, H, W) RGB images in [0, 1] -> (B, 5) probabilities of :data:`CLASSES` (the logits divided by
+        ``temperature``)."""
+        return torch.softmax(self(thumbnail(images, self.size)) / self.temperature, -1)

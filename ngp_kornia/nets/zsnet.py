@@ -122,7 +122,8 @@ class ZSNet(nn.Module):
         cos = line_vp_cosine(lines, zeniths)  # (B, Z, L)
         w = line_mask.to(cos)[:, None]
         total = w.sum(-1).clamp_min(1.0)
-        return torch.stack([(sharp_kernel(cos, a) * w).sum(-1) / total for a in self.SUPPORT_ANGLES], -1)
+        # the floor keeps far lines' kernel a normal float (exp(-30)), not a subnormal the CPU computes slowly
+        return torch.stack([(sharp_kernel(cos, a, floor=-30.0) * w).sum(-1) / total for a in self.SUPPORT_ANGLES], -1)
 
     def forward(self, lines: Tensor, line_mask: Tensor, zeniths: Tensor) -> Tensor:
         """Score zenith candidates.
@@ -142,9 +143,13 @@ class ZSNet(nn.Module):
         if self.use_support:
             point = torch.cat([point, self.support(lines, line_mask, zeniths)], -1)
         point = self.zenith_net(point)
-        if self.use_line_feature:
-            feats = self.line_net(canonical_homogeneous(lines, axis=0))
-            feats = feats.masked_fill(~line_mask[..., None], float("-inf")).amax(1)
-            glob = torch.where(line_mask.any(1, keepdim=True), feats, torch.zeros_like(feats))  # no lines: zeros
-            point = torch.cat([glob[:, None].expand(-1, point.shape[1], -1), point], -1)
-        return self.scorer(point).squeeze(-1)
+        if not self.use_line_feature:
+            return self.scorer(point).squeeze(-1)
+        feats = self.line_net(canonical_homogeneous(lines, axis=0))
+        feats = feats.masked_fill(~line_mask[..., None], float("-inf")).amax(1)
+        glob = torch.where(line_mask.any(1, keepdim=True), feats, torch.zeros_like(feats))  # no lines: zeros
+        # the scorer's first layer on [glob, point], split in two: the global half once per image, not per candidate
+        first = self.scorer[0]
+        size = glob.shape[-1]
+        hidden = point @ first.weight[:, size:].T + (glob @ first.weight[:, :size].T + first.bias)[:, None]
+        return self.scorer[1:](hidden).squeeze(-1)

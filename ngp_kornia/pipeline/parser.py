@@ -197,7 +197,7 @@ class NeuralGeometricParser(nn.Module):
         check = self.config.upright
         if check.pitch_spread > 0:  # a steep answer is likelier that of a photo turned by a quarter
             probs = weigh_by_pitch(probs, result.pitch, check.pitch_spread)
-        return apply_upright(result, probs, check.sure, check.turn_back, self.config.scoring.fallback_fov)
+        return apply_upright(result, probs, check.sure, check.turn_back, self.config.scoring.fallback_fov, check.doubt)
 
     def _segments(self, images: Tensor, segments: Tensor | None, mask: Tensor | None) -> tuple[Tensor, Tensor]:
         """The segments given (checked) or detected, never an empty tensor."""

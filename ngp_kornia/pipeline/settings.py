@@ -122,25 +122,26 @@ class UprightSettings:
     """The orientation and structure check (:mod:`ngp_kornia.pipeline.upright_check`).
 
     Attributes:
-        enabled: report the image's most likely turn and the probability that it is upright and shows man-made
-            structure, and scale the confidence by it where the image reads as turned (where the parser has the
-            network: every weight set of :func:`ngp_kornia.calibrate` has it).
+        enabled: report the image's turn and the probability that it is upright and shows man-made structure, and
+            lower the confidence where it is doubted (every weight set of :func:`ngp_kornia.calibrate` has it).
         prior: the share of photos with structure that are handed over upright, before their appearance is seen
-            (the network is trained on each turn equally often; its readings are weighed by this prior, so an
-            unsure reading leans to upright, as most photos are).
-        sure: the probability that the image is turned or without structure (after the prior) above which the
-            confidence is scaled; below it the confidence is the lines' own (0: always scaled).
+            (the network's probabilities are calibrated for the four turns equally often; they are weighed by this
+            prior, so an unsure reading leans to upright, as most photos are).
+        sure: the probability one turn needs to be reported (``turned``; below it 0).
+        doubt: the upright probability below which the confidence is multiplied by ``upright / doubt``, ``ngp
+            calibrate`` warns and ``ngp rectify`` refuses the photo.
         pitch_spread: how far from level, in degrees, photos are taken: the answered pitch as a further cue, since a
             photo turned by 90 or 270 degrees is answered with a steep pitch (0: the pitch is not used).
-        turn_back: where one turn's probability is above ``sure``, answer the camera of the turned photo (the
-            frame's axis that turn puts up taken as up, so the roll is the turned camera's, beyond 45 degrees) with
-            the confidence scaled by that turn's probability, instead of the upright camera's answer with its
-            confidence scaled by ``upright`` (:func:`ngp_kornia.pipeline.upright_check.turned_answer`).
+        turn_back: where a turn is reported, answer the camera of the turned photo (the frame's axis that turn
+            puts up taken as up, so the roll is the turned camera's, beyond 45 degrees) with the confidence
+            multiplied by that turn's probability, instead of the upright camera's answer with its confidence
+            multiplied by ``upright`` (:func:`ngp_kornia.pipeline.upright_check.turned_answer`).
     """
 
     enabled: bool = _flag(True)
-    prior: float = _number(0.5, 0.01, 0.99)
-    sure: float = _number(0.995, 0.0, 1.0)
+    prior: float = _number(0.75, 0.01, 0.99)
+    sure: float = _number(0.9, 0.0, 1.0)
+    doubt: float = _number(0.5, 0.0, 1.0)
     pitch_spread: float = _number(15.0, 0.0, 90.0)
     turn_back: bool = _flag(True)
 

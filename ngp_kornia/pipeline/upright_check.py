@@ -4,12 +4,12 @@ Every answer of the parser assumes the photo is upright (its roll within about 4
 to the image's vertical is taken as up. A photo turned by 90 or 180 degrees without an orientation tag breaks that
 assumption, and its lines cannot show it: they fit a camera rolled by 90 or 180 degrees exactly as well. An image
 with no structure (noise, clouds, foliage) gives lines that support no camera at all. The
-:class:`~ngp_kornia.nets.upright.UprightNet` reads the image's appearance and says how likely each case is; the
-answer's confidence, the probability that it is right, is multiplied by the probability that the assumption holds
-(an answer for the wrong way up is never right), and the answer reports the most likely turn, so that the caller
-can turn the photo back and calibrate it again. Where the check is sure of one turn, the answer is turned instead
-(:func:`turned_answer`): the frame the lines found is the same whichever way the photo is held, only which of its
-axes is up changes, so the camera of the turned photo is the one whose up axis that turn points up.
+:class:`~ngp_kornia.nets.upright.UprightNet` reads the image's appearance and says how likely each case is (its
+probabilities calibrated on real photos held back from its training); the answer's confidence, the probability that
+it is right, is multiplied by the probability that the assumption holds (an answer for the wrong way up is never
+right). Where the check is sure of one turn, the answer reports it and is turned (:func:`turned_answer`): the frame
+the lines found is the same whichever way the photo is held, only which of its axes is up changes, so the camera of
+the turned photo is the one whose up axis that turn points up.
 """
 
 from __future__ import annotations
@@ -130,23 +130,30 @@ def turned_answer(result: Calibration, turns: Tensor, use: Tensor) -> Calibratio
 
 
 def apply_upright(
-    result: Calibration, probs: Tensor, sure: float = 0.0, turn_back: bool = False, fallback_fov: float = 60.0
+    result: Calibration,
+    probs: Tensor,
+    sure: float = 0.9,
+    turn_back: bool = False,
+    fallback_fov: float = 60.0,
+    doubt: float = 0.0,
 ) -> Calibration:
-    """The answer with ``upright`` and ``turned`` filled in and its confidence scaled by ``upright`` where the
-    probability that the image is not upright with structure is above ``sure`` (``upright < 1 - sure``).
+    """The answer with ``upright`` and ``turned`` filled in and its confidence lowered where the check doubts the
+    orientation it answers for.
 
-    ``upright`` is the probability that the image is upright and shows structure; ``turned`` the most likely
-    counter-clockwise turn of the image from upright, in degrees (0, 90, 180 or 270; 0 where no structure is the
-    likeliest reading). Below ``sure`` the confidence stays the lines' own: the network reads real photos less
-    well than renders, and an upright photo it doubts wrongly would lose a confidence that was right. With
-    ``turn_back``, where one turn's probability is above ``sure`` the answer is that of the turned camera
-    (:func:`turned_answer`; its roll then lies beyond 45 degrees, which no upright answer has) and its confidence
-    is scaled by that turn's probability instead; not where a gravity prior says which way is up. ``valid``
-    becomes False where no structure is likelier than every reading with structure: the answer then rests on no
-    line evidence worth the name, so it is that of an image without a frame (:func:`~ngp_kornia.pipeline.answer.
-    level_answer`: a level camera with the known focal length or ``fallback_fov`` degrees on the long side), with
-    confidence 0 and the standard deviations of an answer without a frame (90 degrees for pitch and roll, 180 for
-    the field of view, 0 for a known focal length).
+    ``upright`` is the probability that the image is upright and shows structure (the network's, calibrated on real
+    photos held back from its training and weighed by the prior). ``turned`` is the image's counter-clockwise turn
+    from upright in degrees (90, 180 or 270) where one turn's probability is at least ``sure``, else 0: a turn is
+    reported only where the check is sure of it. Where ``upright`` is below ``doubt`` the confidence is multiplied
+    by ``upright / doubt`` (down to 0 as the doubt grows, continuous at the level); at or above it, it is the lines'
+    own: the network reads real photos far from perfectly, and multiplying every confidence by its reading would
+    reorder the upright photos' answers by its noise. With ``turn_back``, where a turn is reported the answer is
+    that of the turned camera (:func:`turned_answer`; its roll then lies beyond 45 degrees, which no upright answer
+    has) and its confidence is multiplied by that turn's probability instead; not where a gravity prior says which
+    way is up. ``valid`` becomes False where no structure is likelier than every reading with structure: the answer then
+    rests on no line evidence worth the name, so it is that of an image without a frame
+    (:func:`~ngp_kornia.pipeline.answer.level_answer`: a level camera with the known focal length or
+    ``fallback_fov`` degrees on the long side), with confidence 0 and the standard deviations of an answer without
+    a frame (90 degrees for pitch and roll, 180 for the field of view, 0 for a known focal length).
     """
     probs = probs.to(result.focal.dtype)
     upright = probs[:, 0]
@@ -154,8 +161,10 @@ def apply_upright(
     turns = structured.argmax(-1)
     valid = result.valid & (probs[:, 4] < structured.max(-1).values)
     likeliest = structured.gather(-1, turns[:, None])[:, 0]
-    back = (turns > 0) & (likeliest > sure) & valid & turn_back & (result.gravity is None)
-    factor = torch.where(back, likeliest, torch.where(1.0 - upright > sure, upright, 1.0))
+    reported = (turns > 0) & (likeliest >= sure) & valid
+    back = reported & turn_back & (result.gravity is None)
+    doubted = (upright / doubt).clamp(max=1.0) if doubt > 0 else torch.ones_like(upright)
+    factor = torch.where(back, likeliest, doubted)
     result = level_answer(turned_answer(result, turns, back), result.valid & ~valid, fallback_fov)
     confidence = None if result.confidence is None else torch.where(valid, result.confidence * factor, 0.0)
     stds = {}
@@ -163,4 +172,5 @@ def apply_upright(
         std = getattr(result, name)
         if std is not None:  # a known focal length keeps its 0
             stds[name] = torch.where(valid | (std == 0), std, nothing)
-    return replace(result, valid=valid, confidence=confidence, upright=upright, turned=(turns * 90).long(), **stds)
+    turned = torch.where(reported, turns * 90, 0).long()
+    return replace(result, valid=valid, confidence=confidence, upright=upright, turned=turned, **stds)

@@ -245,6 +245,8 @@ CASES = {
     "runner.read_input": (lambda x: runner.read_input(x.images, _run(x)).batch, {}),
     "runner.with_orientation": (lambda x: runner.with_orientation(x.cal[0], 6), {}),
     "segments.detect_segments": (lambda x: segments_stage.detect_segments(x.images[:, :, :96, :128]), {"tol": False}),
+    "segments.longest_segments": (lambda x: torch.from_numpy(segments_stage.longest_segments(
+        x.segments[0].double().cpu().numpy(), 10.0, 5)).to(x.segments), {}),
     "segments.pad_segments": (
         lambda x: segments_stage.pad_segments([x.segments[0, :3], x.segments[1, :5]], like=x.images), {}),
     "shared_camera.calibrate_shared": (

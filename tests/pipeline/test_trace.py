@@ -37,7 +37,7 @@ def test_trace_leaves_the_answer_unchanged(images, weights):
 
 @pytest.mark.parametrize("weights", ["none", "full"])
 def test_trace_shapes_and_the_answer_it_gives(images, weights):
-    # without the horizon refinement, which may move the answer's focal length off the top-k average
+    # without the horizon refinement, which may move the answer off the frames (another focal length, say)
     cfg = ParserConfig().replace(num_scored=8, top_k=4, **{"horizon.refine": False})
     parser = load_parser(weights, cfg)
     with torch.no_grad():

@@ -1,16 +1,19 @@
 """Training the orientation and structure check: the thumbnails (cached, three shapes, structure-free ones among
 them), the turns and the photometric changes, a Lightning fast_dev_run, export to a weights file and back."""
 
+import cv2
 import lightning as L
 import numpy as np
 import pytest
 import torch
 
+from ngp_kornia.data.photo_split import split_photos
 from ngp_kornia.nets.upright import CLASSES, UprightNet
 from ngp_kornia.nets.weights import load_network, network_name
 from ngp_kornia.training.command import export_checkpoint
-from ngp_kornia.training.upright_data import UprightDataModule, sample_keys, thumb_of
-from ngp_kornia.training.upright_module import UprightModule, photometric, turned
+from ngp_kornia.training.upright_calibration import fit_temperature, turned_logits
+from ngp_kornia.training.upright_data import UprightDataModule, collate_thumbs, sample_keys, thumb_of
+from ngp_kornia.training.upright_module import UprightModule, photometric, random_crops, turned
 
 
 def test_keys_put_a_structure_free_image_every_nth():
@@ -22,7 +25,7 @@ def test_thumbnails_are_cached_and_labelled(tmp_path):
     dm = UprightDataModule(cache_dir=str(tmp_path), train_size=3, val_size=2, test_size=2, structureless_every=3)
     dm.prepare_data()
     dm.setup("fit")
-    ds = dm.datasets["train"]
+    ds = dm.datasets["train"].parts[0]  # renders and structure-free images only: no photo folder given
     assert len(list(ds.cache.glob("*.npz"))) == 7
     structured = [bool(ds[i].structured[0]) for i in range(3)]
     assert structured == [True, True, False]
@@ -68,4 +71,80 @@ def test_fast_dev_run_trains_and_exports(tmp_path):
     out = export_checkpoint(ckpt, tmp_path / "upright.pt")
     assert network_name(out) == "UprightNet"
     net = load_network(out, "UprightNet")
-    assert net.settings() == {"size": 32, "width": 4} and len(CLASSES) == 5
+    assert net.settings() == {"size": 32, "width": 4, "temperature": 1.0} and len(CLASSES) == 5
+
+
+def _photos(root, count=24):
+    """A folder of small photos, sky blue above and brown below (upright), in two sub-folders."""
+    for i in range(count):
+        sub = root / ("x" if i % 2 else "y")
+        sub.mkdir(parents=True, exist_ok=True)
+        image = np.zeros((30 + i, 40, 3), np.uint8)
+        image[: image.shape[0] // 2] = (230, 180, 120)  # BGR: sky
+        image[image.shape[0] // 2 :] = (40, 80, 120)
+        cv2.imwrite(str(sub / f"{i}.png"), image)
+    return root
+
+
+def test_held_back_photos_validate_in_every_turn_and_the_train_part_trains(tmp_path):
+    root = _photos(tmp_path / "photos", 40)
+    dm = UprightDataModule(cache_dir=str(tmp_path / "cache"), train_size=2, val_size=3, test_size=1,
+                           structureless_every=2, photos=str(root), photo_repeats=2, store_size=80)
+    dm.prepare_data()
+    dm.setup("fit")
+    train, val = dm.datasets["train"], dm.datasets["val"]
+    held = split_photos(root, "calibrate")
+    assert held and len(val) == 4 * len(held) + 3 and len(train) == 2 * len(split_photos(root, "train")) + 2
+    batch = collate_thumbs([val[i] for i in range(len(val))])
+    assert batch.real.tolist() == [True] * (4 * len(held)) + [False] * 3  # the photos first, each four times
+    assert torch.equal(batch.thumbs[0], batch.thumbs[3]) and batch.thumbs.shape[-1] == 80
+    assert int(collate_thumbs([train[i] for i in range(len(train))]).real.sum()) == len(train) - 2
+
+
+class _Given(torch.nn.Module):
+    """A stand-in network whose logits are given."""
+
+    size = 16
+
+    def __init__(self, logits):
+        super().__init__()
+        self.logits = logits
+
+    def forward(self, thumbs):
+        return self.logits
+
+
+def test_a_real_photo_teaches_its_turn_and_nothing_of_its_structure():
+    from ngp_kornia.training.upright_data import ThumbBatch
+
+    logits = torch.randn(4, 5, requires_grad=True)
+    module = UprightModule(_Given(logits))
+    module.log = lambda *a, **k: None
+    flags = torch.ones(4, dtype=torch.bool)
+    loss = module._step(ThumbBatch(torch.rand(4, 3, 16, 16), flags, flags), "val", 0)  # turned 0, 1, 2, 3
+    loss.backward()
+    assert torch.count_nonzero(logits.grad[:, 4]) == 0  # the structure-free logit is left alone
+    expected = torch.nn.functional.cross_entropy(logits[:, :4].detach(), torch.arange(4))
+    assert float(loss.detach()) == pytest.approx(float(expected), rel=1e-6)
+
+
+def test_random_crops_keep_the_size_and_the_whole_image_is_the_thumbnail():
+    thumbs = torch.rand(6, 3, 32, 32)
+    crops = random_crops(thumbs, 16, 0.5, torch.Generator().manual_seed(0))
+    assert crops.shape == (6, 3, 16, 16) and not torch.allclose(crops, random_crops(thumbs, 16, 1.0))
+    assert torch.allclose(random_crops(thumbs, 16, 1.0), torch.nn.functional.avg_pool2d(thumbs, 2))
+
+
+def test_the_temperature_is_found_again():
+    gen = torch.Generator().manual_seed(0)
+    scores = torch.randn(4000, 4, generator=gen) * 3.0
+    turns = torch.multinomial(torch.softmax(scores / 2.5, -1), 1, generator=gen)[:, 0]  # calibrated at T = 2.5
+    assert fit_temperature(scores, turns) == pytest.approx(2.5, rel=0.1)
+
+
+def test_held_back_photos_are_read_in_four_turns(tmp_path):
+    root = _photos(tmp_path / "photos", 4)
+    names = split_photos(root, "train")[:2]
+    net = UprightNet(size=16, width=4).eval()
+    logits, turns = turned_logits(net, root, names)
+    assert logits.shape == (4 * len(names), 5) and turns.tolist() == [0, 1, 2, 3] * len(names)

@@ -15,6 +15,7 @@ import ngp_kornia.pipeline.parser as parser_module
 from ngp_kornia import InputError, NeuralGeometricParser, calibrate
 from ngp_kornia.api import load_parser
 from ngp_kornia.pipeline import Calibration
+from ngp_kornia.threads import pipeline_threads
 from ngp_kornia.training.synth.render import render_scene
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -103,7 +104,7 @@ def test_from_pretrained_is_the_parser_calibrate_runs(rgb):
     assert parser.zsnet is not None and parser.fsnet is not None and parser.config.evidence.enabled
     assert sum(p.numel() for p in parser.parameters()) > 0
     image = torch.from_numpy(rgb).permute(2, 0, 1)[None].float() / 255
-    with torch.inference_mode():
+    with torch.inference_mode(), pipeline_threads(None):  # the thread count calibrate() computes with
         direct = parser(image)[0]
     _same(direct.clone(), calibrate(image[0]))
     assert NeuralGeometricParser.from_pretrained("none", {"evidence.enabled": True}).config.evidence.enabled

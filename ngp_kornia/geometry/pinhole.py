@@ -246,8 +246,18 @@ class Camera:
         return CameraModel(size, CameraModelType.BROWN_CONRADY, full)
 
     def radial_polynomial(self, terms: int = 3) -> Tensor:
-        """OpenCV's radial coefficients closest to the lens over each image (:func:`~ngp_kornia.geometry.lens.
-        opencv_radial`, float64, computed without gradient): (B, terms), or (terms,) unbatched; zero for a pinhole."""
+        """OpenCV's radial coefficients (the first ``terms`` of its three) closest to the lens over each image
+        (:func:`~ngp_kornia.geometry.lens.opencv_radial`; float64, computed without gradient).
+
+        Returns:
+            (B, terms), or (terms,) for one camera; zero for a distortion-free pinhole.
+
+        Example:
+            >>> level = torch.zeros(1)
+            >>> camera = Camera.from_angles(torch.tensor([500.0]), level, level, image_size=(480, 640))
+            >>> camera.radial_polynomial().tolist(), camera.replace(lens=torch.tensor([-0.1])).radial_polynomial(1)
+            ([[0.0, 0.0, 0.0]], tensor([[-0.0900]], dtype=torch.float64))
+        """
         K, size = self.K.detach().reshape(-1, 3, 3), self._image_size.reshape(-1, 2)
         if self._lens is None:
             return torch.zeros(*self._params.shape[:-1], terms, dtype=torch.float64, device=K.device)

@@ -22,7 +22,7 @@ The confidence is a logistic regression (L2 penalty 1e-2 on standardised inputs,
 share a normal distribution puts there). Fit on renders only, never on the real photos used to check it.
 
 Step 3: with the principal point off the centre by ``principal_point_std`` image heights per axis (the renders'
-``RenderConfig.principal_point_std``; the records carry the answer's focal length and pitch), each standard
+``RenderConfig.centre_std``; the records carry the answer's focal length and pitch), each standard
 deviation becomes ``hypot(line term, k * t)`` with ``t`` from
 :func:`ngp_kornia.pipeline.trust.principal_point_terms`; ``k`` per parameter is the smallest gain (by bisection)
 that puts 68.3% of the errors within one standard deviation, 0 where the line term alone already does.
@@ -320,7 +320,7 @@ def main(argv: list[str] | None = None) -> int:
     p_fit.add_argument("--threshold", type=float, default=THRESHOLD)
     p_pp = sub.add_parser("principal-point", help="fit the principal-point gains on renders with off-centre ones")
     p_pp.add_argument("records", type=Path, nargs="+")
-    p_pp.add_argument("--principal-point-std", type=float, required=True, help="the renders' principal_point_std")
+    p_pp.add_argument("--principal-point-std", type=float, required=True, help="the renders' RenderConfig.centre_std")
     p_pp.add_argument("--model", type=Path, default=TRUST_FILE, help="coefficients whose other terms are kept")
     p_pp.add_argument("--out", type=Path, required=True)
     args = parser.parse_args(argv)

@@ -10,7 +10,7 @@ The confidence and the standard deviations are recomputed from each record's fea
 
 The principal-point term of the standard deviations uses ``--principal-point-std`` for the real photos (the
 parser's default by default) and ``--renders-principal-point-std`` for the renders (0: centred, as renders are
-unless ``RenderConfig.principal_point_std`` moved them).
+unless ``RenderConfig.centre_std`` moved them).
 
 * expected calibration error (ECE): 10 equal-width confidence bins, the count-weighted mean of
   |mean confidence - share of errors below the threshold|;
@@ -267,7 +267,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--model", type=Path, default=TRUST_FILE)
     parser.add_argument("--plots", type=Path, default=None, help="folder for the PNGs")
     parser.add_argument("--out", type=Path, default=None)
-    parser.add_argument("--principal-point-std", type=float, default=ParserConfig().trust.principal_point_std)
+    parser.add_argument("--principal-point-std", type=float, default=ParserConfig().trust.centre_std)
     parser.add_argument("--renders-principal-point-std", type=float, default=0.0)
     args = parser.parse_args(argv)
 

@@ -69,7 +69,7 @@ def add_render_command(sub) -> None:
     render.add_argument(
         "--config",
         help='a JSON file of RenderConfig settings, e.g. {"stairs": 1.5, "fronto_prob": 0.3, "pitch": [-45, 55]} '
-        "(the hard cases, the camera imperfections principal_point_std and radial_distortion, and every range of "
+        "(the hard cases, the camera imperfections centre_std and radial_distortion, and every range of "
         "ngp_kornia.training.synth.render_config.RenderConfig)",
     )
 

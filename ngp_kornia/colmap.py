@@ -55,9 +55,11 @@ except ImportError as err:
                       ) from err
 
 from ngp_kornia.errors import InputError
+from ngp_kornia.geometry.pinhole import Camera
 from ngp_kornia.io import apply_orientation
 from ngp_kornia.pipeline import Calibration
 from ngp_kornia.pipeline.camera_export import colmap_camera
+from ngp_kornia.pipeline.result import lens_from_dict
 from ngp_kornia.preflight import check_database
 
 __all__ = [
@@ -184,8 +186,9 @@ def _photo(name: str, row: dict, model: str | None) -> _Photo | str:
     turn[:2, :2] = to_stored[:2, :2]
     K_stored = to_stored @ K @ turn.T  # pixels and camera directions, both turned to the file's stored frame
     size = (width, height) if turn[0, 1] else (height, width)
-    k1 = None if row.get("k1") is None else torch.tensor(float(row["k1"]), dtype=torch.float64)
-    exported = colmap_camera(torch.from_numpy(K_stored), torch.tensor(size), model, k1=k1)
+    stored = Camera.from_matrix(torch.from_numpy(K_stored), torch.eye(3, dtype=torch.float64), torch.tensor(size),
+                                lens_from_dict(row))
+    exported = colmap_camera(stored, model)
     camera = pycolmap.Camera(model=exported["model"], width=exported["width"], height=exported["height"],
                              params=exported["params"], has_prior_focal_length=True)
     return _Photo(name, camera, turn @ gravity_in_camera(up))
@@ -231,7 +234,7 @@ def write_colmap_database(
         calibrations: by image name (the path relative to COLMAP's image folder, ``/`` between folders), an unbatched
             :class:`Calibration` or a row of ``ngp predict`` (:func:`read_predictions`).
         model: the COLMAP camera model, as for :meth:`Calibration.to_colmap`; None: ``SIMPLE_PINHOLE`` (``RADIAL``
-            with ``k1``).
+            with a lens distortion).
 
     Returns:
         a :class:`ColmapReport`.
@@ -239,7 +242,7 @@ def write_colmap_database(
     Raises:
         InputError: a name that is not relative, or something else than a calibration or a row.
         OutputError: ``database`` is not a COLMAP database (nothing is written).
-        ValueError: an unknown model, or a pinhole model for a calibration with ``k1``.
+        ValueError: an unknown model, or a pinhole model for a calibration with a lens distortion.
 
     Example:
         >>> import pycolmap

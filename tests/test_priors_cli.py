@@ -90,22 +90,22 @@ def test_overlay_writes_the_confidence_line():
     assert (with_trust[:240] == without[:240]).all()  # the photo's part is the same
 
 
-def test_cli_principal_point_std_widens_only_the_stds(photos, capsys, tmp_path):
+def test_cli_centre_std_widens_only_the_stds(photos, capsys, tmp_path):
     image = str(photos / "plain.jpg")
     rows = []
     for value in ("0", "0.025", "0.05"):
-        assert main(["calibrate", image, "--trust.principal_point_std", value]) == 0
+        assert main(["calibrate", image, "--trust.centre_std", value]) == 0
         rows.append(_rows(capsys)[0])
     assert rows[0]["pitch_std"] < rows[1]["pitch_std"] < rows[2]["pitch_std"]
     assert all(r["pitch"] == rows[0]["pitch"] and r["confidence"] == rows[0]["confidence"] for r in rows)
     assert main(["calibrate", image]) == 0 and _rows(capsys)[0]["pitch_std"] == rows[1]["pitch_std"]  # the default
     out = tmp_path / "rows.jsonl"
-    assert main(["predict", str(photos), "--out", str(out), "--trust.principal_point_std", "0"]) == 0
+    assert main(["predict", str(photos), "--out", str(out), "--trust.centre_std", "0"]) == 0
     plain = [json.loads(line) for line in out.read_text().splitlines() if "plain.jpg" in line][0]
     assert plain["pitch_std"] == pytest.approx(rows[0]["pitch_std"], rel=1e-5)
     with pytest.raises(SystemExit) as exit_info:
-        main(["calibrate", image, "--trust.principal_point_std", "-1"])
-    assert exit_info.value.code == 2 and "principal_point_std" in capsys.readouterr().err
+        main(["calibrate", image, "--trust.centre_std", "-1"])
+    assert exit_info.value.code == 2 and "centre_std" in capsys.readouterr().err
 
 
 def test_cli_working_size_reaches_the_line_detector(capsys, tmp_path):

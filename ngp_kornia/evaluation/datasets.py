@@ -25,6 +25,7 @@ from ngp_kornia.data.nyu import NYUVP, VALIDATION_SCENES
 from ngp_kornia.data.yud import YorkUrbanDB, published_horizon
 from ngp_kornia.geometry.camera import horizon_from_zenith, pitch_roll_from_up, zenith_from_up
 from ngp_kornia.metrics import horizon_error
+from ngp_kornia.pipeline.result import lens_from_dict
 
 __all__ = ["YUD_HORIZONS", "LabelledImage", "load_manifest", "load_nyu", "load_renders", "load_yud"]
 
@@ -51,7 +52,7 @@ class LabelledImage:
         roll: degrees.
         fov_v: vertical field of view, degrees.
         kind: the scene kind of a rendered image (street / indoor / atlanta); ``None`` for photos.
-        k1: the radial distortion a rendered image was drawn with (the division model of
+        lens: the radial distortion a rendered image was drawn with (the division model's coefficient of
             :mod:`ngp_kornia.geometry.lens`; 0 for a pinhole render); ``None`` for photos.
         segments: (N, 2, 2) the scene's line segments in pixels, for a scene given without pixels; ``None`` else.
     """
@@ -67,7 +68,7 @@ class LabelledImage:
     roll: float | None = None
     fov_v: float | None = None
     kind: str | None = None
-    k1: float | None = None
+    lens: float | None = None
     segments: Tensor | None = None
 
 
@@ -159,6 +160,7 @@ def _render_record(root: Path, rec: dict) -> LabelledImage:
     horizon = _f64(rec["horizon"])
     again = horizon_from_zenith(K[None], zenith_from_up(K[None], up[None]))
     pitch, roll = pitch_roll_from_up(up[None])
+    lens = lens_from_dict(rec)  # 0 for a render without distortion
     if (
         float(horizon_error(again, horizon[None], height, width)[0]) > 1e-6
         or abs(float(pitch[0]) - rec["pitch"]) > 1e-6
@@ -177,7 +179,7 @@ def _render_record(root: Path, rec: dict) -> LabelledImage:
         roll=float(rec["roll"]),
         fov_v=float(rec["fov_v"]),
         kind=rec.get("kind"),
-        k1=float(rec.get("k1", 0.0)),
+        lens=0.0 if lens is None else float(lens),
     )
 
 

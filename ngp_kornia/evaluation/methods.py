@@ -21,6 +21,7 @@ from torch import Tensor
 from ngp_kornia.evaluation.datasets import LabelledImage
 from ngp_kornia.geometry.camera import horizon_from_zenith, image_center, pitch_roll_from_up, zenith_from_up
 from ngp_kornia.pipeline import Calibration, NeuralGeometricParser, ParserConfig
+from ngp_kornia.pipeline.camera_model import option_values
 from ngp_kornia.pipeline.priors import CALL_PRIORS, PRIOR_NAMES, Priors
 from ngp_kornia.pipeline.segments import longest_segments, pad_segments
 from ngp_kornia.pipeline.settings import locate_setting
@@ -78,8 +79,8 @@ def failed_estimate() -> Estimate:
 
 def estimate_from_calibration(result: Calibration) -> Estimate:
     """The fields of one image's :class:`ngp_kornia.Calibration` that the evaluation uses, as float64 on the CPU;
-    ``focal``, ``valid``, ``score``, the principal point ``cx``, ``cy`` and ``k1`` (0 for a pinhole) go to
-    :attr:`Estimate.extra`."""
+    ``focal``, ``valid``, ``score`` and the camera options
+    (:func:`~ngp_kornia.pipeline.camera_model.option_values`) go to :attr:`Estimate.extra`."""
 
     def f64(t: Tensor) -> Tensor:
         return t.detach().cpu().double()
@@ -94,9 +95,7 @@ def estimate_from_calibration(result: Calibration) -> Estimate:
             "focal": float(result.focal),
             "valid": bool(result.valid),
             "score": float(result.score),
-            "cx": float(result.K[0, 2]),
-            "cy": float(result.K[1, 2]),
-            "k1": 0.0 if result.k1 is None else float(result.k1),
+            **option_values(result),
         },
     )
 
@@ -166,7 +165,7 @@ def _converted(value: str | bool, default: object, key: str, spec: str | None) -
 
 
 #: the spec keys that are ``calibrate()``'s priors rather than settings: any prior as ``NAME=VALUE`` (a number, or
-#: ``estimate`` for the camera options that are estimated: ``principal_point=estimate``), ``shared_intrinsics=true``
+#: ``estimate`` for the camera options that are estimated), ``shared_intrinsics=true``
 #: (the whole set as one camera), ``gravity_noise=DEG`` (a gravity prior from the image's true pitch and roll plus
 #: Gaussian noise of that standard deviation, drawn from the seed and the image's name) and ``gravity_std=DEG`` (the
 #: prior's stated standard deviation; ``gravity_noise`` by default)
@@ -177,8 +176,8 @@ def call_arguments(spec: str | None) -> dict:
     """The call arguments of a spec (:data:`CALL_ARGUMENTS`), their values converted.
 
     Example:
-        >>> call_arguments("default:principal_point=estimate,gravity_noise=1,top_k=4")
-        {'principal_point': 'estimate', 'gravity_noise': 1.0}
+        >>> call_arguments("default:focal=500,gravity_noise=1,top_k=4")
+        {'focal': 500.0, 'gravity_noise': 1.0}
     """
     overrides = parse_weights_spec(spec)[1]
     out: dict = {}

@@ -25,11 +25,13 @@ from ngp_kornia.metrics import (
     summarize,
     up_vector_error,
 )
+from ngp_kornia.pipeline.camera_model import OPTION_METRICS, option_errors
 
 __all__ = ["CAMERA_METRICS", "evaluate", "kind_table", "markdown_table"]
 
 #: the errors of the camera options where the truth and the estimate have them, with their words in tables
-CAMERA_METRICS = {"principal_point": "principal point error (px)", "k1": "k1 error"}
+#: (:data:`~ngp_kornia.pipeline.camera_model.OPTION_METRICS`)
+CAMERA_METRICS = OPTION_METRICS
 
 #: scene kinds of ``ngp render`` in table order
 RENDER_KINDS = ("street", "indoor", "atlanta")
@@ -76,26 +78,19 @@ def _error_table(images: Sequence[LabelledImage], estimates: Sequence[Estimate])
     return out
 
 
-def _truth(image: LabelledImage, metric: str) -> object:
-    """The ground truth a metric needs (None where the image lacks it)."""
-    return image.K if metric == "principal_point" else getattr(image, metric)
+def _known(image: LabelledImage, metric: str) -> bool:
+    """Whether the image has the ground truth a metric needs."""
+    if metric in CAMERA_METRICS:
+        return option_errors({}, image.K, image.lens)[metric] is not None
+    return getattr(image, metric) is not None
 
 
 def _camera_errors(images: Sequence[LabelledImage], estimates: Sequence[Estimate]) -> dict[str, Tensor]:
-    """The principal point's error (pixels) and ``k1``'s (absolute) where the truth and the estimate have them."""
+    """The camera options' errors (:data:`CAMERA_METRICS`) where the truth and the estimate have them."""
+    rows = [option_errors(e.extra, im.K, im.lens) for im, e in zip(images, estimates, strict=True)]
     out = {}
-    rows = {
-        "principal_point": [
-            math.hypot(e.extra["cx"] - float(im.K[0, 2]), e.extra["cy"] - float(im.K[1, 2]))
-            if im.K is not None and "cx" in e.extra else math.nan
-            for im, e in zip(images, estimates, strict=True)
-        ],
-        "k1": [
-            abs(e.extra["k1"] - im.k1) if im.k1 is not None and "k1" in e.extra else math.nan
-            for im, e in zip(images, estimates, strict=True)
-        ],
-    }
-    for key, values in rows.items():
+    for key in CAMERA_METRICS:
+        values = [math.nan if row[key] is None else row[key] for row in rows]
         if any(math.isfinite(v) for v in values):
             out[key] = _f64(values)
     return out
@@ -111,8 +106,8 @@ def evaluate(images: Sequence[LabelledImage], estimates: Sequence[Estimate]) -> 
     Returns:
         ``{"summary": {metric: {"mean", "median", "count"}}, "horizon_auc": float (NaN when no image has a
         horizon), "horizon_auc_by_kind": {kind: {"count", "horizon_auc"}}, "failures": int, "per_image": [...]}``
-        with metrics ``up``, ``pitch``, ``roll``, ``horizon`` (image heights), ``fov_v``, ``principal_point``
-        (pixels) and ``k1`` (absolute) where the ground truth and the method give them.
+        with metrics ``up``, ``pitch``, ``roll``, ``horizon`` (image heights), ``fov_v`` and the camera options'
+        (:data:`CAMERA_METRICS`) where the ground truth and the method give them.
 
     Raises:
         ValueError: ``images`` and ``estimates`` differ in length.
@@ -121,7 +116,7 @@ def evaluate(images: Sequence[LabelledImage], estimates: Sequence[Estimate]) -> 
         raise ValueError(f"{len(images)} images but {len(estimates)} estimates; give one estimate per image")
     ok = torch.tensor([math.isfinite(e.pitch) for e in estimates], dtype=torch.bool)
     errors = _error_table(images, estimates)
-    known = {k: torch.tensor([_truth(im, k) is not None for im in images], dtype=torch.bool) for k in errors}
+    known = {k: torch.tensor([_known(im, k) for im in images], dtype=torch.bool) for k in errors}
     errors = {k: torch.where(ok, v, torch.full_like(v, math.nan)) for k, v in errors.items()}
     summary = {k: summarize(v[ok & known[k]]) for k, v in errors.items()}
     has_horizon = known.get("horizon", torch.zeros(len(images), dtype=torch.bool))
@@ -135,7 +130,7 @@ def evaluate(images: Sequence[LabelledImage], estimates: Sequence[Estimate]) -> 
     per_image = []
     for i, im in enumerate(images):
         row = {"name": im.name, **({"kind": im.kind} if im.kind is not None else {})}
-        row.update({k: float(v[i]) for k, v in errors.items() if _truth(im, k) is not None})
+        row.update({k: float(v[i]) for k, v in errors.items() if _known(im, k)})
         per_image.append({**row, **estimates[i].extra})
     return {
         "summary": summary,

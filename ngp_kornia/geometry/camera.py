@@ -91,13 +91,13 @@ def image_center(height: int, width: int, like: Tensor | None = None) -> Tensor:
 _ANY_SIZE = ImageSize(1, 1)
 
 
-def intrinsics_matrix(focal: Tensor, principal_point: Tensor) -> Tensor:
+def intrinsics_matrix(focal: Tensor, center: Tensor) -> Tensor:
     """Pinhole intrinsics with square pixels and no skew: kornia's ``PinholeModel`` matrix, the package's one
     ``K`` builder.
 
     Args:
         focal: (B,) focal length in pixels.
-        principal_point: (B, 2) or (2,) principal point ``(c_x, c_y)`` in pixels.
+        center: (B, 2) or (2,) the principal point ``(c_x, c_y)`` in pixels.
 
     Returns:
         (B, 3, 3) matrices ``[[f, 0, c_x], [0, f, c_y], [0, 0, 1]]``.
@@ -109,7 +109,7 @@ def intrinsics_matrix(focal: Tensor, principal_point: Tensor) -> Tensor:
                  [  0.0000,   0.0000,   1.0000]]])
     """
     KORNIA_CHECK_SHAPE(focal, ["B"])
-    pp = principal_point.to(focal).expand(focal.shape[0], 2)
+    pp = center.to(focal).expand(focal.shape[0], 2)
     return pinhole_model(torch.stack([focal, focal, pp[:, 0], pp[:, 1]], -1)).matrix()
 
 
@@ -354,7 +354,7 @@ def horizon_border_points(horizon: Tensor, width: int | Tensor) -> Tensor:
     return torch.stack([torch.stack([xl, yl], -1), torch.stack([xr, yr], -1)], -2)
 
 
-def focal_from_orthogonal_vps(v1: Tensor, v2: Tensor, principal_point: Tensor) -> tuple[Tensor, Tensor]:
+def focal_from_orthogonal_vps(v1: Tensor, v2: Tensor, center: Tensor) -> tuple[Tensor, Tensor]:
     """Focal length from two vanishing points of orthogonal directions (square pixels, known principal point).
 
     Ours: kornia has no calibration from vanishing points.
@@ -365,7 +365,7 @@ def focal_from_orthogonal_vps(v1: Tensor, v2: Tensor, principal_point: Tensor) -
     Args:
         v1: (..., 3) homogeneous VPs in pixels.
         v2: (..., 3) homogeneous VPs in pixels, broadcastable with ``v1``.
-        principal_point: (..., 2) or (2,) principal point, broadcastable.
+        center: (..., 2) or (2,) the principal point, broadcastable.
 
     Returns:
         focal (...,) in pixels and valid (...,) bool. Where ``f^2`` is not positive and finite (the two VPs cannot be
@@ -380,7 +380,7 @@ def focal_from_orthogonal_vps(v1: Tensor, v2: Tensor, principal_point: Tensor) -
     KORNIA_CHECK_SHAPE(v1, ["*", "3"])
     KORNIA_CHECK_SHAPE(v2, ["*", "3"])
     v1, v2 = normalize(v1), normalize(v2)
-    c = principal_point.to(v1)
+    c = center.to(v1)
     p1 = v1[..., :2] - c * v1[..., 2:]
     p2 = v2[..., :2] - c * v2[..., 2:]
     ww = v1[..., 2] * v2[..., 2]

@@ -22,7 +22,27 @@ from kornia.geometry.conversions import denormalize_points_with_intrinsics, norm
 from kornia.geometry.linalg import squared_norm
 from torch import Tensor
 
-__all__ = ["distort_points", "opencv_radial", "undistort_points"]
+__all__ = ["OPENCV_DISTORTION", "coefficient_from_pseudo", "coefficient_to_pseudo", "distort_points", "opencv_radial",
+           "undistort_points"]
+
+#: OpenCV's five distortion coefficients, in its order: radial ``k1, k2``, tangential ``p1, p2``, radial ``k3``
+OPENCV_DISTORTION = ("k1", "k2", "p1", "p2", "k3")
+
+
+def coefficient_from_pseudo(lam: Tensor, focal: Tensor, height: int, width: int) -> Tensor:
+    """The division model's coefficient in focal-length units (the ray coordinates ``(p - c) / f`` of this module) of
+    one in the pseudo camera's (``(p - c) / s``, ``s`` half the long side): ``k1 = lam (f / s)^2``. (B,) -> (B,).
+
+    Example:
+        >>> coefficient_from_pseudo(torch.tensor([-0.1]), torch.tensor([640.0]), 480, 640)
+        tensor([-0.4000])
+    """
+    return lam * (focal / (max(height, width) / 2.0)).square()
+
+
+def coefficient_to_pseudo(k1: Tensor, focal: Tensor, height: int, width: int) -> Tensor:
+    """The inverse of :func:`coefficient_from_pseudo`: ``lam = k1 (s / f)^2``. (B,) -> (B,)."""
+    return k1 * ((max(height, width) / 2.0) / focal).square()
 
 
 def undistort_points(points: Tensor, K: Tensor, k1: Tensor) -> Tensor:

@@ -187,15 +187,15 @@ def to_pseudo_camera(points: Tensor, height: int, width: int) -> Tensor:
     return normalize_points_with_intrinsics(points, pseudo_intrinsics(height, width, points)[0])
 
 
-def pseudo_intrinsics(height: int, width: int, like: Tensor, principal_point: Tensor | None = None) -> Tensor:
-    """The pseudo camera's ``K_p`` (B, 3, 3): focal length :func:`pseudo_focal`, principal point (B, 2) (the image
-    centre when omitted, B = 1), in the dtype and device of ``like``.
+def pseudo_intrinsics(height: int, width: int, like: Tensor, center: Tensor | None = None) -> Tensor:
+    """The pseudo camera's ``K_p`` (B, 3, 3): focal length :func:`pseudo_focal`, principal point ``center`` (B, 2) (the
+    image centre when omitted, B = 1), in the dtype and device of ``like``.
 
     Example:
         >>> pseudo_intrinsics(480, 640, torch.zeros(()))[0, 0]
         tensor([320.0000,   0.0000, 319.5000])
     """
-    point = image_center(height, width, like=like)[None] if principal_point is None else principal_point.to(like)
+    point = image_center(height, width, like=like)[None] if center is None else center.to(like)
     return intrinsics_matrix(point.new_full(point.shape[:1], pseudo_focal(height, width)), point)
 
 

@@ -2,8 +2,9 @@ r"""The camera object: a batch of calibrated cameras held as their parameters, o
 
 A :class:`Camera` holds what a calibration finds, per image: the intrinsics as kornia's
 :class:`~kornia.sensors.camera.PinholeModel` parameters ``(f_x, f_y, c_x, c_y)`` (this package's cameras have square
-pixels, ``f_x = f_y``), the division model's ``k1`` (:mod:`~ngp_kornia.geometry.lens`; None for a distortion-free
-pinhole), the world-to-camera rotation ``R`` and the image size. Everything else is derived from them, as a property:
+pixels, ``f_x = f_y``; ``(c_x, c_y)`` the centre, the principal point), the lens: the division model's coefficient
+(:mod:`~ngp_kornia.geometry.lens`; None for a distortion-free pinhole), the world-to-camera rotation ``R`` and the image
+size. Everything else is derived from them, as a property:
 ``K`` (kornia's ``PinholeModel.matrix()``), the fields of view, the up vector, zenith, horizon, the Manhattan
 vanishing points and pitch / roll / yaw, in the conventions of :mod:`ngp_kornia.geometry.camera`. The properties
 are differentiable with respect to the parameters and keep their device and dtype; each is computed once.
@@ -66,8 +67,8 @@ def _derived(compute: Callable[[Camera], Tensor]) -> property:
         if name in self.__dict__:
             return self.__dict__[name]
         if self._params.dtype in _HALF:
-            k1 = None if self._k1 is None else self._k1.float()
-            single = Camera(self._params.float(), self._R.float(), self._image_size, k1)
+            lens = None if self._lens is None else self._lens.float()
+            single = Camera(self._params.float(), self._R.float(), self._image_size, lens)
             value = getattr(single, name).to(self._params.dtype)
         else:
             value = compute(self)
@@ -86,7 +87,7 @@ class Camera:
         params: (B, 4) or (4,) kornia's ``PinholeModel`` parameters ``(f_x, f_y, c_x, c_y)`` in pixels.
         R: (B, 3, 3) or (3, 3) world-to-camera rotations (world y pointing down).
         image_size: (B, 2) or (2,) ``(height, width)`` in pixels.
-        k1: (B,) or () the division model's coefficient, or None for a distortion-free pinhole.
+        lens: (B,) or () the division model's coefficient, or None for a distortion-free pinhole.
 
     Example:
         >>> camera = Camera.from_angles(torch.tensor([500.0]), torch.tensor([10.0]), torch.tensor([-5.0]),
@@ -97,7 +98,7 @@ class Camera:
         (torch.Size([1, 4, 4]), torch.Size([1, 4]))
     """
 
-    def __init__(self, params: Tensor, R: Tensor, image_size: Tensor, k1: Tensor | None = None) -> None:
+    def __init__(self, params: Tensor, R: Tensor, image_size: Tensor, lens: Tensor | None = None) -> None:
         KORNIA_CHECK_SHAPE(params, ["*", "4"])
         KORNIA_CHECK_SHAPE(R, ["*", "3", "3"])
         KORNIA_CHECK_SHAPE(image_size, ["*", "2"])
@@ -107,19 +108,19 @@ class Camera:
                 f"params (B, 4), R (B, 3, 3) and image_size (B, 2) must share one batch dim (or none), got "
                 f"{tuple(params.shape)}, {tuple(R.shape)} and {tuple(image_size.shape)}"
             )
-        if k1 is not None and k1.shape != batch:
-            raise ShapeError(f"k1 must be of shape {tuple(batch)} like the other parameters, got {tuple(k1.shape)}")
-        self._params, self._R, self._image_size, self._k1 = params, R, image_size, k1
+        if lens is not None and lens.shape != batch:
+            raise ShapeError(f"lens must be of shape {tuple(batch)} like the other parameters, got {tuple(lens.shape)}")
+        self._params, self._R, self._image_size, self._lens = params, R, image_size, lens
 
     # --- constructors ---
 
     @classmethod
-    def from_matrix(cls, K: Tensor, R: Tensor, image_size: Tensor, k1: Tensor | None = None) -> Camera:
+    def from_matrix(cls, K: Tensor, R: Tensor, image_size: Tensor, lens: Tensor | None = None) -> Camera:
         """The camera of intrinsics ``K`` (B, 3, 3) (no skew; its focal lengths and principal point are read),
         rotations ``R`` (B, 3, 3) and image sizes (B, 2) ``(height, width)``, or unbatched."""
         KORNIA_CHECK_SHAPE(K, ["*", "3", "3"])
         params = torch.stack([K[..., 0, 0], K[..., 1, 1], K[..., 0, 2], K[..., 1, 2]], -1)
-        return cls(params, R, torch.as_tensor(image_size, device=K.device).expand(*K.shape[:-2], 2), k1)
+        return cls(params, R, torch.as_tensor(image_size, device=K.device).expand(*K.shape[:-2], 2), lens)
 
     @classmethod
     def from_angles(
@@ -130,20 +131,20 @@ class Camera:
         yaw: Tensor | None = None,
         *,
         image_size: tuple[int, int] | Tensor,
-        principal_point: Tensor | None = None,
-        k1: Tensor | None = None,
+        center: Tensor | None = None,
+        lens: Tensor | None = None,
     ) -> Camera:
         """A camera of focal length (B,) pixels and pitch / roll / yaw (B,) degrees (yaw 0 when omitted), in images of
-        ``image_size`` ``(height, width)``, one for all or (B, 2); the principal point (B, 2) or (2,) is the image
-        centre when omitted."""
+        ``image_size`` ``(height, width)``, one for all or (B, 2); the principal point ``center`` (B, 2) or (2,) is the
+        image centre when omitted."""
         KORNIA_CHECK_SHAPE(focal, ["B"])
         size = torch.as_tensor(image_size, device=focal.device).expand(len(focal), 2)
-        if principal_point is None:
-            principal_point = torch.stack([image_center(int(h), int(w), like=focal) for h, w in size.tolist()])
-        point = principal_point.to(focal).expand(len(focal), 2)
+        if center is None:
+            center = torch.stack([image_center(int(h), int(w), like=focal) for h, w in size.tolist()])
+        point = center.to(focal).expand(len(focal), 2)
         params = torch.stack([focal, focal, point[:, 0], point[:, 1]], -1)
         yaw = None if yaw is None else yaw.to(focal)
-        return cls(params, rotation_from_angles(pitch.to(focal), roll.to(focal), yaw), size, k1)
+        return cls(params, rotation_from_angles(pitch.to(focal), roll.to(focal), yaw), size, lens)
 
     # --- parameters ---
 
@@ -158,14 +159,15 @@ class Camera:
         return self._params[..., 0]
 
     @property
-    def principal_point(self) -> Tensor:
-        """(B, 2) principal point ``(c_x, c_y)`` in pixels."""
+    def center(self) -> Tensor:
+        """(B, 2) the principal point ``(c_x, c_y)`` in pixels."""
         return self._params[..., 2:]
 
     @property
-    def k1(self) -> Tensor | None:
-        """(B,) the division model's coefficient (:mod:`~ngp_kornia.geometry.lens`), None for a pinhole."""
-        return self._k1
+    def lens(self) -> Tensor | None:
+        """(B,) the lens distortion, the division model's coefficient (:mod:`~ngp_kornia.geometry.lens`), None for a
+        pinhole."""
+        return self._lens
 
     @property
     def R(self) -> Tensor:
@@ -179,26 +181,26 @@ class Camera:
 
     @property
     def distorted(self) -> bool:
-        """Whether the lens has a distortion (``k1`` is set)."""
-        return self._k1 is not None
+        """Whether the lens has a distortion (:attr:`lens` is set)."""
+        return self._lens is not None
 
     def undistort(self, points: Tensor) -> Tensor:
         """Pixels (B, N, 2) of the photos as taken -> those of the undistorted images (:mod:`~ngp_kornia.geometry.lens`,
         in the points' dtype); as they are for a pinhole."""
-        if self._k1 is None:
+        if self._lens is None:
             return points
-        return undistort_points(points, self.K.to(points), self._k1.to(points))
+        return undistort_points(points, self.K.to(points), self._lens.to(points))
 
     def distort(self, points: Tensor) -> Tensor:
         """Pixels (B, N, 2) of the undistorted images -> those of the photos as taken (the inverse of
         :meth:`undistort`)."""
-        if self._k1 is None:
+        if self._lens is None:
             return points
-        return distort_points(points, self.K.to(points), self._k1.to(points))
+        return distort_points(points, self.K.to(points), self._lens.to(points))
 
     def with_matrix(self, K: Tensor, R: Tensor) -> Camera:
         """The camera of intrinsics ``K`` and rotations ``R`` in place of its own, its image size and lens kept."""
-        return Camera.from_matrix(K, R, self._image_size, self._k1)
+        return Camera.from_matrix(K, R, self._image_size, self._lens)
 
     # --- kornia's types ---
 
@@ -218,7 +220,7 @@ class Camera:
 
         The camera sits at the world origin (one photo says nothing of where); kornia shares this package's pixel
         convention (origin at the top-left pixel's centre), so ``to_kornia().project(X)`` for world points ``X``
-        (B, N, 3) gives the pixels ``K R X`` (of the undistorted image when ``k1`` is set).
+        (B, N, 3) gives the pixels ``K R X`` (of the undistorted image when :attr:`lens` is set).
         """
         K, R = self.K.reshape(-1, 3, 3), self._R.reshape(-1, 3, 3).to(self.K)
         intrinsics = convert_affinematrix_to_homography3d(torch.nn.functional.pad(K, (0, 1)))  # [K | 0] -> 4x4
@@ -228,24 +230,44 @@ class Camera:
 
     def to_camera_model(self) -> CameraModel:
         """kornia's :class:`~kornia.sensors.camera.CameraModel`: ``PINHOLE`` for a distortion-free camera, else
-        ``BROWN_CONRADY`` with the radial polynomial ``(k1, k2, k3)`` closest to the division model over the image
-        (:func:`~ngp_kornia.geometry.lens.opencv_radial`; computed without gradient), no tangential terms.
+        ``BROWN_CONRADY`` with OpenCV's radial polynomial closest to the division model over the image
+        (:meth:`radial_polynomial`), no tangential terms.
 
         Its ``project`` takes camera-frame points (``Vector3``) to pixels of the photo as taken (distorted).
         """
         size = self._kornia_size()
-        if self._k1 is None:
+        if self._lens is None:
             return CameraModel(size, CameraModelType.PINHOLE, self._params)
         params = self._params.reshape(-1, 4)
-        radial = torch.cat([self._radial(i).to(params) for i in range(len(params))])  # (B, 3)
+        radial = self.radial_polynomial().reshape(-1, 3).to(params)  # (B, 3)
         zero = torch.zeros_like(radial[:, :1])
-        coefficients = [radial[:, :2], zero, zero, radial[:, 2:], zero, zero, zero]  # k1 k2 p1 p2 k3 k4 k5 k6
+        coefficients = [radial[:, :2], zero, zero, radial[:, 2:], zero, zero, zero]  # radial 1-2, tangential, ...
         full = torch.cat([params, *coefficients], -1).reshape(*self._params.shape[:-1], 12)
         return CameraModel(size, CameraModelType.BROWN_CONRADY, full)
 
-    def _radial(self, row: int) -> Tensor:
-        K, k1, size = self.K.reshape(-1, 3, 3)[row], self._k1.reshape(-1)[row], self._image_size.reshape(-1, 2)[row]
-        return opencv_radial(k1[None], K[None], int(size[0]), int(size[1]))
+    def radial_polynomial(self, terms: int = 3) -> Tensor:
+        """OpenCV's radial coefficients (the first ``terms`` of its three) closest to the lens over each image
+        (:func:`~ngp_kornia.geometry.lens.opencv_radial`; float64, computed without gradient).
+
+        Returns:
+            (B, terms), or (terms,) for one camera; zero for a distortion-free pinhole.
+
+        Example:
+            >>> level = torch.zeros(1)
+            >>> camera = Camera.from_angles(torch.tensor([500.0]), level, level, image_size=(480, 640))
+            >>> camera.radial_polynomial().tolist(), camera.replace(lens=torch.tensor([-0.1])).radial_polynomial(1)
+            ([[0.0, 0.0, 0.0]], tensor([[-0.0900]], dtype=torch.float64))
+        """
+        K, size = self.K.detach().reshape(-1, 3, 3), self._image_size.reshape(-1, 2)
+        if self._lens is None:
+            return torch.zeros(*self._params.shape[:-1], terms, dtype=torch.float64, device=K.device)
+        lens = self._lens.reshape(-1)
+        if bool((size == size[:1]).all()):  # one image size: the batch in one fit
+            radial = opencv_radial(lens, K, int(size[0, 0]), int(size[0, 1]), terms)
+        else:
+            rows = range(len(K))
+            radial = torch.cat([opencv_radial(lens[i, None], K[i, None], *map(int, size[i]), terms) for i in rows])
+        return radial.reshape(*self._params.shape[:-1], terms)
 
     def _kornia_size(self) -> ImageSize:
         return ImageSize(self._image_size[..., 0], self._image_size[..., 1])
@@ -330,15 +352,15 @@ class Camera:
 
     def _keeps(self) -> bool:
         """Whether derived values may be kept: autograd is on, or no parameter requires grad."""
-        tensors = (self._params, self._R) if self._k1 is None else (self._params, self._R, self._k1)
+        tensors = (self._params, self._R) if self._lens is None else (self._params, self._R, self._lens)
         return torch.is_grad_enabled() or not any(t.requires_grad for t in tensors)
 
     def apply(self, fn: Callable[[Tensor], Tensor]) -> Camera:
-        """A camera of ``fn`` applied to every parameter tensor (``params``, ``R``, ``image_size``, ``k1``): a map
+        """A camera of ``fn`` applied to every parameter tensor (``params``, ``R``, ``image_size``, ``lens``): a map
         of the batch's layout, device or dtype (index, stack, move, cast, clone), which is applied to the derived
         values too, so they stay those of the camera they came from (a batch's, indexed; float32's, cast)."""
-        k1 = None if self._k1 is None else fn(self._k1)
-        out = Camera(fn(self._params), fn(self._R), fn(self._image_size), k1)
+        lens = None if self._lens is None else fn(self._lens)
+        out = Camera(fn(self._params), fn(self._R), fn(self._image_size), lens)
         if self._keeps():
             for name in DERIVED:  # computed here, as one call computes them, then mapped
                 out.__dict__[name] = fn(getattr(self, name))
@@ -354,15 +376,15 @@ class Camera:
         return self.apply(torch.clone)
 
     def replace(self, **changes: Tensor | None) -> Camera:
-        """A camera with some parameters replaced: ``params``, ``R``, ``image_size``, ``k1``.
+        """A camera with some parameters replaced: ``params``, ``R``, ``image_size``, ``lens``.
 
         Example:
             >>> level = torch.zeros(1)
             >>> camera = Camera.from_angles(torch.tensor([500.0]), level, level, image_size=(480, 640))
-            >>> camera.replace(k1=torch.tensor([-0.1])).to_camera_model().params.shape
+            >>> camera.replace(lens=torch.tensor([-0.1])).to_camera_model().params.shape
             torch.Size([1, 12])
         """
-        values = {"params": self._params, "R": self._R, "image_size": self._image_size, "k1": self._k1}
+        values = {"params": self._params, "R": self._R, "image_size": self._image_size, "lens": self._lens}
         unknown = set(changes) - set(values)
         if unknown:
             raise TypeError(f"Camera.replace() got unknown parameters {sorted(unknown)}; it takes {sorted(values)}")
@@ -371,11 +393,11 @@ class Camera:
     def __repr__(self) -> str:
         if self.batched:
             return f"Camera(batch={len(self)})"
-        point = [round(v, 1) for v in self.principal_point.tolist()]
+        point = [round(v, 1) for v in self.center.tolist()]
         return (
-            f"Camera(focal={float(self.focal):.1f}px, principal_point={point}"
+            f"Camera(focal={float(self.focal):.1f}px, center={point}"
             f", pitch={float(self.pitch):.2f}, roll={float(self.roll):.2f}, yaw={float(self.yaw):.2f}"
-            + ("" if self._k1 is None else f", k1={float(self._k1):.4f}")
+            + ("" if self._lens is None else f", lens={float(self._lens):.4f}")
             + ")"
         )
 

@@ -8,6 +8,7 @@ padded lines), where it returns finite values. All of it is ours: kornia has no 
 from __future__ import annotations
 
 import math
+from functools import lru_cache
 
 import torch
 from kornia.core.check import KORNIA_CHECK_SHAPE
@@ -16,13 +17,14 @@ from torch import Tensor
 from ngp_kornia.geometry.camera import normalize
 
 __all__ = [
+    "CLOSENESS_MEASURES",
     "closeness",
+    "closeness_of",
     "dominant_eigenvector",
     "line_vp_cosine",
     "frame_manhattan_scores",
     "manhattan_score",
     "segment_vp_angle",
-    "sharp_kernel",
     "structure_tensor",
     "symmetric_dominant_eigenvector",
     "topk_weighted_average",
@@ -172,14 +174,13 @@ def segment_vp_angle(segments: Tensor, vps: Tensor) -> Tensor:
 
 
 def closeness(lines: Tensor, vps: Tensor, angle_deg: float | None = None) -> Tensor:
-    r"""Closeness of every line to every VP, from :func:`line_vp_cosine`: the package's line-to-VP closeness.
+    r"""Closeness of every line to every VP: :func:`closeness_of` the cosine between a line's homogeneous vector
+    and the VP (:func:`line_vp_cosine`).
 
     With ``angle_deg=None`` it is the paper's Eq. 14, :math:`1 - |l \cdot v| / (\|l\| \|v\|)`, linear in the cosine.
-    With an angle it is the sharp kernel (:func:`sharp_kernel`), :math:`\exp(-\cos^2 / (2 \cos^2 lpha))`, so a
-    line counts only when its vector is within about ``90 - angle_deg`` degrees of orthogonal to the VP: the
-    kernel of the Manhattan score (Eq. 21), where Eq. 14 cannot tell a line that points at the VP from one a few
-    degrees off. (The horizon search's closeness, :mod:`ngp_kornia.pipeline.line_kernel`, measures another angle:
-    the image angle at a segment's midpoint.)
+    With an angle it is the sharp kernel, :math:`\exp(-\cos^2 / (2 \cos^2 \alpha))`, so a line counts only when its
+    vector is within about ``90 - angle_deg`` degrees of orthogonal to the VP: the kernel of the Manhattan score
+    (Eq. 21), where Eq. 14 cannot tell a line that points at the VP from one a few degrees off.
 
     Args:
         lines: (B, N, 3) homogeneous lines.
@@ -198,25 +199,89 @@ def closeness(lines: Tensor, vps: Tensor, angle_deg: float | None = None) -> Ten
                  [0.1056]]]), tensor([[[1.],
                  [0.]]]))
     """
-    cosine = line_vp_cosine(lines, vps)
-    return 1.0 - cosine if angle_deg is None else sharp_kernel(cosine, angle_deg)
+    return closeness_of(line_vp_cosine(lines, vps), angle_deg)
 
 
-def sharp_kernel(cosine: Tensor, angle_deg: float = 89.0, floor: float | None = None) -> Tensor:
-    r"""The sharp closeness kernel :math:`\exp(-\cos^2 / (2 \cos^2 \alpha))` of precomputed
-    :func:`line_vp_cosine` values (:func:`closeness` with an angle).
+#: the angle measures :func:`closeness_of` maps to a closeness
+CLOSENESS_MEASURES = ("cosine", "squared_cosine", "squared_sine")
 
-    It decreases with the cosine, so the best closeness to several VPs is the kernel of the smallest cosine: taking
-    the minimum first saves evaluating the exponential per VP. ``floor``, when given, bounds the exponent from
-    below (e.g. -30): far from the VP the exponential then stays a normal float instead of underflowing to the
-    subnormals CPUs compute slowly.
+
+def closeness_of(
+    value: Tensor, angle_deg: float | None = None, measure: str = "cosine", floor: float | None = None,
+    inplace: bool = False,
+) -> Tensor:
+    r"""The package's closeness kernel: how close a line is to a vanishing point, in [0, 1], from a measure of the
+    angle between them that the caller has computed (each caller computes its measure its fastest way).
+
+    * ``"cosine"``: ``|cos|`` between a line's homogeneous vector and the VP (:func:`line_vp_cosine`). Without an
+      angle, Eq. 14: :math:`1 - \cos`; with one, the sharp kernel of the Manhattan score (Eq. 21, the authors'
+      code) :math:`\exp(-\cos^2 / (2 \cos^2 \alpha))`: a line counts only within about ``90 - angle_deg``
+      degrees. It falls with the cosine, so the best closeness to several VPs is that of the smallest cosine.
+    * ``"squared_cosine"``: the square of that cosine, for the sharp kernel (its exponent as the value times
+      :math:`-1 / (2 \cos^2 \alpha)`; :func:`frame_manhattan_scores`).
+    * ``"squared_sine"``: :math:`\sin^2 \theta` of the image angle between a segment and the ray from its midpoint
+      to the VP (:mod:`ngp_kornia.pipeline.line_kernel`, the horizon search and the polish):
+      :math:`\max(0, 1 - \sin^2 \theta / (4 \sin^2 \alpha))`: 1 on the VP, 3/4 at ``angle_deg``, 0 from
+      :math:`\sin \theta = 2 \sin \alpha` (about twice the width) on: a cheap stand-in for a Gaussian of that width.
+
+    Args:
+        value: the measure, any shape.
+        angle_deg: the kernel's width; None only for ``"cosine"`` (Eq. 14).
+        measure: one of :data:`CLOSENESS_MEASURES`.
+        floor: the sharp kernel's lowest exponent (e.g. -30): far from the VP the exponential then stays a normal
+            float instead of underflowing to the subnormals CPUs compute slowly.
+        inplace: compute in ``value``'s memory (without autograd; ``value`` is used up) with the numbers as 0-dim
+            tensors built once, which saves passes and conversions where this dominates a search's time.
+
+    Returns:
+        the closeness, ``value``'s shape.
 
     Example:
-        >>> sharp_kernel(torch.tensor([0.0, 1.0]))
+        >>> closeness_of(torch.tensor([0.0, 1.0]), 89.0)
         tensor([1., 0.])
+        >>> closeness_of(torch.tensor([0.0, 0.0076, 0.5]), 5.0, "squared_sine")
+        tensor([1.0000, 0.7499, 0.0000])
     """
-    exponent = -(cosine**2) / (2.0 * math.cos(math.radians(angle_deg)) ** 2)
-    return (exponent if floor is None else exponent.clamp_min(floor)).exp()
+    if measure not in CLOSENESS_MEASURES:
+        raise ValueError(f"unknown closeness measure {measure!r}; choose one of {', '.join(CLOSENESS_MEASURES)}")
+    if angle_deg is None:
+        if measure != "cosine":
+            raise ValueError(f"the {measure} kernel needs its width, angle_deg")
+        return 1.0 - value
+    if measure == "squared_sine":
+        return _tent(value, 4.0 * math.sin(math.radians(angle_deg)) ** 2, inplace)
+    if measure == "squared_cosine":
+        exponent = value.mul_(_scale(angle_deg)) if inplace else value * _scale(angle_deg)
+    else:
+        exponent = -(value**2) / (2.0 * math.cos(math.radians(angle_deg)) ** 2)
+    if floor is None:
+        return exponent.exp_() if inplace else exponent.exp()
+    return exponent.clamp_min_(floor).exp_() if inplace else exponent.clamp_min(floor).exp()
+
+
+def _scale(angle_deg: float) -> float:
+    """The sharp kernel's exponent per squared cosine, ``-1 / (2 cos^2 a)``."""
+    return -1.0 / (2.0 * math.cos(math.radians(angle_deg)) ** 2)
+
+
+def _tent(sin2: Tensor, c: float, inplace: bool) -> Tensor:
+    """``max(0, 1 - sin2 / c)``; ``sin2`` clamped at 1 first where ``c > 1`` (a clamped 1 and anything above both
+    give 0 below that)."""
+    if c > 1.0:
+        sin2 = sin2.clamp_max(1.0)
+    if not inplace:
+        return (1.0 - sin2 / c).clamp_min(0.0)
+    c_t, one = _numbers(c, 1.0, dtype=sin2.dtype, device=sin2.device)
+    return sin2.div_(c_t).neg_().add_(one).clamp_min_(0.0)  # 1 - x as -x + 1: the same value
+
+
+@lru_cache(maxsize=64)
+def _numbers(*values: float, dtype: torch.dtype, device: torch.device) -> tuple[Tensor, ...]:
+    """The numbers as 0-dim tensors, built once per dtype and device: an in-place operation given a Python number
+    converts it on every call, which costs more than the arithmetic on small tensors. Ordinary tensors even when
+    first built in inference mode."""
+    with torch.inference_mode(False):
+        return tuple(torch.tensor(v, dtype=dtype, device=device) for v in values)
 
 
 def manhattan_score(closeness_to_vps: Tensor, lengths: Tensor, mask: Tensor) -> Tensor:
@@ -261,9 +326,9 @@ def frame_manhattan_scores(
     lines: Tensor, vps: Tensor, lengths: Tensor, mask: Tensor, angle_deg: float = 89.0, valid: Tensor | None = None
 ) -> Tensor:
     """Manhattan score (Eq. 21) of many frames at once with the sharp kernel: the values (to rounding) of
-    ``manhattan_score(sharp_kernel(line_vp_cosine(lines, vps).amin(-2, keepdim=True), angle_deg), lengths, mask)``
-    with fewer passes over the (B, F, 3, N) cosines, which dominate the parser's cost: :func:`sharp_kernel` is
-    evaluated in place, its exponent as the squared cosine times ``-1 / (2 cos^2 a)``.
+    ``manhattan_score(closeness(lines, vps, angle_deg).amax(-2, keepdim=True), lengths, mask)`` with fewer passes
+    over the (B, F, 3, N) cosines, which dominate the parser's cost: the sharp kernel (:func:`closeness_of`) is
+    evaluated in place on the nearest VP's squared cosine.
 
     Kernel values below ``exp(-80)`` (lines more than about 13 degrees off every VP at 89 degrees) are clamped
     there instead of underflowing to subnormal floats, which CPUs handle slowly; they add less than 1e-34 per
@@ -274,7 +339,7 @@ def frame_manhattan_scores(
         vps: (B, F, V, 3) the V vanishing points of each of F frames.
         lengths: (B, N) segment lengths.
         mask: (B, N) bool, False for padding.
-        angle_deg: kernel width of :func:`sharp_kernel`.
+        angle_deg: the sharp kernel's width (:func:`closeness_of`).
         valid: optional (B, F) bool; frames marked False are not scored (their score is 0), which saves their
             share of the work (about half the sampled candidates are invalid).
 
@@ -301,8 +366,7 @@ def frame_manhattan_scores(
             scattered = scores.new_zeros(valid.shape).scatter(1, order, scores)
             return torch.where(valid, scattered, torch.zeros_like(scattered))
     nearest = _nearest_squared_cosine(normalize(lines), normalize(vps))  # (B, F, N)
-    scale = -1.0 / (2.0 * math.cos(math.radians(angle_deg)) ** 2)
-    kernel = nearest.mul_(scale).clamp_min_(-80.0).exp_()
+    kernel = closeness_of(nearest, angle_deg, "squared_cosine", floor=-80.0, inplace=True)
     w = lengths * mask.to(lengths)
     return (kernel @ w[..., None])[..., 0] / w.sum(-1, keepdim=True).clamp_min(torch.finfo(w.dtype).eps)
 

@@ -18,6 +18,7 @@ from ngp_kornia.geometry import (
     DrawnPixels,
     canonical_manhattan_rotation,
     closeness,
+    closeness_of,
     drawn_pixels,
     line_vp_cosine,
     normalize,
@@ -25,7 +26,6 @@ from ngp_kornia.geometry import (
     rasterize_segments,
     segment_lengths,
     segments_to_lines,
-    sharp_kernel,
     to_pseudo_camera,
 )
 from ngp_kornia.geometry.frames import FrameCandidates
@@ -353,7 +353,7 @@ def frame_closeness(lines: Tensor, vps: Tensor, kernel_angle: float | None = 88.
     else:
         # the exponent floored where the kernel is far below _MIN_CLOSENESS anyway: the exponential of large
         # negative numbers underflows to subnormals, which the CPU computes slowly
-        values = sharp_kernel(line_vp_cosine(lines, vps), kernel_angle, _MIN_EXPONENT)  # (B, F, 3, N)
+        values = closeness_of(line_vp_cosine(lines, vps), kernel_angle, floor=_MIN_EXPONENT)  # (B, F, 3, N)
     return values.masked_fill(values < _MIN_CLOSENESS, 0.0)
 
 

@@ -8,9 +8,9 @@ from kornia.core.check import KORNIA_CHECK_SHAPE
 from torch import Tensor, nn
 
 from ngp_kornia.geometry import (
+    closeness_of,
     line_vp_cosine,
     normalize,
-    sharp_kernel,
     symmetric_dominant_eigenvector,
     weighted_structure_tensor,
 )
@@ -123,7 +123,7 @@ class ZSNet(nn.Module):
         w = line_mask.to(cos)[:, None]
         total = w.sum(-1).clamp_min(1.0)
         # the floor keeps far lines' kernel a normal float (exp(-30)), not a subnormal the CPU computes slowly
-        return torch.stack([(sharp_kernel(cos, a, floor=-30.0) * w).sum(-1) / total for a in self.SUPPORT_ANGLES], -1)
+        return torch.stack([(closeness_of(cos, a, floor=-30.0) * w).sum(-1) / total for a in self.SUPPORT_ANGLES], -1)
 
     def forward(self, lines: Tensor, line_mask: Tensor, zeniths: Tensor) -> Tensor:
         """Score zenith candidates.

@@ -19,6 +19,7 @@ With neither a principal point nor a distortion asked for, the stages run once o
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 from typing import NamedTuple
 
@@ -27,8 +28,15 @@ from kornia.geometry import create_meshgrid
 from kornia.geometry.transform import remap
 from torch import Tensor
 
-from ngp_kornia.geometry import distort_points, image_center, pseudo_intrinsics, undistort_points
-from ngp_kornia.pipeline.distortion import estimate_distortion, joint_k1, k1_from_units, units_from_k1
+from ngp_kornia.geometry import (
+    coefficient_from_pseudo,
+    coefficient_to_pseudo,
+    distort_points,
+    image_center,
+    pseudo_intrinsics,
+    undistort_points,
+)
+from ngp_kornia.pipeline.distortion import estimate_distortion, joint_distortion
 from ngp_kornia.pipeline.frame_search import FrameSearch, Search, View
 from ngp_kornia.pipeline.principal_point import estimate_principal_point, joint_principal_point
 from ngp_kornia.pipeline.priors import ESTIMATE, Priors
@@ -36,12 +44,15 @@ from ngp_kornia.pipeline.result import Calibration
 from ngp_kornia.pipeline.settings import ParserConfig
 
 __all__ = [
+    "OPTION_METRICS",
     "SharedOptions",
     "calibrate_camera_model",
     "estimates",
     "joint_options",
     "moved_calibration",
+    "option_errors",
     "option_evidence",
+    "option_values",
     "tied_to_pixels",
     "with_shared_options",
 ]
@@ -108,7 +119,7 @@ def calibrate_camera_model(search: FrameSearch, view: View, priors: Priors) -> S
     search's frame, or given), then the search on the photo brought to a centred pinhole, its answer moved back.
 
     Args:
-        search: the stages for a centred, distortion-free camera (their settings: ``trust.principal_point_std``,
+        search: the stages for a centred, distortion-free camera (their settings: ``trust.centre_std``,
             the prior of an estimate; ``distortion``).
         view: the images (B, 3, H, W), segments (B, N, 2, 2) in pixels, mask (B, N) and line-evidence weights.
         priors: what is known of the camera; ``principal_point`` and ``k1`` are handled here.
@@ -124,12 +135,12 @@ def calibrate_camera_model(search: FrameSearch, view: View, priors: Priors) -> S
     centre = image_center(height, width, like=view.segments.double()).expand(B, 2)
     given = priors.principal_point is not None and priors.principal_point != ESTIMATE
     point = view.segments.new_tensor(priors.each("principal_point", B), dtype=torch.float64) if given else centre
-    std = 0.0 if given else config.trust.principal_point_std
+    std = 0.0 if given else config.trust.centre_std
     lam = _distortion(search, view, priors, point)
     if priors.principal_point == ESTIMATE:
         frame = _search_at(search, view, priors, centre, lam, std).result
         undistorted = _moved_segments(view.segments, centre, lam, height, width)  # about the centre: not moved
-        prior = config.trust.principal_point_std * height
+        prior = config.trust.centre_std * height
         found = estimate_principal_point(frame.K, frame.R, undistorted, view.mask, prior)
         point, point_std = found.point.double(), found.std
         std = point_std.mean(-1).double() / height  # each image's own
@@ -140,11 +151,11 @@ def calibrate_camera_model(search: FrameSearch, view: View, priors: Priors) -> S
     elif given:
         result = replace(result, principal_point_std=torch.zeros_like(result.K[:, :2, 2]))
     if priors.k1 == ESTIMATE:
-        k1 = k1_from_units(lam.to(result.focal), result.focal, height, width)
-        result = replace(result, camera=result.camera.replace(k1=k1))
+        k1 = coefficient_from_pseudo(lam.to(result.focal), result.focal, height, width)
+        result = replace(result, camera=result.camera.replace(lens=k1))
     elif priors.k1 is not None:  # given: reported as given (undistorted at the first run's focal length)
         k1 = result.focal.new_tensor(priors.each("k1", B))
-        result = replace(result, camera=result.camera.replace(k1=k1))
+        result = replace(result, camera=result.camera.replace(lens=k1))
     return last._replace(result=result)
 
 
@@ -160,7 +171,7 @@ def _distortion(search: FrameSearch, view: View, priors: Priors, point: Tensor) 
         if not bool((lam != 0).any()):
             return lam
         # the lines say which camera they fit: the undistorted photo is kept where its answer is the more confident
-        std = config.trust.principal_point_std
+        std = config.trust.centre_std
         bent = _search_at(search, view, priors, point, lam, std).result.confidence
         straight = _search_at(search, view, priors, point, None, std).result.confidence
         return torch.where(bent > straight, lam, torch.zeros_like(lam))
@@ -171,7 +182,7 @@ def _distortion(search: FrameSearch, view: View, priors: Priors, point: Tensor) 
     else:
         focal = torch.tensor(known, dtype=torch.float64, device=view.segments.device)
     k1 = torch.tensor(priors.each("k1", B), dtype=torch.float64, device=focal.device)
-    return units_from_k1(k1, focal, height, width)
+    return coefficient_to_pseudo(k1, focal, height, width)
 
 
 # --- the options of one camera shared by many photos (pipeline/shared_camera.py) ---
@@ -216,16 +227,16 @@ def option_evidence(alone: Calibration, priors: Priors) -> dict[str, Tensor]:
 def joint_options(evidence: list[dict[str, Tensor]], config: ParserConfig, height: int, width: int) -> SharedOptions:
     """The options photos of one camera share, from each photo's :func:`option_evidence`: the principal point
     combines every photo's own estimate (:func:`~ngp_kornia.pipeline.principal_point.joint_principal_point`, each
-    photo's evidence added once to the prior ``trust.principal_point_std``), the distortion is the median of theirs
-    (:func:`~ngp_kornia.pipeline.distortion.joint_k1`)."""
+    photo's evidence added once to the prior ``trust.centre_std``), the distortion is the median of theirs
+    (:func:`~ngp_kornia.pipeline.distortion.joint_distortion`)."""
     found = {name: torch.cat([e[name] for e in evidence]) for name in (evidence[0] if evidence else {})}
     priors, point_std = {}, None
     if "point" in found:
-        prior = config.trust.principal_point_std * height
+        prior = config.trust.centre_std * height
         point, point_std = joint_principal_point(found["point"], found["point_std"], image_center(height, width), prior)
         priors["principal_point"] = point
     if "k1" in found:
-        priors["k1"] = joint_k1(found["k1"])
+        priors["k1"] = joint_distortion(found["k1"])
     return SharedOptions(priors, point_std)
 
 
@@ -235,3 +246,34 @@ def with_shared_options(result: Calibration, options: SharedOptions | None) -> C
     if options is None or options.point_std is None:
         return result
     return replace(result, principal_point_std=result.K.new_tensor(options.point_std).expand_as(result.K[..., 0, :2]))
+
+
+# --- the options' figures in an evaluation (ngp_kornia.evaluation) ---
+
+#: the error of each camera option where the truth and the estimate have it (:func:`option_errors`), with its words
+#: in tables
+OPTION_METRICS = {"principal_point": "principal point error (px)", "k1": "k1 error"}
+
+
+def option_values(result: Calibration) -> dict[str, float]:
+    """One photo's camera options as plain numbers (unbatched): the principal point ``cx``, ``cy`` and ``k1`` (0 for
+    a distortion-free pinhole)."""
+    lens = result.k1
+    return {"cx": float(result.K[0, 2]), "cy": float(result.K[1, 2]), "k1": 0.0 if lens is None else float(lens)}
+
+
+def option_errors(values: dict, K: Tensor | None, lens: float | None) -> dict[str, float | None]:
+    """The error of each option (:data:`OPTION_METRICS`) of an estimate's :func:`option_values` against the truth,
+    the intrinsics ``K`` (3, 3) and the lens distortion: the principal point's distance (pixels) and ``k1``'s
+    absolute difference; None where the truth lacks the option, NaN where the estimate does.
+
+    Example:
+        >>> K = torch.tensor([[500.0, 0, 320.0], [0, 500, 240.0], [0, 0, 1]])
+        >>> option_errors({"cx": 323.0, "cy": 244.0, "k1": 0.0}, K, None)
+        {'principal_point': 5.0, 'k1': None}
+    """
+    point = None
+    if K is not None:
+        point = math.hypot(values["cx"] - float(K[0, 2]), values["cy"] - float(K[1, 2])) if "cx" in values else math.nan
+    distortion = None if lens is None else abs(values["k1"] - lens) if "k1" in values else math.nan
+    return {"principal_point": point, "k1": distortion}

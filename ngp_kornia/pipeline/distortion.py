@@ -6,7 +6,7 @@ LSD, which fits straight segments, cuts it into a chain of pieces that meet at s
 right coefficient, the pieces fall on one line again. The estimate needs no calibration: the coefficient ``lam``
 works in the pseudo camera's units (``q = (p - c) / s``, ``s`` half the long side, ``c`` the distortion centre,
 the principal point), ``q_u = q_d / (1 + lam |q_d|^2)``; the focal-length units of :mod:`~ngp_kornia.geometry.lens`
-follow once the focal length is known, ``k1 = lam (f / s)^2`` (:func:`k1_from_units`).
+follow once the focal length is known (:func:`~ngp_kornia.geometry.lens.coefficient_from_pseudo`).
 
 1. **Chained pairs.** Two segments form a pair when an endpoint of one lies within ``gap`` (pseudo units) of an
    endpoint of the other, their directions differ by less than ``angle_deg``, and they continue each other (the
@@ -37,25 +37,12 @@ __all__ = [
     "chained_pairs",
     "distortion_costs",
     "estimate_distortion",
-    "joint_k1",
-    "k1_from_units",
-    "units_from_k1",
+    "joint_distortion",
 ]
 
 
 #: the first search's step, in steps of the second's (which spans this many steps either side of its best)
 COARSE = 5
-
-
-def k1_from_units(lam: Tensor, focal: Tensor, height: int, width: int) -> Tensor:
-    """The division model's coefficient in focal-length units (:mod:`ngp_kornia.geometry.lens`) of one in the pseudo
-    camera's (half the long side): ``k1 = lam (f / s)^2``. (B,) -> (B,)."""
-    return lam * (focal / (max(height, width) / 2.0)).square()
-
-
-def units_from_k1(k1: Tensor, focal: Tensor, height: int, width: int) -> Tensor:
-    """The inverse of :func:`k1_from_units`: ``lam = k1 (s / f)^2``."""
-    return k1 * ((max(height, width) / 2.0) / focal).square()
 
 
 def _ends(q: Tensor) -> tuple[Tensor, Tensor]:
@@ -133,8 +120,9 @@ def estimate_distortion(
         settings: the chaining and the search; None for the defaults.
 
     Returns:
-        (B,) coefficients in units of half the long side (:func:`k1_from_units` converts them); 0 where fewer than
-        ``min_pairs`` pairs were found.
+        (B,) coefficients in units of half the long side
+        (:func:`~ngp_kornia.geometry.lens.coefficient_from_pseudo` converts them); 0 where fewer than ``min_pairs``
+        pairs were found.
 
     Example:
         >>> seg = torch.tensor([[[[0.0, 0.0], [50.0, 0.0]]]])
@@ -184,7 +172,7 @@ def _parabola_minimum(lams: Tensor, cost: Tensor, step: float) -> Tensor:
     return torch.where((i == inner) & torch.isfinite(lam), lam, lams.gather(1, i[:, None])[:, 0])
 
 
-def joint_k1(values: Tensor) -> float:
+def joint_distortion(values: Tensor) -> float:
     """One camera's distortion from each photo's own estimate (P,): the median of those that found one (an
     estimate of 0 is a photo without evidence), 0 when none did."""
     found = values[values != 0]

@@ -1,10 +1,11 @@
 """The camera-space line kernel shared by the horizon search and the polish: segments in normalised camera
 coordinates (``K^-1 p``) and the closeness of every segment to candidate vanishing directions.
 
-The closeness of a segment to a direction ``v`` is ``max(0, 1 - sin^2 t / (4 sin^2 sigma))`` with ``t`` the image
-angle between the segment and the ray from its midpoint to ``v``: 1 on the VP, 3/4 at ``sigma``, 0 beyond ``2 sigma``
-(a cheap stand-in for a Gaussian of width ``sigma``). It is ours, not kornia's: kornia has no batched, masked
-segment-to-VP kernel. Every function is batched over B with the segment mask.
+The closeness of a segment to a direction ``v`` is the package's kernel (:func:`~ngp_kornia.geometry.vp.closeness_of`)
+of ``sin^2 t``, ``t`` the image angle between the segment and the ray from its midpoint to ``v``:
+``max(0, 1 - sin^2 t / (4 sin^2 sigma))``, 1 on the VP, 3/4 at ``sigma``, 0 beyond ``2 sigma``. The measure is
+ours, not kornia's: kornia has no batched, masked segment-to-VP kernel. Every function is batched over B with the
+segment mask.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ from kornia.geometry.conversions import convert_points_to_homogeneous
 from kornia.geometry.linalg import transform_points
 from torch import Tensor
 
-from ngp_kornia.geometry import normalize
+from ngp_kornia.geometry import closeness_of, normalize
 from ngp_kornia.pipeline.constants import cached, numbers_like
 
 __all__ = [
@@ -118,9 +119,10 @@ def squared_sines(cam: CameraSegments, vps: Tensor) -> Tensor:
 def closeness_kernel(
     cam: CameraSegments, vps: Tensor, kernel_deg: float, mask: Tensor | None, keep: Tensor | None = None
 ) -> Tensor:
-    """Closeness ``max(0, 1 - sin^2 theta / (4 sin^2 sigma))`` of every segment to the nearest of a group of VPs
-    (``theta`` as in :func:`squared_sines`, ``sigma`` = ``kernel_deg``): 1 on the VP, 3/4 at ``sigma``, 0 beyond
-    ``2 sigma`` (a cheap stand-in for a Gaussian of width ``sigma``).
+    """Closeness of every segment to the nearest of a group of VPs: the kernel
+    (:func:`~ngp_kornia.geometry.vp.closeness_of`) of the squared sine of :func:`squared_sines`,
+    ``max(0, 1 - sin^2 theta / (4 sin^2 sigma))`` with ``sigma`` = ``kernel_deg``: 1 on the VP, 3/4 at ``sigma``, 0
+    beyond ``2 sigma``.
 
     Args:
         cam: the segments (:class:`CameraSegments`); vps: (B, H, P, 3), P VPs per group; mask: (B, N) bool, the segments
@@ -148,15 +150,10 @@ def closeness_kernel(
     if keep is not None and not bool(keep.all()):
         sin2 = sin2.masked_fill(~keep.reshape(B, H * P, 1), math.inf)
     sin2 = sin2.view(B, H, P, -1).amin(2) if P > 1 else sin2.view(B, H, -1)
-    c = 4.0 * math.sin(math.radians(kernel_deg)) ** 2
-    if c > 1.0:  # below, a clamped 1 and anything above 1 both give 0
-        sin2 = sin2.clamp_max(1.0)
-    if grad:
-        out = (1.0 - sin2 / c).clamp_min(0.0)
-        return out if mask is None else out * mask[:, None]
-    c_t, one = numbers_like(sin2, c, 1.0)
-    out = sin2.div_(c_t).neg_().add_(one).clamp_min_(0.0)  # 1 - x as -x + 1: the same value
-    return out if mask is None else out.mul_(mask[:, None])
+    out = closeness_of(sin2, kernel_deg, "squared_sine", inplace=not grad)
+    if mask is None:
+        return out
+    return out * mask[:, None] if grad else out.mul_(mask[:, None])
 
 
 def near_direction(cam: CameraSegments, up: Tensor, bound: float) -> Tensor:

@@ -13,7 +13,7 @@ The fit: segment ``i`` with midpoint ``m_i`` and direction ``s_i`` is an inlier 
 points at within ``inlier_deg``; its residual is the sine of the angle between ``s_i`` and the ray from ``m_i`` to
 ``v_j``, weighted by its length. Gauss-Newton on a small rotation, the log focal length and the principal point,
 with the inliers chosen again each step; the line noise ``sigma^2`` is the weighted mean squared residual, and the
-prior ``c ~ N(centre, (principal_point_std * H)^2)`` per axis is added to the normal equations, which also give the
+prior ``c ~ N(centre, (centre_std * H)^2)`` per axis is added to the normal equations, which also give the
 estimate's standard deviation. With the prior's standard deviation 0 the centre is kept.
 """
 

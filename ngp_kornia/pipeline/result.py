@@ -12,12 +12,18 @@ from torch import Tensor
 from ngp_kornia.geometry.pinhole import Camera
 from ngp_kornia.pipeline import camera_export as cameras
 
-__all__ = ["Calibration"]
+__all__ = ["Calibration", "lens_from_dict"]
 
 
 def _from_camera(name: str) -> property:
     """A read-only attribute of the calibration that is the camera's (:class:`~ngp_kornia.geometry.pinhole.Camera`)."""
     return property(lambda self: getattr(self.camera, name), doc=f"The camera's ``{name}`` (see the class docstring).")
+
+
+def lens_from_dict(values: dict) -> Tensor | None:
+    """The lens distortion (a () float64 tensor, :attr:`Calibration.k1`) of a calibration's :meth:`Calibration.to_dict`
+    (or a rendered image's ground truth, which names it the same); None for a distortion-free pinhole."""
+    return None if values.get("k1") is None else torch.tensor(float(values["k1"]), dtype=torch.float64)
 
 
 @dataclass
@@ -127,8 +133,8 @@ class Calibration:
     horizon = _from_camera("horizon")
     vps = _from_camera("vps")
     image_size = _from_camera("image_size")
-    k1 = _from_camera("k1")
-    principal_point = _from_camera("principal_point")
+    k1 = _from_camera("lens")
+    principal_point = _from_camera("center")
 
     @property
     def batched(self) -> bool:
@@ -183,7 +189,7 @@ class Calibration:
             value = getattr(self, name).detach().cpu()
             out[name] = value.tolist() if value.dim() else value.item()
         out["height"], out["width"] = (int(v) for v in out.pop("image_size"))
-        out.update(cameras.pinhole_keys(self.K, self.k1, self.image_size))  # cx, cy and OpenCV's distortion
+        out.update(cameras.pinhole_keys(self.camera))  # cx, cy and OpenCV's distortion
         if self.shared_photos is not None:
             modelled = {"principal_point": self.principal_point_std, "k1": self.k1}
             out["shared"] = ["focal"] + [name for name, value in modelled.items() if value is not None]
@@ -249,7 +255,7 @@ class Calibration:
             >>> K.shape, K.dtype, dist.tolist()
             ((3, 3), dtype('float64'), [0.0, 0.0, 0.0, 0.0, 0.0])
         """
-        return cameras.opencv_camera(self.K, self.k1, self.image_size)
+        return cameras.opencv_camera(self.camera)
 
     def to_colmap(self, model: str | None = None, camera_id: int = 1) -> dict | list[dict]:
         """COLMAP's camera: ``{"camera_id", "model", "width", "height", "params", "line"}``.
@@ -276,7 +282,7 @@ class Calibration:
         """
         if self.batched:
             return [self[i].to_colmap(model, camera_id + i) for i in range(len(self))]
-        return cameras.colmap_camera(self.K, self.image_size, model, camera_id, self.k1)
+        return cameras.colmap_camera(self.camera, model, camera_id)
 
 
 def _index(value: Tensor | None, index: int) -> Tensor | None:

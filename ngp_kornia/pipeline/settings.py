@@ -269,14 +269,14 @@ class TrustSettings:
     """The trust fields, confidence and standard deviations (:mod:`ngp_kornia.pipeline.trust`).
 
     Attributes:
-        principal_point_std: how far the principal point may be from the image centre, a standard deviation per
-            axis as a fraction of the image height. The parser assumes the centre; this widens ``pitch_std``,
-            ``roll_std`` and ``fov_v_std`` by the error such an offset causes (answers and ``confidence`` do not
-            change). 0.025, the offset of the one calibrated real camera of the development photos, suits unknown
-            cameras; 0 says it is known to be at the centre.
+        centre_std: how far the principal point (the camera's centre) may be from the image centre, a standard
+            deviation per axis as a fraction of the image height. The parser assumes the centre; this widens
+            ``pitch_std``, ``roll_std`` and ``fov_v_std`` by the error such an offset causes (answers and
+            ``confidence`` do not change). 0.025, the offset of the one calibrated real camera of the development
+            photos, suits unknown cameras; 0 says it is known to be at the centre.
     """
 
-    principal_point_std: float = _number(0.025, 0.0, 0.25)
+    centre_std: float = _number(0.025, 0.0, 0.25)
 
     def __post_init__(self) -> None:
         check_settings(self)

@@ -206,7 +206,7 @@ def principal_point_terms(
 def _centre_std(trust: TrustSettings | float | Tensor | None) -> float | Tensor:
     """The principal point's standard deviation of :func:`attach_trust`'s ``trust``."""
     settings = trust is None or isinstance(trust, TrustSettings)
-    return (trust or TrustSettings()).principal_point_std if settings else trust
+    return (trust or TrustSettings()).centre_std if settings else trust
 
 
 def _detached(t: Tensor) -> Tensor:
@@ -246,7 +246,7 @@ def attach_trust(
         segments: (B, N, 2, 2) segments, input pixels.
         mask: (B, N) bool.
         scoring: the frame scores' settings (``top_k``, ``kernel_angle``); None for the defaults.
-        trust: the settings' ``principal_point_std`` (how uncertain the principal point is), or that fraction of
+        trust: the settings' ``centre_std`` (how uncertain the principal point is), or that fraction of
             the height itself (one number, or (B,) one per image); None for the defaults.
         known_focal: the focal length was given as a prior.
         model: coefficients; None uses the shipped ones.

@@ -39,7 +39,7 @@ def test_gravity_priors_are_the_truth_plus_seeded_noise(renders):
 
 def test_k1_and_principal_point_errors_are_scored(renders):
     images = load_renders(renders)
-    assert all(-0.2 <= im.k1 <= -0.1 for im in images)
+    assert all(-0.2 <= im.lens <= -0.1 for im in images)
     runs = run_interleaved({"plain": calibrate_method("none"), "lens": calibrate_method("none:k1=estimate")},
                            images, None)
     plain, lens = (evaluate(images, runs[name].estimates)["summary"] for name in ("plain", "lens"))

@@ -63,6 +63,8 @@ CASES = {
     "homogeneous_to_pseudo_camera": lambda x: G.homogeneous_to_pseudo_camera(x["points"], H, W),
     "structure_tensor": lambda x: G.dominant_eigenvector(G.weighted_structure_tensor(x["points"], x["weights"])),
     "closeness": lambda x: torch.stack([G.closeness(_lines(x), x["vps"]), G.closeness(_lines(x), x["vps"], 89.0)]),
+    "closeness_of": lambda x: torch.stack([G.closeness_of(G.line_vp_cosine(_lines(x), x["vps"]) ** 2, 5.0, m)
+                                           for m in G.CLOSENESS_MEASURES]),
     "segment_vp_angle": lambda x: G.segment_vp_angle(G.to_pseudo_camera(x["segments"], H, W), x["vps"][:, :, 0]),
     "frame_manhattan_scores": lambda x: G.frame_manhattan_scores(
         _lines(x), x["vps"], G.segment_lengths(x["segments"]), x["mask"]

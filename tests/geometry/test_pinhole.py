@@ -31,13 +31,13 @@ def _camera(device=None, dtype=torch.float64, k1=None) -> Camera:
     k1 = None if k1 is None else torch.tensor(k1, **kw)
     return Camera.from_angles(
         torch.tensor(FOCAL, **kw), *(torch.tensor(v, **kw) for v in (PITCH, ROLL, YAW)),
-        image_size=(H, W), principal_point=point, k1=k1,
+        image_size=(H, W), center=point, lens=k1,
     )  # fmt: skip
 
 
 def test_parameters_and_the_geometry_that_follows(device, dtype):
     camera = _camera(device, dtype)
-    K = intrinsics_matrix(camera.focal, camera.principal_point)
+    K = intrinsics_matrix(camera.focal, camera.center)
     R = rotation_from_angles(*(torch.tensor(v, device=device, dtype=dtype) for v in (PITCH, ROLL, YAW)))
     torch.testing.assert_close(camera.K, K)
     torch.testing.assert_close(camera.R, R)
@@ -67,12 +67,12 @@ def test_from_matrix_reads_what_from_angles_built():
     camera = _camera()
     again = Camera.from_matrix(camera.K, camera.R, camera.image_size)
     assert torch.equal(again.params, camera.params) and torch.equal(again.horizon, camera.horizon)
-    assert again.k1 is None and torch.equal(camera.principal_point, camera.K[:, :2, 2])
+    assert again.lens is None and torch.equal(camera.center, camera.K[:, :2, 2])
 
 
 def test_centred_principal_point_by_default():
     camera = Camera.from_angles(torch.tensor([400.0]), torch.zeros(1), torch.zeros(1), image_size=(H, W))
-    torch.testing.assert_close(camera.principal_point[0], image_center(H, W))
+    torch.testing.assert_close(camera.center[0], image_center(H, W))
     torch.testing.assert_close(camera.horizon, torch.tensor([[0.0, 1.0, -(H - 1) / 2.0]]))  # level: the middle row
 
 
@@ -120,9 +120,9 @@ def test_kornia_camera_model_with_distortion_is_the_closest_brown_conrady():
         # rays across the image: kornia's polynomial lands within a pixel of the division model's distorted pixel
         grid = torch.stack(torch.meshgrid(torch.linspace(20, W - 20, 7), torch.linspace(20, H - 20, 5), indexing="xy"))
         pinhole = grid.reshape(2, -1).T.double()
-        rays = torch.cat([(pinhole - camera.principal_point[i]) / camera.focal[i], torch.ones(len(pinhole), 1)], -1)
+        rays = torch.cat([(pinhole - camera.center[i]) / camera.focal[i], torch.ones(len(pinhole), 1)], -1)
         kornia_pixels = one.project(Vector3(rays)).data
-        ours = distort_points(pinhole[None], camera.K[i : i + 1], camera.k1[i : i + 1])[0]
+        ours = distort_points(pinhole[None], camera.K[i : i + 1], camera.lens[i : i + 1])[0]
         assert float((kornia_pixels - ours).norm(dim=-1).max()) < 1.0, i
     assert not model.params[2, 4:].any()  # k1 = 0: no distortion
 
@@ -149,13 +149,13 @@ def test_gradcheck_geometry_of_the_parameters():
 def test_to_clone_apply_replace(device):
     camera = _camera(k1=[-0.1, 0.0, 0.1])
     moved = camera.to(device, torch.float32)
-    assert moved.params.dtype == torch.float32 and moved.k1.dtype == torch.float32
+    assert moved.params.dtype == torch.float32 and moved.lens.dtype == torch.float32
     assert moved.image_size.dtype == torch.long and moved.image_size.device.type == device.type
     copy = camera.clone()
     assert copy.params is not camera.params and torch.equal(copy.params, camera.params)
     assert camera.apply(lambda t: t[:2]).params.shape == (2, 4)
-    flat = camera.replace(k1=None)
-    assert flat.k1 is None and torch.equal(flat.R, camera.R)
+    flat = camera.replace(lens=None)
+    assert flat.lens is None and torch.equal(flat.R, camera.R)
     with pytest.raises(TypeError, match="unknown parameters"):
         camera.replace(focal=1.0)
 
@@ -164,7 +164,7 @@ def test_shapes_are_checked():
     camera = _camera()
     with pytest.raises(ShapeError, match="share one batch dim"):
         Camera(camera.params, camera.R[:2], camera.image_size)
-    with pytest.raises(ShapeError, match="k1 must be of shape"):
+    with pytest.raises(ShapeError, match="lens must be of shape"):
         Camera(camera.params, camera.R, camera.image_size, torch.zeros(2))
     with pytest.raises(ValueError):
         Camera(camera.params[:, :3], camera.R, camera.image_size)

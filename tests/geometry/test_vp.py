@@ -12,11 +12,11 @@ from ngp_kornia.geometry.camera import image_center, intrinsics_matrix, normaliz
 from ngp_kornia.geometry.line_algebra import cossim, pseudo_focal, segment_lengths, segments_to_lines, to_pseudo_camera
 from ngp_kornia.geometry.vp import (
     closeness,
+    closeness_of,
     dominant_eigenvector,
     line_vp_cosine,
     manhattan_score,
     segment_vp_angle,
-    sharp_kernel,
     structure_tensor,
     symmetric_dominant_eigenvector,
     topk_weighted_average,
@@ -258,24 +258,56 @@ def test_sharp_closeness_known_kernel(angle_deg):
     )
 
 
-def test_sharp_kernel():
-    torch.testing.assert_close(sharp_kernel(torch.tensor([0.0, 1.0])), torch.tensor([1.0, 0.0]))
+def test_closeness_of_the_sharp_kernel():
+    torch.testing.assert_close(closeness_of(torch.tensor([0.0, 1.0]), 89.0), torch.tensor([1.0, 0.0]))
     # a floor on the exponent keeps the tail a normal float: exp(-30) instead of an underflow to 0
     far = torch.tensor([1.0], dtype=torch.float64)
-    torch.testing.assert_close(sharp_kernel(far, 89.0, -30.0), torch.tensor([math.exp(-30.0)], dtype=torch.float64))
-    assert float(sharp_kernel(far, 89.0)) < 1e-300
+    exp30 = torch.tensor([math.exp(-30.0)], dtype=torch.float64)
+    torch.testing.assert_close(closeness_of(far, 89.0, floor=-30.0), exp30)
+    assert float(closeness_of(far, 89.0)) < 1e-300
     c89 = math.cos(math.radians(89.0))
     torch.testing.assert_close(
-        sharp_kernel(torch.tensor([c89], dtype=torch.float64)), torch.tensor([math.exp(-0.5)], dtype=torch.float64)
+        closeness_of(torch.tensor([c89], dtype=torch.float64), 89.0),
+        torch.tensor([math.exp(-0.5)], dtype=torch.float64),
     )
     # closeness with an angle is the kernel of line_vp_cosine; the best over VPs is the kernel of the smallest cosine
     lines = _randn(2, 6, 3, seed=3)
     vps = normalize(torch.linalg.cross(lines[:, :3], _randn(2, 3, 3, seed=4)))  # VP i lies on line i
     cos = line_vp_cosine(lines, vps)
-    torch.testing.assert_close(closeness(lines, vps, 85.0), sharp_kernel(cos, 85.0))
-    torch.testing.assert_close(closeness(lines, vps, 89.0).amax(1), sharp_kernel(cos.amin(1)))
+    torch.testing.assert_close(closeness(lines, vps, 85.0), closeness_of(cos, 85.0))
+    torch.testing.assert_close(closeness(lines, vps, 89.0).amax(1), closeness_of(cos.amin(1), 89.0))
     x = torch.tensor([0.001, 0.01, 0.02], dtype=torch.float64, requires_grad=True)
-    assert gradcheck(sharp_kernel, (x,))
+    assert gradcheck(lambda c: closeness_of(c, 89.0), (x,))
+
+
+def test_closeness_of_the_squared_sine():
+    # 1 on the VP, 3/4 at the kernel's width, 0 from twice its sine on (sines squared)
+    s5 = math.sin(math.radians(5.0)) ** 2
+    sin2 = torch.tensor([0.0, s5, 4 * s5, 0.5, 1.0], dtype=torch.float64)
+    torch.testing.assert_close(closeness_of(sin2, 5.0, "squared_sine"),
+                               torch.tensor([1.0, 0.75, 0.0, 0.0, 0.0], dtype=torch.float64), atol=1e-12, rtol=0)
+    # wider than 30 degrees the kernel reaches beyond a squared sine of 1: the sine is clamped there first
+    assert closeness_of(torch.tensor([2.0]), 40.0, "squared_sine").item() == closeness_of(
+        torch.tensor([1.0]), 40.0, "squared_sine").item() > 0
+    x = torch.tensor([0.001, 0.004, 0.006], dtype=torch.float64, requires_grad=True)
+    assert gradcheck(lambda v: closeness_of(v, 5.0, "squared_sine"), (x,))
+
+
+@pytest.mark.parametrize("measure", ["squared_sine", "squared_cosine"])
+def test_closeness_of_in_place_is_the_same(measure):
+    value = torch.rand(3, 50, generator=torch.Generator().manual_seed(0)) * 0.02
+    kept = closeness_of(value, 5.0, measure, floor=-80.0)
+    assert torch.equal(closeness_of(value.clone(), 5.0, measure, floor=-80.0, inplace=True), kept)
+    # the squared cosine's kernel is the cosine's, to rounding
+    if measure == "squared_cosine":
+        torch.testing.assert_close(kept, closeness_of(value.sqrt(), 5.0, floor=-80.0))
+
+
+def test_closeness_of_bad_measure_raises():
+    with pytest.raises(ValueError, match="unknown closeness measure 'sine'"):
+        closeness_of(torch.zeros(2), 5.0, "sine")
+    with pytest.raises(ValueError, match="needs its width"):
+        closeness_of(torch.zeros(2), None, "squared_sine")
 
 
 def test_sharp_closeness_vs_closeness_ordering():

@@ -32,7 +32,7 @@ from ngp_kornia.pipeline.priors import PRIOR_NAMES
         ("use_manhattan", "yes", "ScoringSettings.use_manhattan must be True or False"),
         ("horizon.margin", -0.1, "HorizonSettings.margin"),
         ("focal_scales", (), "HorizonSettings.focal_scales must be positive numbers"),
-        ("trust.principal_point_std", 0.3, "TrustSettings.principal_point_std"),
+        ("trust.centre_std", 0.3, "TrustSettings.centre_std"),
     ],
 )
 def test_settings_are_checked_by_name(key, value, message):

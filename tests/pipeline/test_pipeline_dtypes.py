@@ -14,7 +14,7 @@ import torch
 from torch.autograd import gradcheck
 
 import ngp_kornia.pipeline as pipeline_room
-from ngp_kornia.geometry import FrameCandidates
+from ngp_kornia.geometry import FrameCandidates, coefficient_from_pseudo, coefficient_to_pseudo
 from ngp_kornia.nets.line_evidence import LineEvidenceNet
 from ngp_kornia.nets.upright import UprightNet
 from ngp_kornia.pipeline import (
@@ -106,7 +106,12 @@ def _photos() -> torch.Tensor:
 def _with_options(x):
     """The scenes' calibration with an estimated principal point's deviation and a distortion."""
     cal = replace(x.cal, principal_point_std=torch.ones_like(x.cal.principal_point))
-    return replace(cal, camera=cal.camera.replace(k1=torch.full_like(cal.focal, -0.1)))
+    return replace(cal, camera=cal.camera.replace(lens=torch.full_like(cal.focal, -0.1)))
+
+
+def _bent(x):
+    """The scenes' cameras with a lens distortion."""
+    return x.cal.camera.replace(lens=torch.full_like(x.cal.focal, -0.1))
 
 
 def _frames_r(x):
@@ -123,20 +128,18 @@ CASES = {
         lambda x: answer.topk_calibration(x.trace.final_frames, x.trace.final_scores, x.height, x.width,
                                           ScoringSettings()), {"tol": False}),  # ties in the top k
     "camera_export.colmap_camera": (
-        lambda x: torch.tensor(camera_export.colmap_camera(x.cal.K[0], x.cal.image_size[0], "RADIAL",
-                                                           k1=torch.tensor(-0.1).to(x.cal.K))["params"], dtype=F64),
+        lambda x: torch.tensor(camera_export.colmap_camera(_bent(x)[0], "RADIAL")["params"], dtype=F64),
         {"float_dtype": F64}),
     "camera_export.kornia_camera": (
         lambda x: (lambda c: (c.intrinsics, c.extrinsics))(camera_export.kornia_camera(x.cal.K, x.cal.R,
                                                                                        x.cal.image_size)), {}),
     "camera_export.opencv_camera": (
-        lambda x: [torch.from_numpy(a) for a in camera_export.opencv_camera(x.cal.K)], {"float_dtype": F64}),
+        lambda x: [torch.from_numpy(a) for a in camera_export.opencv_camera(x.cal.camera)], {"float_dtype": F64}),
     "camera_export.opencv_distortion": (
-        lambda x: torch.from_numpy(camera_export.opencv_distortion(x.cal.K, torch.full_like(x.cal.focal, -0.1),
-                                                                   x.cal.image_size)), {"float_dtype": F64}),
+        lambda x: torch.from_numpy(camera_export.opencv_distortion(_bent(x))), {"float_dtype": F64}),
     "camera_export.pinhole_keys": (
         lambda x: torch.tensor(np.hstack([[v] if isinstance(v, float) else v for v in camera_export.pinhole_keys(
-            x.cal.K[0], torch.tensor(-0.1).to(x.cal.K), x.cal.image_size[0]).values()])), {"float_dtype": F64}),
+            _bent(x)[0]).values()])), {"float_dtype": F64}),
     "camera_model.calibrate_camera_model": (
         lambda x: camera_model.calibrate_camera_model(
             _FixedSearch(x), frame_search.View(x.images, x.segments, x.mask),
@@ -186,10 +189,6 @@ CASES = {
     "distortion.estimate_distortion": (
         lambda x: distortion.estimate_distortion(x.segments, x.mask, x.cal.principal_point, x.height, x.width),
         {"tol": False}),
-    "distortion.k1_from_units": (
-        lambda x: distortion.k1_from_units(torch.full_like(x.cal.focal, -0.1), x.cal.focal, x.height, x.width), {}),
-    "distortion.units_from_k1": (
-        lambda x: distortion.units_from_k1(torch.full_like(x.cal.focal, -0.1), x.cal.focal, x.height, x.width), {}),
     "evidence.apply_evidence": (
         lambda x: evidence.apply_evidence(_evidence_net(x), x.images, x.segments, x.mask), {"tol": False}),
     "gravity.allowed_ups": (lambda x: gravity.allowed_ups(x.ups, x.priors), {}),
@@ -262,7 +261,7 @@ CASES = {
     "shared_camera.joint_focal": (
         lambda x: torch.tensor([float(v) for v in _shared_focal(x)[:2]], dtype=F64),
         {"float_dtype": F64, "tol": False}),
-    "distortion.joint_k1": (lambda x: torch.tensor([distortion.joint_k1(torch.tensor([-0.1, -0.12]).to(
+    "distortion.joint_distortion": (lambda x: torch.tensor([distortion.joint_distortion(torch.tensor([-0.1, -0.12]).to(
         x.cal.K))], dtype=F64), {"float_dtype": F64}),
     "principal_point.joint_principal_point": (
         lambda x: torch.tensor(principal_point.joint_principal_point(x.cal.principal_point, torch.ones_like(
@@ -305,6 +304,9 @@ CASES = {
 #: public functions with no tensor of a chosen dtype to test: their inputs and outputs are settings or plain values
 NOT_TENSORS = {
     "camera_model.estimates": "reads the priors",
+    "camera_model.option_errors": "compares an estimate's plain numbers with the truth (the evaluation's)",
+    "camera_model.option_values": "one photo's camera options as plain numbers (the evaluation's)",
+    "result.lens_from_dict": "reads a number of a calibration's dict",
     "camera_model.tied_to_pixels": "reads the priors",
     "focal_prior.check_focal_on_image": "checks numbers of a focal-length prior",
     "focal_prior.checked_focal": "checks a number",
@@ -387,8 +389,8 @@ def test_gradcheck_small_pipeline_maps():
     assert gradcheck(horizon_support.up_from_pitch_roll, (pitch, roll))
     focal = x.cal.focal.clone().requires_grad_()
     lam = torch.tensor([-0.1, 0.05], dtype=F64, requires_grad=True)
-    assert gradcheck(lambda k, f: distortion.units_from_k1(k, f, x.height, x.width), (lam, focal))
-    assert gradcheck(lambda u, f: distortion.k1_from_units(u, f, x.height, x.width), (lam, focal))
+    assert gradcheck(lambda k, f: coefficient_to_pseudo(k, f, x.height, x.width), (lam, focal))
+    assert gradcheck(lambda u, f: coefficient_from_pseudo(u, f, x.height, x.width), (lam, focal))
     assert gradcheck(principal_point.orthocentre, (x.cal.vps.clone().requires_grad_(),))
     probs = torch.tensor([[0.7, 0.1, 0.1, 0.05, 0.05], [0.2, 0.5, 0.1, 0.1, 0.1]], dtype=F64, requires_grad=True)
     assert gradcheck(lambda p: upright_check.weigh_by_pitch(p, x.cal.pitch, 10.0), (probs,))

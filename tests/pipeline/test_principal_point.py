@@ -65,7 +65,7 @@ def test_moved_calibration_keeps_the_horizon_the_zeniths_polar():
 @pytest.fixture(scope="module")
 def off_centre():
     """A street whose principal point is 17 px off the centre (the renderer's imperfection, fixed seed)."""
-    return render_scene(8, (640, 480), RenderConfig(kinds={"street": 1.0}, principal_point_std=0.04))
+    return render_scene(8, (640, 480), RenderConfig(kinds={"street": 1.0}, centre_std=0.04))
 
 
 def test_a_given_principal_point_is_the_calibrations(off_centre):
@@ -93,7 +93,7 @@ def test_convention_a_given_principal_point_follows_the_segments():
 
 
 def test_estimated_principal_points_come_nearer_the_truth():
-    config = RenderConfig(kinds={"street": 0.6, "indoor": 0.4}, principal_point_std=0.025)
+    config = RenderConfig(kinds={"street": 0.6, "indoor": 0.4}, centre_std=0.025)
     errors, offsets = [], []
     for seed in range(20, 30):  # ten scenes: one photo's estimate may miss, their median may not
         scene = render_scene(seed, (480, 360), config)

@@ -1,4 +1,4 @@
-"""ParserConfig.principal_point_std: an uncertain principal point widens the standard deviations, and only them."""
+"""TrustSettings.centre_std: an uncertain principal point widens the standard deviations, and only them."""
 
 import json
 import math
@@ -24,18 +24,18 @@ def image():
 
 @pytest.mark.parametrize("bad", [-0.01, 0.26, math.nan, math.inf, "0.02", True, None])
 def test_bad_values_are_a_clear_config_error(bad):
-    with pytest.raises(ConfigError, match="principal_point_std must be"):
-        ParserConfig().replace(principal_point_std=bad)
+    with pytest.raises(ConfigError, match="centre_std must be"):
+        ParserConfig().replace(centre_std=bad)
 
 
 def test_default_is_for_unknown_cameras_and_zero_is_allowed():
-    assert ParserConfig().trust.principal_point_std == 0.025
-    assert ParserConfig().replace(principal_point_std=0).trust.principal_point_std == 0
-    assert ParserConfig().replace(principal_point_std=0.25).trust.principal_point_std == 0.25
+    assert ParserConfig().trust.centre_std == 0.025
+    assert ParserConfig().replace(centre_std=0).trust.centre_std == 0
+    assert ParserConfig().replace(centre_std=0.25).trust.centre_std == 0.25
 
 
 def test_standard_deviations_grow_with_the_option_and_answers_stay(image):
-    out = [calibrate(image, config=ParserConfig().replace(principal_point_std=v)) for v in (0.0, 0.01, 0.02, 0.05)]
+    out = [calibrate(image, config=ParserConfig().replace(centre_std=v)) for v in (0.0, 0.01, 0.02, 0.05)]
     for name in STDS:
         values = [float(getattr(o, name)) for o in out]
         assert values == sorted(values) and values[0] < values[-1], (name, values)
@@ -49,11 +49,11 @@ def test_standard_deviations_grow_with_the_option_and_answers_stay(image):
 def test_zero_gives_the_line_term_alone(image):
     """With the option at 0 the standard deviations are those of a model without the principal-point term."""
     plain = replace(TrustModel.load(), principal_point=dict.fromkeys(("pitch", "roll", "fov_v"), 0.0))
-    cal = calibrate(image, config=ParserConfig().replace(principal_point_std=0.0))
+    cal = calibrate(image, config=ParserConfig().replace(centre_std=0.0))
     shipped = confidence._shipped
     try:
         confidence._shipped = lambda: plain
-        same = calibrate(image, config=ParserConfig().replace(principal_point_std=0.05))
+        same = calibrate(image, config=ParserConfig().replace(centre_std=0.05))
     finally:
         confidence._shipped = shipped
     for name in STDS:
@@ -62,7 +62,7 @@ def test_zero_gives_the_line_term_alone(image):
 
 def test_known_focal_keeps_the_fov_std_at_zero(image):
     scene = render_scene(3, size=(320, 240))
-    config = ParserConfig().replace(principal_point_std=0.05)
+    config = ParserConfig().replace(centre_std=0.05)
     out = calibrate(image, config=config, priors={"focal": float(scene.focal)})
     assert float(out.fov_v_std) == 0.0 and float(out.pitch_std) > 0
 

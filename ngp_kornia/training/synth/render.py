@@ -7,7 +7,7 @@ rotation, pitch / roll / yaw, field of view, zenith, horizon, Manhattan vanishin
 functions of :mod:`ngp_kornia.geometry.camera` so it follows the project's conventions exactly:
 
 * the principal point is the image centre ``((W - 1) / 2, (H - 1) / 2)`` unless
-  :attr:`RenderConfig.principal_point_std` moves it (the label's ``K`` is always the true one), pixels have their
+  :attr:`RenderConfig.centre_std` moves it (the label's ``K`` is always the true one), pixels have their
   origin at the centre of the top-left pixel, square pixels, no distortion;
 * ``R = rotation_from_angles(pitch, roll, yaw)`` maps world to camera; the camera stands at the world origin and
   the ground is the plane ``y = camera_height`` (world y points down);
@@ -211,8 +211,8 @@ def render_scene(seed: int, size: tuple[int, int] = (640, 480), config: RenderCo
     if kind != "indoor" and cfg.fronto_prob > 0 and hard_rng.random() < cfg.fronto_prob:
         yaw = _fronto_yaw(hard_rng, kind, yaw, cfg.fronto_jitter)
     offset = (0.0, 0.0)
-    if cfg.principal_point_std > 0:
-        offset = tuple(float(v) for v in np.clip(lens_rng.normal(0.0, 1.0, 2), -3, 3) * cfg.principal_point_std * H)
+    if cfg.centre_std > 0:
+        offset = tuple(float(v) for v in np.clip(lens_rng.normal(0.0, 1.0, 2), -3, 3) * cfg.centre_std * H)
     gt = camera_ground_truth(fov_v, pitch, roll, yaw, (W, H), offset)
 
     k1 = float(np.clip(lens_rng.normal(), -3, 3) * cfg.radial_distortion) if cfg.radial_distortion > 0 else 0.0

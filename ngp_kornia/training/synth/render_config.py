@@ -64,7 +64,7 @@ class RenderConfig:
         fronto_prob: hard case, probability that an outdoor camera faces a facade square on (no finite horizontal
             vanishing point): its yaw is moved to the nearest facade normal, plus ``fronto_jitter``.
         fronto_jitter: standard deviation of the yaw around the facade normal.
-        principal_point_std: camera imperfection, standard deviation of the principal point's offset from the image
+        centre_std: camera imperfection, standard deviation of the principal point's offset from the image
             centre along each axis, as a fraction of the image height (Gaussian, clipped at 3 standard deviations).
             Real cameras rarely have it exactly at the centre; the label's ``K`` carries the true one, so the
             horizon is measured against it while pitch and roll (from ``R``) do not depend on it.
@@ -111,7 +111,7 @@ class RenderConfig:
     billboards: float = 0.0
     fronto_prob: float = 0.0
     fronto_jitter: float = 3.0
-    principal_point_std: float = 0.0
+    centre_std: float = 0.0
     radial_distortion: float = 0.0
     k1_range: tuple[float, float] = (0.0, 0.0)
     foliage: float = 0.0
@@ -136,9 +136,9 @@ class RenderConfig:
             raise ValueError("clutter and color_balance must be non-negative")
         if self.stairs < 0 or self.billboards < 0 or self.fronto_jitter < 0:
             raise ValueError("stairs, billboards and fronto_jitter must be non-negative")
-        if not (isinstance(self.principal_point_std, int | float) and 0.0 <= self.principal_point_std <= 0.25):
-            raise ValueError(f"principal_point_std must be a fraction of the image height in [0, 0.25], "
-                             f"got {self.principal_point_std!r}")
+        if not (isinstance(self.centre_std, int | float) and 0.0 <= self.centre_std <= 0.25):
+            raise ValueError(f"centre_std must be a fraction of the image height in [0, 0.25], "
+                             f"got {self.centre_std!r}")
         if not (isinstance(self.radial_distortion, int | float) and 0.0 <= self.radial_distortion <= 0.1):
             raise ValueError(f"radial_distortion must be a standard deviation of k1 in [0, 0.1], "
                              f"got {self.radial_distortion!r}")
@@ -159,7 +159,7 @@ class RenderConfig:
 
 HARD_DEFAULTS = {"stairs": 0.0, "billboards": 0.0, "fronto_prob": 0.0, "fronto_jitter": 3.0}
 """The hard-case options of :class:`RenderConfig` and their defaults (off)."""
-IMPERFECTION_DEFAULTS = {"principal_point_std": 0.0, "radial_distortion": 0.0, "k1_range": (0.0, 0.0)}
+IMPERFECTION_DEFAULTS = {"centre_std": 0.0, "radial_distortion": 0.0, "k1_range": (0.0, 0.0)}
 """The camera-imperfection options of :class:`RenderConfig` and their defaults (off: an ideal pinhole)."""
 TEXTURE_DEFAULTS = {"foliage": 0.0}
 """The texture options of :class:`RenderConfig` and their defaults (off: flat polygons)."""

@@ -1,4 +1,4 @@
-"""Renders with an off-centre principal point (RenderConfig.principal_point_std): off by default and then invisible,
+"""Renders with an off-centre principal point (RenderConfig.centre_std): off by default and then invisible,
 bit for bit; the label carries the true K, and the image is drawn through it."""
 
 import cv2
@@ -12,15 +12,15 @@ from ngp_kornia.training.synth.render import render_dataset, render_scene
 from ngp_kornia.training.synth.render_config import IMPERFECTION_DEFAULTS, RenderConfig, config_spec
 
 SIZE = (320, 240)
-OFF = RenderConfig(principal_point_std=0.08)
+OFF = RenderConfig(centre_std=0.08)
 
 
 def test_off_by_default_and_bit_for_bit_unchanged():
-    assert RenderConfig().principal_point_std == IMPERFECTION_DEFAULTS["principal_point_std"] == 0.0
-    assert "principal_point_std" not in config_spec(RenderConfig())
-    assert config_spec(OFF)["principal_point_std"] == 0.08
+    assert RenderConfig().centre_std == IMPERFECTION_DEFAULTS["centre_std"] == 0.0
+    assert "centre_std" not in config_spec(RenderConfig())
+    assert config_spec(OFF)["centre_std"] == 0.08
     for seed in range(3):
-        a, b = render_scene(seed, (160, 120)), render_scene(seed, (160, 120), RenderConfig(principal_point_std=0.0))
+        a, b = render_scene(seed, (160, 120)), render_scene(seed, (160, 120), RenderConfig(centre_std=0.0))
         assert np.array_equal(a.image, b.image) and a.to_dict() == b.to_dict()
 
 
@@ -36,9 +36,9 @@ def test_only_the_principal_point_moves():
 
 
 @pytest.mark.parametrize("bad", [-0.01, 0.3, "0.1", float("nan")])
-def test_bad_principal_point_std_raises(bad):
-    with pytest.raises(ValueError, match="principal_point_std"):
-        RenderConfig(principal_point_std=bad)
+def test_bad_centre_std_raises(bad):
+    with pytest.raises(ValueError, match="centre_std"):
+        RenderConfig(centre_std=bad)
 
 
 def test_label_carries_the_true_k(tmp_path):
@@ -73,7 +73,7 @@ def _median_vp_error(image: np.ndarray, vps: np.ndarray) -> float:
 
 def test_the_image_is_drawn_through_the_true_k():
     """Detected segments point at the VPs of the true K, not at those of a centred one."""
-    cfg = RenderConfig(principal_point_std=0.08, kinds={"street": 1.0}, photometric=False)
+    cfg = RenderConfig(centre_std=0.08, kinds={"street": 1.0}, photometric=False)
     for seed in range(3):
         r = render_scene(seed, SIZE, cfg)
         K_c = r.K.clone()

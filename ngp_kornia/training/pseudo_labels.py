@@ -53,8 +53,8 @@ class LabelRule:
 
     weights: tuple[str, ...] = ("default", "none")
     seeds: tuple[int, ...] = (0, 1)
-    min_confidence: float = 0.7
-    max_horizon_spread: float = 0.01
+    min_confidence: float = 0.5
+    max_horizon_spread: float = 0.015
     max_focal_spread: float = 0.1
 
     def __post_init__(self) -> None:

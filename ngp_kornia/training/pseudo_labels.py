@@ -1,8 +1,9 @@
 """Labels for real photos that have none: the answers the parser is sure of, written as a CSV manifest.
 
 A photo is labelled when every run agrees: the parser with each weight set of the rule and each sampling seed
-finds a camera, the first weight set is confident on every seed, and all the horizons lie within a small share of
-the image height (and the focal lengths within a small relative spread) of the first run's. The first run's focal
+finds a camera, the first weight set is confident on every seed, all the horizons lie within a small share of the
+image height (and the focal lengths within a small relative spread) of the first run's, and the camera is not
+rolled far (the photos are taken to be handed over upright). The first run's focal
 length, pitch and roll become the label (:mod:`ngp_kornia.data.manifest`'s columns), so
 :class:`~ngp_kornia.training.scene_data.ManifestScenes` and the FSNet training read them as they read true ones.
 
@@ -45,6 +46,9 @@ class LabelRule:
         min_confidence: the least confidence of the first weight set's answers (every seed).
         max_horizon_spread: the largest horizon distance (image heights, at the borders) of any run from the first.
         max_focal_spread: the largest relative difference of any run's focal length from the first's.
+        max_roll: the largest roll (degrees) of the label: photos handed over upright seldom roll further, and an
+            answer that does is likelier a wrong zenith (a facade's vanishing point taken for it) than a tilted
+            camera, however well the runs agree.
 
     Example:
         >>> LabelRule().weights
@@ -56,11 +60,14 @@ class LabelRule:
     min_confidence: float = 0.5
     max_horizon_spread: float = 0.015
     max_focal_spread: float = 0.1
+    max_roll: float = 20.0
 
     def __post_init__(self) -> None:
         if not self.weights or not self.seeds:
             raise ValueError("a LabelRule needs at least one weight set and one seed")
-        for f in fields(self)[2:]:
+        if not 0.0 <= self.max_roll <= 180.0:
+            raise ValueError(f"LabelRule.max_roll must lie in [0, 180] degrees, got {self.max_roll}")
+        for f in fields(self)[2:-1]:
             if not 0.0 <= getattr(self, f.name) <= 1.0:
                 raise ValueError(f"LabelRule.{f.name} must lie in [0, 1], got {getattr(self, f.name)}")
 
@@ -88,7 +95,8 @@ def sure_label(answers: Sequence, height: int, width: int, rule: LabelRule) -> d
     spread = float(horizon_error(horizons, horizons[:1].expand_as(horizons), height, width).max())
     focal = float(first.focal)
     focal_spread = max(abs(float(a.focal) - focal) / focal for a in answers)
-    if spread > rule.max_horizon_spread or focal_spread > rule.max_focal_spread:
+    rolled = abs(float(first.roll)) > rule.max_roll
+    if rolled or spread > rule.max_horizon_spread or focal_spread > rule.max_focal_spread:
         return None
     return {"focal_px": focal, "pitch_deg": float(first.pitch), "roll_deg": float(first.roll),
             "confidence": confidence, "horizon_spread": spread, "focal_spread": focal_spread}  # fmt: skip
@@ -171,6 +179,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--min-confidence", type=float, default=LabelRule.min_confidence)
     p.add_argument("--max-horizon-spread", type=float, default=LabelRule.max_horizon_spread)
     p.add_argument("--max-focal-spread", type=float, default=LabelRule.max_focal_spread)
+    p.add_argument("--max-roll", type=float, default=LabelRule.max_roll, help="degrees")
     p.add_argument("--force", action="store_true", help="overwrite OUT if it exists")
     return p
 
@@ -179,8 +188,8 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point: ``python -m ngp_kornia.training.pseudo_labels ROOT OUT.csv``."""
     args = _parser().parse_args(argv)
     try:
-        rule = LabelRule(tuple(args.weights.split(",")), tuple(int(s) for s in args.seeds.split(",")),
-                         args.min_confidence, args.max_horizon_spread, args.max_focal_spread)  # fmt: skip
+        limits = (args.min_confidence, args.max_horizon_spread, args.max_focal_spread, args.max_roll)
+        rule = LabelRule(tuple(args.weights.split(",")), tuple(int(s) for s in args.seeds.split(",")), *limits)
         if Path(args.out).exists() and not args.force:
             raise OutputError(f"{args.out} exists; give another file or --force to overwrite it")
         rows = pseudo_labels(args.root, args.part, rule, progress=sys.stderr.isatty())

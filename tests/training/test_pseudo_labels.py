@@ -60,6 +60,13 @@ def test_an_unsure_first_weight_set_leaves_the_photo_unlabelled():
     assert sure_label(answers, H, W, LabelRule(seeds=(0, 1), min_confidence=0.4)) is not None
 
 
+def test_a_far_rolled_answer_is_no_label_however_sure():
+    rolled = _answer(240, 250)
+    rolled.roll = torch.tensor(-31.0)
+    assert sure_label([rolled, _answer(240, 250)], H, W, LabelRule(seeds=(0, 1))) is None
+    assert sure_label([rolled, _answer(240, 250)], H, W, LabelRule(seeds=(0, 1), max_roll=45.0)) is not None
+
+
 def test_a_rule_out_of_range_is_refused():
     with pytest.raises(ValueError, match="max_horizon_spread"):
         LabelRule(max_horizon_spread=2.0)

@@ -20,6 +20,7 @@ from ngp_kornia.training.synth.render_config import RenderConfig
 
 __all__ = [
     "ManifestDataModule",
+    "PhotosAndRendersDataModule",
     "PanoramaDataModule",
     "RenderedDataModule",
     "SceneDataModule",
@@ -229,3 +230,52 @@ class ManifestDataModule(SceneDataModule):
         kwargs = {"cache_dir": hp.cache_dir, "input_size": hp.input_size}
         paths = {"train": hp.train, "val": hp.val, "test": hp.test or hp.val}
         return {k: ManifestScenes(CSVManifest(v), **kwargs) for k, v in paths.items()}
+
+
+class PhotosAndRendersDataModule(RenderedDataModule):
+    """Rendered scenes mixed with labelled photos (e.g. the labels :mod:`ngp_kornia.training.pseudo_labels` wrote
+    for real photos), every photo cut and resized to the renders' size so that both share a batch.
+
+    Training draws from the renders and the ``train_labels`` photos together; validation and test read the
+    ``val_labels`` photos, then ``val_size`` validation renders (held-back photos with sure labels are few).
+
+    Args:
+        train_labels: CSV manifest of the training photos.
+        val_labels: CSV manifest of the held-back photos (validation and test).
+        photo_root: folder the manifests' image paths are relative to (None: each CSV file's folder).
+        photo_repeat: how many times each training photo is listed beside the renders.
+        val_size: validation renders after the held-back photos (0: the photos alone).
+        **kwargs: see :class:`RenderedDataModule`.
+    """
+
+    def __init__(
+        self,
+        train_labels: str,
+        val_labels: str,
+        photo_root: str | None = None,
+        photo_repeat: int = 1,
+        val_size: int = 0,
+        cache_dir: str | None = "cache",
+        train_size: int = 10_000,
+        size: tuple[int, int] = (640, 480),
+        batch_size: int = 16,
+        num_workers: int = 0,
+        input_size: tuple[int, int] | None = None,
+        max_segments: int = 512,
+    ) -> None:
+        super().__init__(cache_dir, train_size, val_size, 0, size, batch_size, num_workers, input_size, max_segments)
+        self.save_hyperparameters()
+
+    def make_datasets(self) -> dict[str, CachedScenes]:
+        hp = self.hparams
+        kwargs = {"cache_dir": hp.cache_dir, "max_segments": hp.max_segments, "input_size": hp.input_size}
+        renders = RenderedScenes(range(hp.train_size), tuple(hp.size), **kwargs)
+
+        def photos(path: str, repeat: int = 1) -> ManifestScenes:
+            return ManifestScenes(CSVManifest(path, hp.photo_root), tuple(hp.size), repeat, **kwargs)
+
+        held = photos(hp.val_labels)
+        if hp.val_size > 0:
+            seeds = range(self.VAL_SEED, self.VAL_SEED + hp.val_size)
+            held = JoinedScenes([held, RenderedScenes(seeds, tuple(hp.size), **kwargs)])
+        return {"train": JoinedScenes([renders, photos(hp.train_labels, hp.photo_repeat)]), "val": held, "test": held}

@@ -8,6 +8,8 @@ error (in image heights) of the top-1 frame by ``s_i = sigmoid(logit) * m_i`` (E
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
@@ -18,6 +20,7 @@ from ngp_kornia.metrics import frame_horizon_error, horizon_auc
 from ngp_kornia.nets.fsnet import FSNet
 from ngp_kornia.nets.fsnet_inputs import FSNetInputs, frame_scores
 from ngp_kornia.nets.weights import load_network, shipped_weights
+from ngp_kornia.pipeline.evidence import apply_evidence
 from ngp_kornia.pipeline.parser import NeuralGeometricParser
 from ngp_kornia.pipeline.settings import ParserConfig
 from ngp_kornia.training.base import NetworkModule
@@ -61,6 +64,10 @@ class FSNetModule(NetworkModule):
             form a YAML config can give).
         init_weights: start ``net`` from an FSNet weights file of the same settings (fine-tuning), or ``"fsnet"``
             for the shipped one; None: from its own initialisation.
+        evidence_weights: a line-evidence weights file, or ``"evidence"`` for the shipped one: the segments it reads
+            as clutter (structure weight below ``evidence_keep``) are dropped before the candidates are sampled and
+            the line maps drawn, as the default weight set does at run time (frozen, not saved with this module).
+        evidence_keep: the least structure weight of a segment kept (the parser's ``evidence.keep``).
     """
 
     def __init__(
@@ -77,10 +84,17 @@ class FSNetModule(NetworkModule):
         zsnet: nn.Module | None = None,
         zsnet_weights: str | None = None,
         init_weights: str | None = None,
+        evidence_weights: str | None = None,
+        evidence_keep: float = 0.1,
     ) -> None:
         super().__init__()
         self.save_hyperparameters(ignore=["net", "zsnet"])
         self.net = net
+        evidence = None
+        if evidence_weights is not None:
+            path = shipped_weights("evidence") if evidence_weights == "evidence" else evidence_weights
+            evidence = load_network(path, "LineEvidenceNet").eval().requires_grad_(False)
+        object.__setattr__(self, "evidence", evidence)  # not a submodule: neither trained nor saved
         if init_weights is not None:
             _start_from(net, init_weights)
         if zsnet is None and zsnet_weights is not None:
@@ -132,8 +146,19 @@ class FSNetModule(NetworkModule):
             inputs = inputs._replace(images=images)
         return inputs
 
+    def _kept(self, batch: SceneBatch) -> SceneBatch:
+        """The batch with the segments the line evidence reads as clutter masked out (as it was without one)."""
+        if self.evidence is None:
+            return batch
+        height, width = (int(v) for v in batch.image_size[0])
+        stand_in = batch.segments.new_zeros(len(batch), 3, height, width)  # the network reads the size, not pixels
+        self.evidence.to(batch.segments.device)
+        _, mask = apply_evidence(self.evidence, stand_in, batch.segments, batch.mask, self.hparams.evidence_keep)
+        return replace(batch, mask=mask)
+
     def _step(self, batch: SceneBatch, stage: str, batch_idx: int) -> Tensor:
         training = stage == "train"
+        batch = self._kept(batch)
         # validation and test sample the same candidates every epoch, so their figures are comparable
         seed = int(torch.randint(2**31 - 1, (1,))) if training else batch_idx
         generator = torch.Generator().manual_seed(seed)

@@ -26,7 +26,7 @@ from torch.utils.data import Dataset
 
 from ngp_kornia.data.manifest import CSVManifest
 from ngp_kornia.data.panorama import crop_ground_truth, perspective_crops, sample_crop_params
-from ngp_kornia.geometry import rotation_from_angles
+from ngp_kornia.geometry import horizon_from_zenith, rotation_from_angles, zenith_from_up
 from ngp_kornia.io import load_image, read_image_file
 from ngp_kornia.pipeline.segments import detect_segments, pad_segments
 from ngp_kornia.pipeline.settings import SegmentSettings
@@ -43,6 +43,7 @@ __all__ = [
     "Sample",
     "SceneBatch",
     "collate_scenes",
+    "fit_photo",
     "read_cached_sample",
 ]
 
@@ -288,25 +289,66 @@ class PanoramaCrops(CachedScenes):
         return self.sample_from_image(rgb, gt["K"][0], gt["R"][0], gt["zenith"][0], gt["horizon"][0])
 
 
+def fit_photo(rgb: np.ndarray, K: Tensor, size: tuple[int, int]) -> tuple[np.ndarray, Tensor]:
+    """The middle of a photo cut to the aspect ratio of ``size = (W, H)`` and resized to it, and its intrinsics: the
+    rotation is the photo's, so its horizon and zenith follow from the new ``K``.
+
+    Args:
+        rgb: (H0, W0, 3) uint8 image.
+        K: (3, 3) its intrinsics.
+        size: the output size ``(W, H)``.
+
+    Returns:
+        the (H, W, 3) image and its (3, 3) float64 intrinsics (pixel-centre convention).
+
+    Example:
+        >>> K = torch.tensor([[500.0, 0, 399.5], [0, 500.0, 299.5], [0, 0, 1]])
+        >>> image, K2 = fit_photo(np.zeros((600, 800, 3), np.uint8), K, (400, 300))
+        >>> image.shape, K2.diagonal().tolist(), K2[:2, 2].tolist()
+        ((300, 400, 3), [250.0, 250.0, 1.0], [199.5, 149.5])
+    """
+    height, width = rgb.shape[:2]
+    scale = min(width / size[0], height / size[1])  # source pixels per output pixel
+    crop_w, crop_h = min(width, round(size[0] * scale)), min(height, round(size[1] * scale))
+    x0, y0 = (width - crop_w) // 2, (height - crop_h) // 2
+    image = cv2.resize(rgb[y0 : y0 + crop_h, x0 : x0 + crop_w], size, interpolation=cv2.INTER_AREA)
+    sx, sy = size[0] / crop_w, size[1] / crop_h  # equal up to the rounding of the crop
+    K = torch.as_tensor(K, dtype=torch.float64).clone()
+    focal = float(K[0, 0]) * (sx + sy) / 2
+    cx, cy = (float(K[0, 2]) - x0 + 0.5) * sx - 0.5, (float(K[1, 2]) - y0 + 0.5) * sy - 0.5
+    return image, torch.tensor([[focal, 0.0, cx], [0.0, focal, cy], [0.0, 0.0, 1.0]], dtype=torch.float64)
+
+
 class ManifestScenes(CachedScenes):
     """Labelled photos of a CSV manifest: the rows whose focal length and up direction are known (others are
     skipped, since the networks need both).
 
     Args:
         manifest: the manifest.
+        size: cut and resize every photo to ``(W, H)`` (:func:`fit_photo`), so that photos of any size share a
+            batch with each other and with renders of that size; None: as they are.
+        repeat: how many times each photo is listed (weighs the photos against other samples in a joined set).
         **kwargs: see :class:`CachedScenes`.
     """
 
-    def __init__(self, manifest: CSVManifest, **kwargs) -> None:
-        self.manifest = manifest
+    def __init__(
+        self, manifest: CSVManifest, size: tuple[int, int] | None = None, repeat: int = 1, **kwargs
+    ) -> None:
+        self.manifest, self.size = manifest, None if size is None else tuple(size)
         rows = [i for i, s in enumerate(manifest) if s.K is not None and s.zenith is not None]
         files = [(str(p.resolve()), p.stat().st_mtime_ns) for p in manifest.image_paths]
-        super().__init__(rows, "manifest", {"files": files}, **kwargs)
+        spec = {"files": files} if self.size is None else {"files": files, "size": self.size}
+        super().__init__(rows * repeat, "manifest", spec, **kwargs)
 
     def compute(self, key: int) -> Sample:
         row = self.manifest[key]
         R = rotation_from_angles(*(torch.tensor([v], dtype=torch.float64) for v in (row.pitch, row.roll)))[0]
-        return self.sample_from_image(read_image_file(row.image_path), row.K, R, row.zenith, row.horizon)
+        rgb = read_image_file(row.image_path)
+        if self.size is None:
+            return self.sample_from_image(rgb, row.K, R, row.zenith, row.horizon)
+        rgb, K = fit_photo(rgb, row.K, self.size)
+        zenith = zenith_from_up(K[None], row.up.to(K)[None])
+        return self.sample_from_image(rgb, K, R, zenith[0], horizon_from_zenith(K[None], zenith)[0])
 
 
 def collate_scenes(samples: list[Sample]) -> SceneBatch:

@@ -149,3 +149,26 @@ def test_init_weights_of_other_settings_is_one_clear_error():
 
     with pytest.raises(ConfigError, match="input_size"):
         FSNetModule(FSNet(variant="shared", input_size=64), init_weights="fsnet")
+
+
+def test_evidence_masks_the_segments_the_parser_drops_at_run_time():
+    from ngp_kornia.nets.weights import load_network, shipped_weights
+    from ngp_kornia.pipeline.evidence import apply_evidence
+
+    g = torch.Generator().manual_seed(0)
+    start = torch.rand(1, 60, 1, 2, generator=g) * torch.tensor([W, H])
+    length = torch.cat([torch.full((1, 30, 1, 1), 150.0), torch.full((1, 30, 1, 1), 4.0)], 1)
+    angle = torch.rand(1, 60, 1, 1, generator=g) * math.pi
+    segments = torch.cat([start, start + length * torch.cat([angle.cos(), angle.sin()], -1)], 2)
+    mask = torch.ones(1, 60, dtype=torch.bool)
+    mask[0, -1] = False
+    z, h = _level_camera(500.0)
+    batch = SceneBatch(segments, mask, torch.eye(3)[None], torch.eye(3)[None], z, h, torch.tensor([[H, W]]))
+    plain = FSNetModule(_tiny_net(), num_candidates=2, parser_config=_small_parser())
+    assert plain._kept(batch) is batch
+    module = FSNetModule(_tiny_net(), num_candidates=2, parser_config=_small_parser(), evidence_weights="evidence")
+    kept = module._kept(batch).mask
+    net = load_network(shipped_weights("evidence"), "LineEvidenceNet")
+    expected = apply_evidence(net, torch.zeros(1, 3, H, W), segments, mask)[1]
+    assert torch.equal(kept, expected) and not (kept & ~mask).any() and 0 < int(kept.sum()) < int(mask.sum())
+    assert not any(k.startswith("evidence") for k in module.state_dict())

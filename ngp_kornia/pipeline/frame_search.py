@@ -284,8 +284,8 @@ class FrameSearch:
     def resize_beside(self, images: Tensor) -> Callable[[], Tensor] | None:
         """:attr:`View.resized` for ``images``: FSNet's image resized on the helper thread
         (:func:`~ngp_kornia.threads.beside`: C code that releases the GIL, beside the line evidence and the frame
-        sampling), where the search has FSNet, a second core is free and no gradient is asked for; else None."""
-        if self.fsnet is None or strip_threads(2) < 2 or (torch.is_grad_enabled() and images.requires_grad):
+        sampling), where the search has FSNet, a second core is free and the images ask for no gradient; else None."""
+        if self.fsnet is None or images.requires_grad or strip_threads(2) < 2:
             return None
         dtype = next(self.fsnet.parameters()).dtype
         return beside(self.fsnet.input_images, images.to(dtype))

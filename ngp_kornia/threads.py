@@ -14,7 +14,8 @@ count.
 
 Two more threads earn their place (BENCHMARKS.md): line detection runs LSD's strips side by side
 (:mod:`~ngp_kornia.pipeline.segments`), and a list of images (and ``ngp predict``) reads the next file and detects
-its lines while the parser works on the current one (:class:`Lookahead`). Neither changes a result.
+its lines while the parser works on the current one (:class:`Lookahead`). The parser also hands a few jobs of C
+code to a helper thread (:func:`beside`: FSNet's resized image, the orientation check). None changes a result.
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ import torch
 
 from ngp_kornia.errors import InputError, shown
 
-__all__ = ["ENV_VAR", "Lookahead", "pipeline_threads", "resolve_num_threads", "usable_cores"]
+__all__ = ["ENV_VAR", "Lookahead", "beside", "pipeline_threads", "resolve_num_threads", "usable_cores"]
 
 #: the environment variable read when a call does not say how many threads to use
 ENV_VAR = "NGP_NUM_THREADS"
@@ -100,6 +101,26 @@ def usable_cores() -> int:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:  # macOS, Windows
         return os.cpu_count() or 1
+
+
+#: the helper thread of each process that runs the parser's side jobs (a pool's thread does not survive a fork)
+_helpers: dict[int, ThreadPoolExecutor] = {}
+
+
+def beside(fn: Callable[..., Any], *args: Any) -> Callable[[], Any]:
+    """Start ``fn(*args)`` on the process's helper thread and return the function that gives its result: computed
+    there, or here where that thread has not started on it when asked (the same computation either way). Jobs run
+    one after the other, in the order they were given; the caller decides whether a second core is free for them.
+
+    Example:
+        >>> beside(sum, [1, 2, 3])()
+        6
+    """
+    pid = os.getpid()
+    if pid not in _helpers:
+        _helpers[pid] = ThreadPoolExecutor(max_workers=1, thread_name_prefix="ngp-beside")
+    pending = _helpers[pid].submit(fn, *args)
+    return lambda: fn(*args) if pending.cancel() else pending.result()
 
 
 class Lookahead:

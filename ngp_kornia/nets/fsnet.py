@@ -38,6 +38,7 @@ from ngp_kornia.nets.fsnet_inputs import (
     VARIANTS,
     FSNetImageInputs,
     FSNetInputs,
+    area_resize,
     fsnet_frame_inputs,
     fsnet_image_inputs,
     fsnet_line_inputs,
@@ -207,6 +208,12 @@ class FSNet(nn.Module):
         """The part of :meth:`prepare_inputs` that needs no frame candidate (:func:`fsnet_image_inputs`)."""
         size = self.input_size
         return fsnet_image_inputs(images, segments, mask, size, pool=self.pool_cell(size, size))
+
+    def input_images(self, images: Tensor) -> Tensor:
+        """The (B, 3, H, W) images as :meth:`prepare_image_inputs` puts them in its inputs: resized to the network's
+        input (:func:`~ngp_kornia.nets.fsnet_inputs.with_images`); for :meth:`prepare_line_inputs`' ``images``."""
+        size = (self.input_size, self.input_size)
+        return images if tuple(images.shape[-2:]) == size else area_resize(images, size)
 
     def prepare_line_inputs(self, segments: Tensor, mask: Tensor, image_size: tuple[int, int]) -> FSNetImageInputs:
         """:meth:`prepare_image_inputs` without the image (:func:`fsnet_line_inputs`; :func:`with_images` adds

@@ -109,7 +109,7 @@ def _search_at(
         return search(view, priors, std)
     moved = _moved_segments(view.segments, point, lam, height, width)
     images = _moved_images(view.images, point, lam) if search.reads_pixels else view.images
-    found = search(view._replace(images=images, segments=moved), priors, std)
+    found = search(view._replace(images=images, segments=moved, resized=None), priors, std)  # not the moved image
     return found._replace(result=moved_calibration(found.result, point.to(centre) - centre))
 
 

@@ -12,6 +12,7 @@ what it computed (:class:`Search`), from which the parser's trace is made.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import replace
 from functools import partial
 from typing import NamedTuple
@@ -44,8 +45,10 @@ from ngp_kornia.pipeline.horizon import choose_horizon, search_horizon
 from ngp_kornia.pipeline.polish import polish_frame
 from ngp_kornia.pipeline.priors import Priors
 from ngp_kornia.pipeline.result import Calibration
+from ngp_kornia.pipeline.segments import strip_threads
 from ngp_kornia.pipeline.settings import ParserConfig
 from ngp_kornia.pipeline.trust import SharedInputs, attach_trust
+from ngp_kornia.threads import beside
 
 __all__ = ["Candidates", "FrameSearch", "Search", "View", "pseudo_lines"]
 
@@ -58,12 +61,15 @@ class View(NamedTuple):
         segments: (B, N, 2, 2) segments in the images' pixels.
         mask: (B, N) bool, the segments used.
         weights: (B, N) the line evidence's structure weights, multiplying the segments' lengths; None for none.
+        resized: gives ``images`` resized to FSNet's input (:meth:`~ngp_kornia.nets.fsnet.FSNet.input_images`),
+            made on a second thread meanwhile; None: resized where FSNet needs them.
     """
 
     images: Tensor
     segments: Tensor
     mask: Tensor
     weights: Tensor | None = None
+    resized: Callable[[], Tensor] | None = None
 
 
 class Candidates(NamedTuple):
@@ -155,7 +161,7 @@ class FrameSearch:
         """
         cfg = self.config
         trust = cfg.trust if centre_std is None else centre_std
-        images, segments, mask, weights = view
+        images, segments, mask, weights = view[:4]
         height, width = images.shape[-2:]
         # one generator per image, each seeded alike: an image's answer does not depend on its batch or position
         generators = [torch.Generator().manual_seed(self.seed) for _ in range(len(images))]
@@ -166,7 +172,7 @@ class FrameSearch:
         found = self.candidates(pseudo, mask, (height, width), generators, priors)
         frames, scores, index, s_vh = found.frames, found.manhattan, None, None
         if self.fsnet is not None:
-            frames, scores, index, s_vh = self.rescore(images, segments, mask, frames, scores, pseudo[1])
+            frames, scores, index, s_vh = self.rescore(images, segments, mask, frames, scores, pseudo[1], view.resized)
         known = priors.focal_units(height, width, like=pseudo[1])
         result, top_k_weights = topk_calibration(frames, scores, height, width, cfg.scoring, known)
         result = self._refined(result, view, priors, frames, scores, SharedInputs(*pseudo[1:], top_k_weights), trust)
@@ -175,7 +181,7 @@ class FrameSearch:
     def _refined(self, result, view: View, priors: Priors, frames, scores, shared: SharedInputs, trust) -> Calibration:
         """The top-k answer polished, its horizon searched and chosen, its trust fields and gravity prior added."""
         cfg = self.config
-        _, segments, mask, weights = view
+        _, segments, mask, weights = view[:4]
         height, width = view.images.shape[-2:]
         search_vps = result.vps  # the frame search's VPs: the residual of their lines is a trust input
         if cfg.polish.enabled:
@@ -242,10 +248,11 @@ class FrameSearch:
         frames: FrameCandidates,
         manhattan: Tensor,
         lines: Tensor | None = None,
+        resized: Callable[[], Tensor] | None = None,
     ) -> tuple[FrameCandidates, Tensor, Tensor, Tensor]:
         """Keep the best ``num_scored`` frames by Manhattan score and score them with FSNet: ``s_vh * m_i`` (Eq. 22),
         or ``s_vh`` alone without ``use_manhattan``. ``lines``: the segments' pseudo-camera lines when already
-        computed.
+        computed; ``resized``: as :attr:`View.resized`.
 
         Returns:
             the kept frames, their (B, K) scores, their (B, K) indices into ``frames`` and FSNet's (B, K) ``s_vh``.
@@ -256,17 +263,32 @@ class FrameSearch:
         # FSNet runs in its own dtype (float32 weights on a float64 image, say): lines in another dtype are redone
         dtype = next(self.fsnet.parameters()).dtype
         lines = lines if lines is not None and lines.dtype == dtype else None
-        image_inputs, context = self.fsnet_image_side(images, segments, mask)
+        image_inputs, context = self.fsnet_image_side(images, segments, mask, resized)
         inputs = self.fsnet.prepare_inputs(images.to(dtype), segments.to(dtype), mask, frames, lines, image_inputs)
         s_vh = torch.sigmoid(self.fsnet(*inputs, context=context)).to(manhattan)
         return frames, frame_scores(s_vh, manhattan, frames.valid, cfg.use_manhattan), index, s_vh
 
-    def fsnet_image_side(self, images: Tensor, segments: Tensor, mask: Tensor) -> tuple[FSNetImageInputs, tuple | None]:
-        """FSNet's inputs that need no frame candidate (:meth:`FSNet.prepare_image_inputs`) and its shared trunk's
-        output on them (:meth:`FSNet.image_context`), in FSNet's dtype."""
+    def fsnet_image_side(
+        self, images: Tensor, segments: Tensor, mask: Tensor, resized: Callable[[], Tensor] | None = None
+    ) -> tuple[FSNetImageInputs, tuple | None]:
+        """FSNet's inputs that need no frame candidate (:meth:`FSNet.prepare_image_inputs`; ``resized`` as
+        :attr:`View.resized`) and its shared trunk's output on them (:meth:`FSNet.image_context`), in FSNet's dtype."""
         dtype = next(self.fsnet.parameters()).dtype
-        image_inputs = self.fsnet.prepare_image_inputs(images.to(dtype), segments.to(dtype), mask)
+        if resized is None:
+            image_inputs = self.fsnet.prepare_image_inputs(images.to(dtype), segments.to(dtype), mask)
+        else:
+            lines = self.fsnet.prepare_line_inputs(segments.to(dtype), mask, tuple(images.shape[-2:]))
+            image_inputs = lines._replace(images=resized())
         return image_inputs, self.fsnet.image_context(image_inputs)
+
+    def resize_beside(self, images: Tensor) -> Callable[[], Tensor] | None:
+        """:attr:`View.resized` for ``images``: FSNet's image resized on the helper thread
+        (:func:`~ngp_kornia.threads.beside`: C code that releases the GIL, beside the line evidence and the frame
+        sampling), where the search has FSNet, a second core is free and the images ask for no gradient; else None."""
+        if self.fsnet is None or images.requires_grad or strip_threads(2) < 2:
+            return None
+        dtype = next(self.fsnet.parameters()).dtype
+        return beside(self.fsnet.input_images, images.to(dtype))
 
     def zenith_weights(self, lines_z: Tensor, lines_z_ok: Tensor, zenith: Tensor, zenith_ok: Tensor) -> Tensor:
         """Weights of the zenith candidates: the ZSNet score p_z on Z_c (p_z > delta_c, Eq. 12) and zero elsewhere;

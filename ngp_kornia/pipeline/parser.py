@@ -165,14 +165,14 @@ class NeuralGeometricParser(nn.Module):
             low = None if segments is None else segments.float()
             out = self.forward(images.float(), low, mask, seed=seed, priors=priors, return_trace=return_trace)
             return (out[0].to(images.dtype), out[1]) if return_trace else out.to(images.dtype)
-        reading = None
-        if self.upright is not None and self.config.upright.enabled:  # read on a second core meanwhile
+        resized, reading = self._search().resize_beside(images), None  # on a second core meanwhile, where free
+        if self.upright is not None and self.config.upright.enabled:
             reading = read_beside(self.upright, images, self.config.upright.prior)
         segments, detected = self._segments(images, segments, mask)
         evidence, mask = None, detected
         if self.evidence is not None and self.config.evidence.enabled:
             evidence, mask = apply_evidence(self.evidence, images, segments, detected, self.config.evidence.keep)
-        view = View(images, segments, mask, evidence if self.config.evidence.weigh else None)
+        view = View(images, segments, mask, evidence if self.config.evidence.weigh else None, resized)
         # the principal point and the distortion, given or estimated, around the frame search (camera_model.py)
         found = calibrate_camera_model(self._search(seed), view, priors)
         result = found.result

@@ -118,10 +118,12 @@ def read_input(image: object, run: Run) -> Input:
     if isinstance(image, Tensor):
         return Input(as_batch(image)[0], None, None, None, run.priors)
     rgb, orientation = read_rgb_oriented(image)
-    segments, mask = detect_segments(rgb, run.parser.config.segments)
-    if run.parser.reads_pixels:
-        batch = pixels(rgb)
+    if run.parser.reads_pixels:  # converted while this thread would wait for line detection's last strip
+        converted = []
+        segments, mask = detect_segments(rgb, run.parser.config.segments, lambda: converted.append(pixels(rgb)))
+        batch = converted[0]
     else:
+        segments, mask = detect_segments(rgb, run.parser.config.segments)
         batch = torch.zeros((), dtype=torch.float32).expand(1, 3, *rgb.shape[:2])
     return Input(batch, segments, mask, orientation, file_priors(image, *rgb.shape[:2], run.priors, run.exif))
 

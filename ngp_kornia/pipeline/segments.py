@@ -23,7 +23,7 @@ from __future__ import annotations
 import math
 import os
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from itertools import pairwise
@@ -73,7 +73,9 @@ def _fld(min_length: float):
     return detectors[length]
 
 
-def detect_segments_gray(gray: np.ndarray, settings: SegmentSettings | None = None) -> np.ndarray:
+def detect_segments_gray(
+    gray: np.ndarray, settings: SegmentSettings | None = None, meanwhile: Callable[[], object] | None = None
+) -> np.ndarray:
     """Detect segments on one greyscale uint8 image: the LSD step of :func:`detect_segments`.
 
     Args:
@@ -81,6 +83,8 @@ def detect_segments_gray(gray: np.ndarray, settings: SegmentSettings | None = No
         settings: LSD runs on a copy whose long side is at most ``working_size`` pixels, segments shorter than
             ``min_length`` (working-resolution pixels) are dropped and at most ``max_segments`` kept, the longest
             first, found by ``detector``, LSD in ``line_strips`` strips; None for the defaults.
+        meanwhile: a job called once: by this thread when its own strip is done and another thread's may still
+            run (the time it would wait), else after the detection. Its result is not kept.
 
     Returns:
         (N, 2, 2) float32 segments ``[[x0, y0], [x1, y1]]`` in the input's pixels, longest first.
@@ -96,7 +100,9 @@ def detect_segments_gray(gray: np.ndarray, settings: SegmentSettings | None = No
     small = (
         gray if scale == 1.0 else cv2.resize(gray, (round(w * scale), round(h * scale)), interpolation=cv2.INTER_AREA)
     )
-    seg = _lsd_in_strips(small, strips) if detector == "lsd" else _as_segments(_fld(min_length).detect(small))
+    gap = _once(meanwhile)
+    seg = _lsd_in_strips(small, strips, gap) if detector == "lsd" else _as_segments(_fld(min_length).detect(small))
+    gap()  # where no strip ran beside this thread
     if len(seg) == 0:
         return np.zeros((0, 2, 2), np.float32)
     seg = longest_segments(seg, min_length, max_segments)
@@ -104,6 +110,17 @@ def detect_segments_gray(gray: np.ndarray, settings: SegmentSettings | None = No
     seg[..., 0] = (seg[..., 0] + 0.5) * sx - 0.5
     seg[..., 1] = (seg[..., 1] + 0.5) * sy - 0.5
     return seg
+
+
+def _once(job: Callable[[], object] | None) -> Callable[[], None]:
+    """A function that calls ``job`` the first time it is called, and does nothing after (nor ever for None)."""
+    pending = [] if job is None else [job]
+
+    def run() -> None:
+        while pending:
+            pending.pop()()
+
+    return run
 
 
 #: rows a strip reads beyond each of its cuts, so that LSD's smoothing and gradients near a cut see both sides
@@ -165,10 +182,11 @@ def _strip_cuts(height: int, strips: int) -> list[int]:
     return cuts
 
 
-def _lsd_in_strips(image: np.ndarray, strips: int) -> np.ndarray:
+def _lsd_in_strips(image: np.ndarray, strips: int, gap: Callable[[], object] = lambda: None) -> np.ndarray:
     """LSD on ``strips`` horizontal strips of the image (:data:`STRIP_OVERLAP` rows beyond each cut), run at once
     on up to :func:`strip_threads` threads (OpenCV releases the GIL); every segment is clipped
-    to its strip's rows and a line's pieces on both sides of a cut joined again. (N, 2, 2)."""
+    to its strip's rows and a line's pieces on both sides of a cut joined again. (N, 2, 2). ``gap`` runs when this
+    thread's strips are done, before it waits for the others'."""
     cuts = _strip_cuts(image.shape[0], strips)
     if not cuts:
         return _lsd_segments(image)
@@ -179,6 +197,7 @@ def _lsd_in_strips(image: np.ndarray, strips: int) -> np.ndarray:
     groups = [views[i::threads] for i in range(threads)]  # every thread-th strip: this thread takes the first group
     pending = [_pool().submit(_detect_each, group) for group in groups[1:]]
     first = _detect_each(groups[0])
+    gap()  # the other strips end about a millisecond later on average
     # a group no pool thread has started by now (the pool busy with another call's strips) is detected here
     rest = [_detect_each(g) if p.cancel() else p.result() for g, p in zip(groups[1:], pending, strict=True)]
     for i, found in enumerate([first, *rest]):
@@ -297,7 +316,9 @@ def _to_gray_uint8(image: Tensor) -> np.ndarray:
 
 
 def detect_segments(
-    image: str | Path | np.ndarray | Tensor, settings: SegmentSettings | None = None
+    image: str | Path | np.ndarray | Tensor,
+    settings: SegmentSettings | None = None,
+    meanwhile: Callable[[], object] | None = None,
 ) -> tuple[Tensor, Tensor]:
     """Detect line segments on an image or a batch: the one line-detection entry point of the package.
 
@@ -308,6 +329,8 @@ def detect_segments(
             detected on their 8-bit pixels, tensors on their pixels rounded to 8 bits: a tensor made of an 8-bit
             image (``uint8 / 255``) gives the same segments as the array.
         settings: the detection settings (see :func:`detect_segments_gray`); None for the defaults.
+        meanwhile: a job this thread runs once, while it would wait for the last strip of line detection where
+            strips run on other threads (:func:`detect_segments_gray`); its result is not kept.
 
     Returns:
         segments (B, N, 2, 2) in input pixels and mask (B, N), with B = 1 for an unbatched input; on a tensor's
@@ -324,14 +347,17 @@ def detect_segments(
         >>> int(mask.sum())
         4
     """
+    gap = _once(meanwhile)
     if not isinstance(image, Tensor):
         gray = cv2.cvtColor(read_rgb(image), cv2.COLOR_RGB2GRAY)
-        return pad_segments([detect_segments_gray(gray, settings)])
+        return pad_segments([detect_segments_gray(gray, settings, gap)])
     if not image.is_floating_point():
         raise TypeError(f"expected a float image tensor in [0, 1], got {image.dtype}; for uint8 use image.float()/255")
     images = image[None] if image.dim() == 3 else image
     KORNIA_CHECK_SHAPE(images, ["B", "3", "H", "W"])
-    return pad_segments([detect_segments_gray(_to_gray_uint8(im), settings) for im in images], like=images)
+    found = [detect_segments_gray(_to_gray_uint8(im), settings, gap) for im in images]
+    gap()  # an empty batch
+    return pad_segments(found, like=images)
 
 
 class LineDetector(torch.nn.Module):

@@ -14,9 +14,7 @@ the turned photo is the one whose up axis that turn points up.
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 
 import torch
@@ -26,12 +24,9 @@ from ngp_kornia.geometry.camera import canonical_manhattan_rotation
 from ngp_kornia.pipeline.answer import level_answer
 from ngp_kornia.pipeline.result import Calibration
 from ngp_kornia.pipeline.segments import strip_threads
+from ngp_kornia.threads import beside
 
 __all__ = ["apply_upright", "read_beside", "turned_answer", "upright_probabilities", "weigh_by_pitch"]
-
-#: one thread per process that reads the images while the caller finds the frame (a pool's thread does not
-#: survive a fork)
-_pools: dict[int, ThreadPoolExecutor] = {}
 
 
 def upright_probabilities(net: nn.Module, images: Tensor, prior: float = 0.5) -> Tensor:
@@ -61,11 +56,7 @@ def read_beside(net: nn.Module, images: Tensor, prior: float) -> Callable[[], Te
     computation either way: torch releases the GIL, so the reading costs no time beside the frame search."""
     if strip_threads(2) < 2:
         return lambda: upright_probabilities(net, images, prior)
-    pid = os.getpid()
-    if pid not in _pools:
-        _pools[pid] = ThreadPoolExecutor(max_workers=1, thread_name_prefix="ngp-upright")
-    pending = _pools[pid].submit(upright_probabilities, net, images, prior)
-    return lambda: upright_probabilities(net, images, prior) if pending.cancel() else pending.result()
+    return beside(upright_probabilities, net, images, prior)
 
 
 #: the largest pitch the parser answers for a photo turned by a quarter turn: its "vertical" is then a horizontal

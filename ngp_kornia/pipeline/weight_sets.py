@@ -145,8 +145,18 @@ def weight_set_config(weights: object, config: object) -> ParserConfig:
         >>> weight_set_config("default", ParserConfig()).evidence.enabled
         True
     """
+    default = isinstance(weights, str) and weights == "default"
+    if config is None:  # every call without a config: the settings checked once (a tenth of a millisecond a call)
+        return _plain_config(tuple(DEFAULT_SETTINGS.items()) if default else ())
     settings = checked_config(config)
-    if not (isinstance(weights, str) and weights == "default"):
+    if not default:
         return settings
     named = config if isinstance(config, Mapping) else {}
     return settings.replace(**{key: value for key, value in DEFAULT_SETTINGS.items() if key not in named})
+
+
+@lru_cache(maxsize=4)
+def _plain_config(changes: tuple) -> ParserConfig:
+    """The default settings with ``changes`` (pairs of setting and value); the settings are frozen, so one object
+    serves every call."""
+    return ParserConfig().replace(**dict(changes))

@@ -249,6 +249,28 @@ def test_resnet18_layout_and_strides():
         ResNet(3, (8,), (1,), norm="layer")
 
 
+@pytest.mark.parametrize("stride", [1, 2])
+def test_the_trunks_convolutions_at_inference_match_torchs_choice(stride):
+    # one image's small maps take oneDNN's kernel at inference (torch would take its slower im2col path there):
+    # the same convolution to float round-off; with gradients recorded torch's own path runs, and they flow
+    from ngp_kornia.nets.resnet import Conv3x3
+
+    torch.manual_seed(0)
+    conv = Conv3x3(64, 32, stride).eval()
+    plain = torch.nn.Conv2d(64, 32, 3, stride, 1, bias=False)
+    plain.load_state_dict(conv.state_dict())
+    x = torch.rand(1, 64, 16, 16).contiguous(memory_format=torch.channels_last)
+    with torch.no_grad():
+        torch.testing.assert_close(conv(x), plain(x), rtol=1e-5, atol=1e-5)
+    x.requires_grad_()
+    out = conv(x)
+    assert torch.equal(out, plain(x))
+    out.sum().backward()
+    assert x.grad is not None and conv.weight.grad is not None
+    with torch.no_grad():  # other dtypes: torch's choice
+        assert torch.equal(conv.double()(x.double()), plain.double()(x.double()))
+
+
 def test_support_features_count_the_lines_through_each_vp():
     # a vertical segment (length 80) and a horizontal one (length 160), identity frame: VP 0 = x, VP 1 = y
     segments = torch.tensor([[[[50.0, 10.0], [50.0, 90.0]], [[20.0, 30.0], [180.0, 30.0]]]])

@@ -349,3 +349,25 @@ def test_calls_from_many_threads_at_once_get_the_segments_of_one_call():
     with ThreadPoolExecutor(8) as callers:
         found = list(callers.map(lambda _: detect_segments_gray(gray), range(16), timeout=120))
     assert all(np.array_equal(got, expected) for got in found)
+
+
+@pytest.mark.parametrize(
+    ("image", "settings"),
+    [
+        (np.dstack([_slanted_bar(480, 640, (100, 30), (260, 450))] * 3), SegmentSettings()),  # two strips
+        (np.dstack([_slanted_bar(480, 640, (100, 30), (260, 450))] * 3), _one_piece()),
+        (_rectangle(96, 128, 20, 60, 30, 90), SegmentSettings()),  # a tensor, too short for strips
+        (torch.zeros(0, 3, 96, 128), SegmentSettings()),  # an empty batch
+    ],
+)
+def test_a_job_given_to_line_detection_runs_once_and_changes_no_segment(image, settings):
+    # calibrate() converts a photo's pixels while its thread would wait for the last strip: that job runs exactly
+    # once however the lines are found, and the segments are those found without it
+    from ngp_kornia.pipeline.segments import line_workers
+
+    calls = []
+    with line_workers(2):
+        seg, mask = detect_segments(image, settings, meanwhile=lambda: calls.append(1))
+    plain, plain_mask = detect_segments(image, settings)
+    assert calls == [1]
+    assert torch.equal(seg, plain) and torch.equal(mask, plain_mask)

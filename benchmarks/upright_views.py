@@ -92,7 +92,8 @@ def combine(logits: torch.Tensor, views: list[tuple[int, bool]], how: str) -> to
 
 
 def per_photo(scores: torch.Tensor, temperature: float) -> tuple[torch.Tensor, torch.Tensor]:
-    """Per photo: the share of its four turns whose likeliest turn is right, and the mean NLL of the true turn."""
+    """Per photo, from (N, 4, >= 4) scores of its four turns: the share of its turns whose likeliest turn is right,
+    and the mean NLL of the true turn."""
     logp = torch.log_softmax(scores[..., :4] / temperature, -1)
     turns = torch.arange(4)
     right = (logp.argmax(-1) == turns).double().mean(1)
@@ -128,6 +129,7 @@ def main() -> None:
     ap.add_argument("--yud", help="York Urban DB folder (reported on, never chosen on)")
     ap.add_argument("--manifest", help="Eurasian Cities manifest.csv (reported on, never chosen on)")
     ap.add_argument("--weights", default="ngp_kornia/weights/upright.pt", help="an UprightNet weights file")
+    ap.add_argument("--against", help="pair against this network's single reading instead (its own temperature)")
     ap.add_argument("--cache", help="a file to keep the thumbnails in (read if it exists)")
     ap.add_argument("--json", help="write every figure here")
     args = ap.parse_args()
@@ -141,7 +143,8 @@ def main() -> None:
         if args.cache:
             torch.save(thumbs, args.cache)
     logits = {name: view_logits(net, t) for name, t in thumbs.items()}
-    methods = {"one": ("one", "log")} | {f"{v} {h}": (v, h) for v in ("turns4", "turns4+mirror") for h in ("log", "prob")}
+    methods = {"one": ("one", "log")}
+    methods |= {f"{v} {h}": (v, h) for v in ("turns4", "turns4+mirror") for h in ("log", "prob")}
     out = {"ms": {n: time_views(net, n) for n in (1, 4, 8)}, "sets": {}}
     print("ms per batched reading (1 thread):", {k: round(v, 3) for k, v in out["ms"].items()})
     temps = {}
@@ -149,14 +152,20 @@ def main() -> None:
         cal = combine(logits["calibrate"], VIEWS[v], h)
         temps[m] = fit_temperature(cal.reshape(-1, 5), torch.arange(4).repeat(len(cal)))
     out["temperature"] = temps
+    against = None if args.against is None else load_network(args.against, "UprightNet").eval()
     for name, lg in logits.items():
         base = per_photo(combine(lg, VIEWS["one"], "log"), temps["one"])
+        if against is not None:
+            base = per_photo(view_logits(against, thumbs[name])[:, :, 0, 0], against.temperature)
         rows = {}
         for m, (v, h) in methods.items():
             right, nll = per_photo(combine(lg, VIEWS[v], h), temps[m])
             rows[m] = {"accuracy": float(right.mean()), "nll": float(nll.mean()),
                        "accuracy vs one": paired(base[0], right), "nll vs one": paired(base[1], nll)}  # fmt: skip
         out["sets"][name] = rows
+        if against is not None:
+            right, nll = float(base[0].mean()), float(base[1].mean())
+            print(f"\n{name}: {args.against}, one reading: {100 * right:.1f}%, NLL {nll:.3f}")
         print(f"\n{name} ({len(lg)} photos)\n| method | T | turn right | NLL | paired turn right | paired NLL |")
         print("|---|---:|---:|---:|---|---|")
         for m, r in rows.items():

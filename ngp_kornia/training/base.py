@@ -8,9 +8,33 @@ import lightning as L
 import torch
 from torch import Tensor
 
+from ngp_kornia.errors import ConfigError
+from ngp_kornia.nets.weights import load_network, shipped_weights
 from ngp_kornia.training.scene_data import SceneBatch
 
-__all__ = ["NetworkModule"]
+__all__ = ["NetworkModule", "start_from"]
+
+
+def start_from(net: torch.nn.Module, init_weights: str, shipped: str) -> None:
+    """Copy a weights file of ``net``'s kind into ``net`` (fine-tuning), whose settings must be the file's.
+
+    Args:
+        net: the network to start.
+        init_weights: a weights file, or ``shipped`` for the shipped one.
+        shipped: the shipped weights' name (``"fsnet"``, ``"evidence"``).
+
+    Raises:
+        ConfigError: the file's network was built with other settings (they are named).
+    """
+    path = shipped_weights(shipped) if init_weights == shipped else init_weights
+    start = load_network(path, type(net).__name__)
+    theirs, ours = start.settings(), net.settings()
+    differ = sorted(k for k in {*theirs, *ours} if theirs.get(k) != ours.get(k))
+    if differ:
+        wanted = ", ".join(f"{k}={theirs.get(k)!r}" for k in differ)
+        kind = type(net).__name__
+        raise ConfigError(f"init_weights {init_weights}: its {kind} was built with {wanted}; give model.net these")
+    net.load_state_dict(start.state_dict())
 
 
 class NetworkModule(L.LightningModule):

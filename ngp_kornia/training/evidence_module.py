@@ -9,7 +9,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from ngp_kornia.nets.line_evidence import LineEvidenceNet
-from ngp_kornia.training.base import NetworkModule
+from ngp_kornia.training.base import NetworkModule, start_from
 from ngp_kornia.training.evidence_data import LineBatch
 
 __all__ = ["LineEvidenceModule", "evidence_figures", "structure_offset"]
@@ -78,6 +78,8 @@ class LineEvidenceModule(NetworkModule):
         keep: the weight at or above which a segment is kept.
         keep_share: after each validation, the network's structure offset is set so that this share of the
             validation set's structural segments gets a weight of at least ``keep`` (None: left as it is).
+        init_weights: start ``net`` from a line-evidence weights file of the same settings (fine-tuning), or
+            ``"evidence"`` for the shipped one; None: from its own initialisation.
     """
 
     #: bins of the histogram of validation logits the offset is read from (logits beyond the range fall in the
@@ -85,12 +87,14 @@ class LineEvidenceModule(NetworkModule):
     HISTOGRAM = (-30.0, 30.0, 60000)
 
     def __init__(self, net: LineEvidenceNet, lr: float = 3e-3, lr_step: int = 4, direction_weight: float = 0.5,
-                 keep: float = 0.1, keep_share: float | None = 0.97) -> None:
+                 keep: float = 0.1, keep_share: float | None = 0.97, init_weights: str | None = None) -> None:
         super().__init__()
         if keep_share is not None and not 0.0 < keep_share < 1.0:
             raise ValueError(f"keep_share must lie in (0, 1) or be None, got {keep_share}")
         self.save_hyperparameters(ignore=["net"])
         self.net = net
+        if init_weights is not None:
+            start_from(net, init_weights, "evidence")
         self._positives: Tensor | None = None
 
     def on_validation_epoch_start(self) -> None:

@@ -14,7 +14,6 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from ngp_kornia.errors import ConfigError
 from ngp_kornia.geometry.frames import FrameCandidates, select_frames, top_frames
 from ngp_kornia.metrics import frame_horizon_error, horizon_auc
 from ngp_kornia.nets.fsnet import FSNet
@@ -23,23 +22,11 @@ from ngp_kornia.nets.weights import load_network, shipped_weights
 from ngp_kornia.pipeline.evidence import apply_evidence
 from ngp_kornia.pipeline.parser import NeuralGeometricParser
 from ngp_kornia.pipeline.settings import ParserConfig
-from ngp_kornia.training.base import NetworkModule
+from ngp_kornia.training.base import NetworkModule, start_from
 from ngp_kornia.training.losses import frame_classification_loss, frame_labels
 from ngp_kornia.training.scene_data import SceneBatch
 
 __all__ = ["FSNetModule"]
-
-
-def _start_from(net: FSNet, init_weights: str) -> None:
-    """Copy an FSNet weights file (or ``"fsnet"``, the shipped one) into ``net``, whose settings must be the file's."""
-    path = shipped_weights("fsnet") if init_weights == "fsnet" else init_weights
-    start = load_network(path, "FSNet")
-    theirs, ours = start.settings(), net.settings()
-    differ = sorted(k for k in {*theirs, *ours} if theirs.get(k) != ours.get(k))
-    if differ:
-        wanted = ", ".join(f"{k}={theirs.get(k)!r}" for k in differ)
-        raise ConfigError(f"init_weights {init_weights}: its FSNet was built with {wanted}; give model.net these")
-    net.load_state_dict(start.state_dict())
 
 
 class FSNetModule(NetworkModule):
@@ -96,7 +83,7 @@ class FSNetModule(NetworkModule):
             evidence = load_network(path, "LineEvidenceNet").eval().requires_grad_(False)
         object.__setattr__(self, "evidence", evidence)  # not a submodule: neither trained nor saved
         if init_weights is not None:
-            _start_from(net, init_weights)
+            start_from(net, init_weights, "fsnet")
         if zsnet is None and zsnet_weights is not None:
             path = shipped_weights("zsnet") if zsnet_weights == "zsnet" else zsnet_weights
             zsnet = load_network(path, "ZSNet")

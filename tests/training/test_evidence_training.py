@@ -105,3 +105,23 @@ def test_a_render_without_its_object_map_is_refused():
 
     with pytest.raises(ValueError, match="objects=True"):
         label_render(render_scene(0, (160, 120)))
+
+
+def test_init_weights_start_from_the_shipped_evidence():
+    from ngp_kornia.nets.weights import shipped_weights
+
+    shipped = load_network(shipped_weights("evidence"), "LineEvidenceNet")
+    module = LineEvidenceModule(LineEvidenceNet(**shipped.settings()), init_weights="evidence")
+    for name, tensor in shipped.state_dict().items():
+        assert torch.equal(module.net.state_dict()[name], tensor)
+    fresh = LineEvidenceModule(LineEvidenceNet(**shipped.settings()))
+    assert not all(torch.equal(fresh.net.state_dict()[k], v) for k, v in shipped.state_dict().items())
+
+
+def test_init_weights_of_other_settings_is_one_clear_error():
+    from ngp_kornia.errors import ConfigError
+    from ngp_kornia.nets.weights import shipped_weights
+
+    width = load_network(shipped_weights("evidence"), "LineEvidenceNet").settings()["width"]
+    with pytest.raises(ConfigError, match="width"):
+        LineEvidenceModule(LineEvidenceNet(width=width + 8), init_weights="evidence")

@@ -68,3 +68,15 @@ def test_fast_dev_run(nyu, tmp_path, kind):
     trainer = L.Trainer(fast_dev_run=1, accelerator="cpu", logger=False, enable_progress_bar=False,
                         enable_model_summary=False, limit_val_batches=0)
     trainer.fit(module, dm)
+
+
+def test_renders_join_the_real_scenes_in_training_only(nyu, tmp_path):
+    dm = NYULinesDataModule(str(nyu), renders=2, cache_dir=str(tmp_path / "cache"), batch_size=2,
+                            render={"foliage": 0.8})
+    dm.setup("fit")
+    train = dm.datasets["train"]
+    assert len(train) == 3 + 2 and len(dm.datasets["val"]) == 0
+    rendered = train[4]  # after the real scenes; labelled from the render's object map
+    n = len(rendered.segments)
+    assert n > 0 and rendered.features.shape == (n, len(FEATURE_NAMES)) and rendered.direction.shape == (n,)
+    assert any((tmp_path / "cache").glob("lines-640x480-*"))  # the renders keep a cache of their own

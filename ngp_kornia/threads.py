@@ -15,7 +15,8 @@ count.
 Two more threads earn their place (BENCHMARKS.md): line detection runs LSD's strips side by side
 (:mod:`~ngp_kornia.pipeline.segments`), and a list of images (and ``ngp predict``) reads the next file and detects
 its lines while the parser works on the current one (:class:`Lookahead`). The parser also hands a few jobs of C
-code to a helper thread (:func:`beside`: FSNet's resized image, the orientation check). None changes a result.
+code to a helper thread (:func:`beside`: FSNet's resized image, the orientation check, FSNet's trunk beside the frame
+candidates). None changes a result.
 """
 
 from __future__ import annotations

@@ -165,6 +165,7 @@ class FrameSearch:
         height, width = images.shape[-2:]
         # one generator per image, each seeded alike: an image's answer does not depend on its batch or position
         generators = [torch.Generator().manual_seed(self.seed) for _ in range(len(images))]
+        image_side = self.image_side_beside(view)  # FSNet's trunk on the helper thread, beside the candidates
         # the segments' lines and lengths serve the scores, FSNet's inputs and the trust fields: computed once
         pseudo = pseudo_lines(segments, mask, height, width)
         if weights is not None:
@@ -172,7 +173,9 @@ class FrameSearch:
         found = self.candidates(pseudo, mask, (height, width), generators, priors)
         frames, scores, index, s_vh = found.frames, found.manhattan, None, None
         if self.fsnet is not None:
-            frames, scores, index, s_vh = self.rescore(images, segments, mask, frames, scores, pseudo[1], view.resized)
+            frames, scores, index, s_vh = self.rescore(
+                images, segments, mask, frames, scores, pseudo[1], view.resized, image_side
+            )
         known = priors.focal_units(height, width, like=pseudo[1])
         result, top_k_weights = topk_calibration(frames, scores, height, width, cfg.scoring, known)
         result = self._refined(result, view, priors, frames, scores, SharedInputs(*pseudo[1:], top_k_weights), trust)
@@ -249,10 +252,12 @@ class FrameSearch:
         manhattan: Tensor,
         lines: Tensor | None = None,
         resized: Callable[[], Tensor] | None = None,
+        image_side: Callable[[], tuple[FSNetImageInputs, tuple | None]] | None = None,
     ) -> tuple[FrameCandidates, Tensor, Tensor, Tensor]:
         """Keep the best ``num_scored`` frames by Manhattan score and score them with FSNet: ``s_vh * m_i`` (Eq. 22),
         or ``s_vh`` alone without ``use_manhattan``. ``lines``: the segments' pseudo-camera lines when already
-        computed; ``resized``: as :attr:`View.resized`.
+        computed; ``resized``: as :attr:`View.resized`; ``image_side``: gives :meth:`fsnet_image_side`'s result
+        when it is computed elsewhere (:meth:`image_side_beside`).
 
         Returns:
             the kept frames, their (B, K) scores, their (B, K) indices into ``frames`` and FSNet's (B, K) ``s_vh``.
@@ -263,7 +268,10 @@ class FrameSearch:
         # FSNet runs in its own dtype (float32 weights on a float64 image, say): lines in another dtype are redone
         dtype = next(self.fsnet.parameters()).dtype
         lines = lines if lines is not None and lines.dtype == dtype else None
-        image_inputs, context = self.fsnet_image_side(images, segments, mask, resized)
+        if image_side is None:
+            image_inputs, context = self.fsnet_image_side(images, segments, mask, resized)
+        else:
+            image_inputs, context = image_side()
         inputs = self.fsnet.prepare_inputs(images.to(dtype), segments.to(dtype), mask, frames, lines, image_inputs)
         s_vh = torch.sigmoid(self.fsnet(*inputs, context=context)).to(manhattan)
         return frames, frame_scores(s_vh, manhattan, frames.valid, cfg.use_manhattan), index, s_vh
@@ -289,6 +297,21 @@ class FrameSearch:
             return None
         dtype = next(self.fsnet.parameters()).dtype
         return beside(self.fsnet.input_images, images.to(dtype))
+
+    def image_side_beside(self, view: View) -> Callable[[], tuple[FSNetImageInputs, tuple | None]] | None:
+        """:meth:`fsnet_image_side` of the view started on the helper thread (:func:`~ngp_kornia.threads.beside`),
+        where it runs beside the candidates: it needs no frame, and its trunk's convolutions are C code that
+        releases the GIL. Only where the search has FSNet, a second core is free and no gradient is recorded (the
+        helper thread keeps the caller's grad mode only in that case); else None."""
+        if self.fsnet is None or torch.is_grad_enabled() or strip_threads(2) < 2:
+            return None
+        inference = torch.is_inference_mode_enabled()
+
+        def side() -> tuple[FSNetImageInputs, tuple | None]:
+            with torch.inference_mode(inference), torch.no_grad():
+                return self.fsnet_image_side(view.images, view.segments, view.mask, view.resized)
+
+        return beside(side)
 
     def zenith_weights(self, lines_z: Tensor, lines_z_ok: Tensor, zenith: Tensor, zenith_ok: Tensor) -> Tensor:
         """Weights of the zenith candidates: the ZSNet score p_z on Z_c (p_z > delta_c, Eq. 12) and zero elsewhere;

@@ -84,22 +84,29 @@ def test_no_grad_inference_keeps_no_graph(scene):
 
 
 
-def test_fsnet_image_resized_on_the_helper_thread_gives_the_same_answer(scene, monkeypatch):
-    # with a second core, FSNet's resized image is made on the helper thread while the frames are searched; the
-    # answer is the one the search gives resizing it itself (one core), and a gradient asked for keeps it inline
+def test_fsnet_image_side_on_the_helper_thread_gives_the_same_answer(scene, monkeypatch):
+    # with a second core, FSNet's resized image and then its trunk's output are made on the helper thread while the
+    # frames are searched; the answer is the one the search gives computing them itself (one core), and a gradient
+    # asked for keeps them inline
     import ngp_kornia.pipeline.frame_search as frame_search
     from ngp_kornia.pipeline.segments import line_workers
 
     image, segments, mask = scene
     parser = NeuralGeometricParser(fsnet=tiny_fsnet())
+    with torch.inference_mode(), line_workers(2):
+        threaded = parser(image, segments, mask)  # the real helper thread
     started = []
     monkeypatch.setattr(frame_search, "beside", lambda fn, *args: started.append(fn) or (lambda: fn(*args)))
     with torch.inference_mode(), line_workers(2):
         beside = parser(image, segments, mask)
+    assert len(started) == 2 and started[0] == parser.fsnet.input_images  # the resize, then the image side
     with torch.inference_mode(), line_workers(1):
         inline = parser(image, segments, mask)
-    assert started == [parser.fsnet.input_images]  # the second call, on one core, started nothing
+    assert len(started) == 2  # the call on one core started nothing
     for field in ("K", "R", "horizon", "confidence"):
         assert torch.equal(getattr(beside, field), getattr(inline, field))
+        assert torch.equal(getattr(threaded, field), getattr(inline, field))
     with line_workers(2):
         assert parser._search().resize_beside(image.clone().requires_grad_()) is None
+        view = frame_search.View(image, segments, mask)
+        assert parser._search().image_side_beside(view) is None  # gradients on: the trunk runs in the search

@@ -33,6 +33,7 @@ import torch
 from ngp_kornia.api import calibrate
 from ngp_kornia.data.photo_split import split_photos
 from ngp_kornia.evaluation.datasets import load_manifest, load_yud
+from ngp_kornia.evaluation.methods import weights_and_config
 from ngp_kornia.io import read_image_file
 from ngp_kornia.metrics import roll_error
 from ngp_kornia.pipeline import ParserConfig
@@ -70,7 +71,7 @@ def turned_rows(photos: list[tuple[str, str, float | None]], parser, seeds: list
         for seed in seeds:
             roll = truth
             for turns in range(4):
-                out = calibrate(np.ascontiguousarray(np.rot90(rgb, turns)), parser, seed=seed)
+                out = calibrate(np.ascontiguousarray(np.rot90(rgb, turns)), parser[0], config=parser[1], seed=seed)
                 if roll is None:  # no truth: the upright answer's roll stands in
                     roll = float(out.roll)
                 want = torch.tensor([roll - 90.0 * turns], dtype=torch.float64)
@@ -84,7 +85,7 @@ def structureless_rows(count: int, parser) -> list[dict]:
     rows = []
     for i in range(count):
         kind = KINDS[i % len(KINDS)]
-        out = calibrate(structureless_image(STRUCTURELESS_SEED + i, (640, 480), kind), parser)
+        out = calibrate(structureless_image(STRUCTURELESS_SEED + i, (640, 480), kind), parser[0], config=parser[1])
         rows.append({"kind": kind, "confidence": float(out.confidence), "valid": bool(out.valid),
                      "upright": _upright(out)})
     return rows
@@ -118,12 +119,13 @@ def main() -> None:
     ap.add_argument("--yud", help="York Urban DB folder")
     ap.add_argument("--manifest", help="a CSV manifest with true horizons (Eurasian Cities)")
     ap.add_argument("--photos", help="a folder of upright photos: its held-back test part")
-    ap.add_argument("--weights", default="default")
+    ap.add_argument("--weights", default="default", help="a weight set, with settings as the development suite "
+                    "takes them (default:upright.lines=false)")
     ap.add_argument("--seeds", default="0", help="comma-separated seeds of the turned photos")
     ap.add_argument("--structureless", type=int, default=200, help="structure-free images (0: none)")
     ap.add_argument("--json", help="write the rows here")
     args = ap.parse_args()
-    parser = args.weights  # loaded once, then shared by every call
+    parser = weights_and_config(args.weights)  # loaded once, then shared by every call
     out = {}
     doubt = ParserConfig().upright.doubt
     for title, photos in photo_sets(args).items():

@@ -34,6 +34,8 @@ from torch import Tensor, nn
 from upright_calibration import decisions
 from upright_views import paired, per_photo
 
+from ngp_kornia.nets.upright_lines import UprightLinesNet
+from ngp_kornia.nets.weights import save_network
 from ngp_kornia.pipeline.segments import pad_segments
 from ngp_kornia.training.upright_calibration import fit_temperature
 
@@ -254,7 +256,7 @@ def fit_fusion(a: Tensor, b: Tensor, y: Tensor) -> tuple[float, float]:
         return loss
 
     opt.step(closure)
-    return float(w[0]), float(w[1])
+    return float(w[0].detach()), float(w[1].detach())
 
 
 def check_decisions(shipped: Tensor, fused: Tensor, prior: float = 0.75) -> dict:
@@ -296,6 +298,9 @@ def main() -> None:
     ap.add_argument("--json")
     ap.add_argument("--save", help="save the chosen MLP reader's state here")
     ap.add_argument("--load", help="comma-separated saved reader states: read by the mean of their logits, no training")
+    ap.add_argument("--export", help="with --load: write the readers, their temperature and the fusion weights fitted "
+                                     "on the calibrate part as an UprightLinesNet weights file (the shipped one: "
+                                     "ngp_kornia/weights/upright_lines.pt)")
     args = ap.parse_args()
     torch.set_num_threads(1)
     cache = torch.load(args.cache, weights_only=False)
@@ -316,7 +321,10 @@ def main() -> None:
         mlp = Ensemble(nets)
         with torch.no_grad():
             readers["ensemble"] = (mlp, float(F.cross_entropy(mlp(cal[0], cal[1]), cal[2])))
-        return evaluate(args, cache, sets, evals, readers, mlp, [])
+        choice = evaluate(args, cache, sets, evals, readers, mlp, [])
+        if args.export:
+            export(nets, choice["ensemble"], args)
+        return None
     for decay in (1e-4, 1e-3, 1e-2):
         lr = fit_logistic(histogram(train[0], train[1]), train[2], decay)
         nll = float(F.cross_entropy(lr(histogram(cal[0], cal[1])), cal[2]))
@@ -333,7 +341,7 @@ def main() -> None:
     evaluate(args, cache, sets, evals, readers, mlp, curve)
 
 
-def evaluate(args, cache, sets, evals, readers, mlp, curve) -> None:
+def evaluate(args, cache, sets, evals, readers, mlp, curve) -> dict:
     out = {"curve": curve, "sets": {}, "choice": {}}
     with torch.no_grad():
         for rname, (reader, _) in readers.items():
@@ -359,6 +367,7 @@ def evaluate(args, cache, sets, evals, readers, mlp, curve) -> None:
                 out["sets"].setdefault(rname, {})[s] = report(f"{rname} / {s} ({len(lines[s])})", rows, base)
                 if s in shipped:
                     out["sets"][rname][s]["decisions"] = check_decisions(shipped[s], u * shipped[s] + v * lines[s])
+            out["sets"][rname]["pooled"] = pooled(shipped, {s: u * shipped[s] + v * lines[s] for s in shipped})
         f, m = evals["yud"][0][:1], evals["yud"][1][:1]
         t0 = time.perf_counter()
         for _ in range(200):
@@ -367,6 +376,31 @@ def evaluate(args, cache, sets, evals, readers, mlp, curve) -> None:
         print(f"\nMLP reader: {out['ms_mlp_512']:.3f} ms per photo of {int(m.sum())} segments (features cached)")
     if args.json:
         Path(args.json).write_text(json.dumps(out, indent=1))
+    return out["choice"]
+
+
+def pooled(shipped: dict, fused: dict) -> dict:
+    """The fusion's turn-right gain over the shipped network, paired per photo and pooled over every set with the
+    network's reading (the project's rule: the interval, and each set's halves, which :func:`report` prints)."""
+    base = torch.cat([per_photo(shipped[s], 1.0)[0] for s in shipped])
+    gain = paired(base, torch.cat([per_photo(fused[s], 1.0)[0] for s in shipped]))
+    print(f"\npooled over {', '.join(shipped)} ({len(base)} photos): fusion turn right {100 * gain['mean']:+.1f} "
+          f"({100 * gain['lo']:+.1f}..{100 * gain['hi']:+.1f})")
+    return gain
+
+
+def export(nets: list[nn.Module], choice: dict, args) -> None:
+    """The readers with their temperature and fusion weights as an :class:`UprightLinesNet` weights file."""
+    net = UprightLinesNet(width=args.width, members=len(nets))
+    for member, reader in zip(net.readers, nets, strict=True):
+        member.load_state_dict(reader.state_dict())
+    net.temperature.fill_(choice["temperature"])
+    net.fusion.copy_(torch.tensor(choice["fusion"]))
+    metadata = {"command": "python benchmarks/upright_lines.py --load " + args.load + " --export " + args.export,
+                "data": "RealPhotos train part, four turns and mirrors; temperature and fusion fitted on its "
+                        "calibrate part", "date": time.strftime("%Y-%m-%d", time.gmtime())}  # fmt: skip
+    save_network(net, args.export, net.settings(), metadata)
+    print(f"wrote {args.export}")
 
 
 if __name__ == "__main__":

@@ -19,6 +19,7 @@ from ngp_kornia.io.files import open_file
 from ngp_kornia.nets.fsnet import FSNet
 from ngp_kornia.nets.line_evidence import LineEvidenceNet
 from ngp_kornia.nets.upright import UprightNet
+from ngp_kornia.nets.upright_lines import UprightLinesNet
 from ngp_kornia.nets.zsnet import ZSNet
 
 __all__ = [
@@ -42,7 +43,8 @@ MAX_INFLATION = 16
 WEIGHTS_DIR = Path(__file__).resolve().parent.parent / "weights"
 #: the networks a weights file may hold, by name
 NETWORKS: dict[str, type[nn.Module]] = {
-    "FSNet": FSNet, "LineEvidenceNet": LineEvidenceNet, "UprightNet": UprightNet, "ZSNet": ZSNet
+    "FSNet": FSNet, "LineEvidenceNet": LineEvidenceNet, "UprightNet": UprightNet, "UprightLinesNet": UprightLinesNet,
+    "ZSNet": ZSNet,
 }
 
 

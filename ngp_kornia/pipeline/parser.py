@@ -13,7 +13,7 @@ FSNet, gradients flow from the outputs to FSNet's parameters and to the image's 
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
 import torch
@@ -30,7 +30,14 @@ from ngp_kornia.pipeline.result import Calibration
 from ngp_kornia.pipeline.segments import detect_segments
 from ngp_kornia.pipeline.settings import ParserConfig
 from ngp_kornia.pipeline.trace import ParserTrace
-from ngp_kornia.pipeline.upright_check import apply_upright, read_beside, weigh_by_pitch
+from ngp_kornia.pipeline.upright_check import (
+    apply_upright,
+    fuse_line_reading,
+    read_beside,
+    read_lines_beside,
+    weigh_by_pitch,
+    with_prior,
+)
 from ngp_kornia.pipeline.weight_sets import check_weights, checked_config, network_roles, weight_set_config
 
 __all__ = ["NeuralGeometricParser", "ParserConfig", "checked_segments"]
@@ -64,6 +71,9 @@ class NeuralGeometricParser(nn.Module):
         upright: a :class:`~ngp_kornia.nets.upright.UprightNet`, the orientation and structure check that scales
             the confidence (:mod:`ngp_kornia.pipeline.upright_check`); None leaves the confidence to the lines alone.
             :meth:`from_pretrained` gives every weight set the shipped one.
+        upright_lines: a :class:`~ngp_kornia.nets.upright_lines.UprightLinesNet` that reads the turn from the
+            detected segments, its reading fused with ``upright``'s (``UprightSettings.lines``); None: ``upright``'s
+            reading alone. :meth:`from_pretrained` gives every weight set the shipped one.
 
     The bare constructor gives the geometric path without networks; :meth:`from_pretrained` the trained parser.
 
@@ -81,6 +91,7 @@ class NeuralGeometricParser(nn.Module):
         fsnet: nn.Module | None = None,
         evidence: nn.Module | None = None,
         upright: nn.Module | None = None,
+        upright_lines: nn.Module | None = None,
     ) -> None:
         super().__init__()
         self.config = checked_config(config)
@@ -88,6 +99,7 @@ class NeuralGeometricParser(nn.Module):
         self.fsnet = fsnet
         self.evidence = evidence
         self.upright = upright
+        self.upright_lines = upright_lines
 
     @classmethod
     def from_pretrained(
@@ -166,9 +178,11 @@ class NeuralGeometricParser(nn.Module):
             out = self.forward(images.float(), low, mask, seed=seed, priors=priors, return_trace=return_trace)
             return (out[0].to(images.dtype), out[1]) if return_trace else out.to(images.dtype)
         resized, reading = self._search().resize_beside(images), None  # on a second core meanwhile, where free
-        if self.upright is not None and self.config.upright.enabled:
-            reading = read_beside(self.upright, images, self.config.upright.prior)
+        if self.upright is not None and self.config.upright.enabled:  # a flat prior where the lines' reading joins
+            reading = read_beside(self.upright, images, 0.25 if self._fuses_lines else self.config.upright.prior)
         segments, detected = self._segments(images, segments, mask)
+        lines = read_lines_beside(self.upright_lines, segments, detected, images.shape[-2:]) if (
+            reading is not None and self._fuses_lines) else None  # fmt: skip
         evidence, mask = None, detected
         if self.evidence is not None and self.config.evidence.enabled:
             evidence, mask = apply_evidence(self.evidence, images, segments, detected, self.config.evidence.keep)
@@ -177,7 +191,7 @@ class NeuralGeometricParser(nn.Module):
         found = calibrate_camera_model(self._search(seed), view, priors)
         result = found.result
         if reading is not None:
-            result = self._check_upright(result, reading())
+            result = self._check_upright(result, reading(), lines)
         return (result, _trace(found, view, detected, evidence)) if return_trace else result
 
     @property
@@ -192,9 +206,16 @@ class NeuralGeometricParser(nn.Module):
         """The stages after the line evidence, with this parser's settings and networks (frame_search.py)."""
         return FrameSearch(self.config, self.zsnet, self.fsnet, seed)
 
-    def _check_upright(self, result: Calibration, probs: Tensor) -> Calibration:
-        """The orientation and structure check's reading applied to the answer (pipeline/upright_check.py)."""
+    @property
+    def _fuses_lines(self) -> bool:
+        return self.upright_lines is not None and self.config.upright.lines
+
+    def _check_upright(self, result: Calibration, probs: Tensor, lines: Callable[[], Tensor] | None) -> Calibration:
+        """The orientation and structure check's reading (fused with the lines' where given, then weighed by the
+        prior) applied to the answer (pipeline/upright_check.py)."""
         check = self.config.upright
+        if lines is not None:
+            probs = with_prior(fuse_line_reading(self.upright_lines, probs, lines()), check.prior)
         if check.pitch_spread > 0:  # a steep answer is likelier that of a photo turned by a quarter
             probs = weigh_by_pitch(probs, result.pitch, check.pitch_spread)
         return apply_upright(result, probs, check.sure, check.turn_back, self.config.scoring.fallback_fov, check.doubt)

@@ -124,18 +124,17 @@ class UprightSettings:
     Attributes:
         enabled: report the image's turn and the probability that it is upright and shows man-made structure, and
             lower the confidence where it is doubted (every weight set of :func:`ngp_kornia.calibrate` has it).
-        prior: the share of photos with structure that are handed over upright, before their appearance is seen
-            (the network's probabilities are calibrated for the four turns equally often; they are weighed by this
-            prior, so an unsure reading leans to upright, as most photos are).
+        prior: the share of photos with structure handed over upright (the readings, calibrated for the four turns
+            equally often, are weighed by it: an unsure reading leans to upright, as most photos are).
         sure: the probability one turn needs to be reported (``turned``; below it 0).
         doubt: the upright probability below which the confidence is multiplied by ``upright / doubt``, ``ngp
             calibrate`` warns and ``ngp rectify`` refuses the photo.
-        pitch_spread: how far from level, in degrees, photos are taken: the answered pitch as a further cue, since a
-            photo turned by 90 or 270 degrees is answered with a steep pitch (0: the pitch is not used).
-        turn_back: where a turn is reported, answer the camera of the turned photo (the frame's axis that turn
-            puts up taken as up, so the roll is the turned camera's, beyond 45 degrees) with the confidence
-            multiplied by that turn's probability, instead of the upright camera's answer with its confidence
-            multiplied by ``upright`` (:func:`ngp_kornia.pipeline.upright_check.turned_answer`).
+        pitch_spread: how far from level, in degrees, photos are taken: the answered pitch as a further cue (a photo
+            turned a quarter is answered with a steep pitch; 0: not used).
+        lines: fuse the turn read from the detected segments (where the parser has an ``UprightLinesNet``).
+        turn_back: where a turn is reported, answer the camera of the turned photo (its roll beyond 45 degrees)
+            with the confidence times that turn's probability, not the upright camera's with the confidence times
+            ``upright`` (:func:`ngp_kornia.pipeline.upright_check.turned_answer`).
     """
 
     enabled: bool = _flag(True)
@@ -144,6 +143,7 @@ class UprightSettings:
     doubt: float = _number(0.5, 0.0, 1.0)
     pitch_spread: float = _number(15.0, 0.0, 90.0)
     turn_back: bool = _flag(True)
+    lines: bool = _flag(True)
 
     def __post_init__(self) -> None:
         check_settings(self)

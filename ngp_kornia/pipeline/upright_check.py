@@ -1,15 +1,17 @@
 """The orientation and structure check: how likely the image is the right way up and shows man-made structure.
 
-Every answer of the parser assumes the photo is upright (its roll within about 45 degrees): the frame's axis closest
-to the image's vertical is taken as up. A photo turned by 90 or 180 degrees without an orientation tag breaks that
-assumption, and its lines cannot show it: they fit a camera rolled by 90 or 180 degrees exactly as well. An image
-with no structure (noise, clouds, foliage) gives lines that support no camera at all. The
+Every answer of the parser assumes the photo is upright (its roll within about 45 degrees): the frame's axis closest to
+the image's vertical is taken as up. A photo turned by 90 or 180 degrees without an orientation tag breaks that
+assumption, and its lines cannot show it: they fit a camera rolled by 90 or 180 degrees exactly as well. An image with
+no structure (noise, clouds, foliage) gives lines that support no camera at all. The
 :class:`~ngp_kornia.nets.upright.UprightNet` reads the image's appearance and says how likely each case is (its
-probabilities calibrated on real photos held back from its training); the answer's confidence, the probability that
-it is right, is multiplied by the probability that the assumption holds (an answer for the wrong way up is never
-right). Where the check is sure of one turn, the answer reports it and is turned (:func:`turned_answer`): the frame
-the lines found is the same whichever way the photo is held, only which of its axes is up changes, so the camera of
-the turned photo is the one whose up axis that turn points up.
+probabilities calibrated on real photos held back from its training), and where given an
+:class:`~ngp_kornia.nets.upright_lines.UprightLinesNet` reads the turn from the detected segments, its reading fused
+with the network's (:func:`fuse_line_reading`) before the prior is applied (:func:`with_prior`); the answer's
+confidence, the probability that it is right, is multiplied by the probability that the assumption holds (an answer for
+the wrong way up is never right). Where the check is sure of one turn, the answer reports it and is turned
+(:func:`turned_answer`): the frame the lines found is the same whichever way the photo is held, only which of its axes
+is up changes, so the camera of the turned photo is the one whose up axis that turn points up.
 """
 
 from __future__ import annotations
@@ -26,7 +28,16 @@ from ngp_kornia.pipeline.result import Calibration
 from ngp_kornia.pipeline.segments import strip_threads
 from ngp_kornia.threads import beside
 
-__all__ = ["apply_upright", "read_beside", "turned_answer", "upright_probabilities", "weigh_by_pitch"]
+__all__ = [
+    "apply_upright",
+    "fuse_line_reading",
+    "read_beside",
+    "read_lines_beside",
+    "turned_answer",
+    "upright_probabilities",
+    "weigh_by_pitch",
+    "with_prior",
+]
 
 
 def upright_probabilities(net: nn.Module, images: Tensor, prior: float = 0.5) -> Tensor:
@@ -44,10 +55,50 @@ def upright_probabilities(net: nn.Module, images: Tensor, prior: float = 0.5) ->
         True
     """
     with torch.no_grad():
-        probs = net.probabilities(images.detach())
-        turns = probs.new_tensor([prior, *([(1.0 - prior) / 3] * 3)]) * 4.0
-        weighed = torch.cat([probs[:, :4] * turns, probs[:, 4:]], -1)
-        return weighed / weighed.sum(-1, keepdim=True)
+        return with_prior(net.probabilities(images.detach()), prior)
+
+
+def with_prior(probs: Tensor, prior: float) -> Tensor:
+    """(B, 5) probabilities read for the four turns equally often, moved to ``prior``, the share of upright photos
+    among those with structure (Bayes' rule, as :func:`upright_probabilities` says).
+
+    Example:
+        >>> with_prior(torch.tensor([[0.2, 0.2, 0.2, 0.2, 0.2]]), 0.75)[0].tolist()
+        [0.6000000238418579, 0.06666667014360428, 0.06666667014360428, 0.06666667014360428, 0.20000000298023224]
+    """
+    turns = probs.new_tensor([prior, *([(1.0 - prior) / 3] * 3)]) * 4.0
+    weighed = torch.cat([probs[:, :4] * turns, probs[:, 4:]], -1)
+    return weighed / weighed.sum(-1, keepdim=True)
+
+
+def read_lines_beside(net: nn.Module, segments: Tensor, mask: Tensor, size: tuple[int, int]) -> Callable[[], Tensor]:
+    """Start the :class:`~ngp_kornia.nets.upright_lines.UprightLinesNet` reading (B, 4) of the detected segments
+    (B, N, 2, 2) of images of ``size`` (H, W) on the helper thread where the call may use two cores, and return
+    the function that gives it (the same computation either way)."""
+
+    def read() -> Tensor:
+        with torch.no_grad():
+            return net(segments.detach(), mask, *size)
+
+    return read if strip_threads(2) < 2 else beside(read)
+
+
+def fuse_line_reading(net: nn.Module, probs: Tensor, lines: Tensor) -> Tensor:
+    """(B, 5) probabilities: the network's (B, 5) reading at a flat prior with its four turns fused with the lines'
+    (B, 4) log-probabilities (:meth:`~ngp_kornia.nets.upright_lines.UprightLinesNet.fuse`); the structure-free
+    reading kept as it is.
+
+    Example:
+        >>> from ngp_kornia.nets.upright_lines import UprightLinesNet
+        >>> flat = torch.full((1, 4), -1.3862943611198906)
+        >>> fused = fuse_line_reading(UprightLinesNet(4, 1), torch.tensor([[0.5, 0.1, 0.1, 0.1, 0.2]]), flat)
+        >>> [round(p, 4) for p in fused[0].tolist()]
+        [0.5, 0.1, 0.1, 0.1, 0.2]
+    """
+    structured = probs[:, :4].sum(-1, keepdim=True)
+    with torch.no_grad():
+        fused = net.fuse(probs[:, :4], lines).to(probs) * structured
+    return torch.cat([fused, probs[:, 4:]], -1)
 
 
 def read_beside(net: nn.Module, images: Tensor, prior: float) -> Callable[[], Tensor]:

@@ -39,9 +39,12 @@ DEFAULT_SETTINGS = {"evidence.enabled": True}
 #: the shipped networks each named weight set uses
 _NAMED = {"none": (), "zsnet": ("zsnet",), "fsnet": ("fsnet",), "full": ("zsnet", "fsnet")}
 #: the networks every weight set has (the line evidence, the orientation and structure check), by shipped file
-_ALWAYS = {"LineEvidenceNet": "evidence", "UprightNet": "upright"}
+_ALWAYS = {"LineEvidenceNet": "evidence", "UprightNet": "upright", "UprightLinesNet": "upright_lines"}
 #: the parser's argument of each network
-_ROLES = {"ZSNet": "zsnet", "FSNet": "fsnet", "LineEvidenceNet": "evidence", "UprightNet": "upright"}
+_ROLES = {
+    "ZSNet": "zsnet", "FSNet": "fsnet", "LineEvidenceNet": "evidence", "UprightNet": "upright",
+    "UprightLinesNet": "upright_lines",
+}
 
 #: said where a network (a parser, say) is passed as a weight set
 _PARSER_HINT = (
@@ -66,7 +69,7 @@ def check_weights(weights: object) -> list[nn.Module]:
 
     Example:
         >>> sorted(type(net).__name__ for net in check_weights("zsnet"))
-        ['LineEvidenceNet', 'UprightNet', 'ZSNet']
+        ['LineEvidenceNet', 'UprightLinesNet', 'UprightNet', 'ZSNet']
     """
     if weights is None or not isinstance(weights, (str, Path, list, tuple)):
         raise ValueError(
@@ -100,11 +103,12 @@ def check_weights(weights: object) -> list[nn.Module]:
 
 def network_roles(nets: list[nn.Module], copy: bool = True) -> dict[str, nn.Module]:
     """The networks of :func:`check_weights` by the parser's argument for each (``zsnet``, ``fsnet``, ``evidence``,
-    ``upright``); with ``copy``, the caller's own copies (training or moving them leaves the shared ones alone).
+    ``upright``, ``upright_lines``); with ``copy``, the caller's own copies (training or moving them leaves the shared
+    ones alone).
 
     Example:
         >>> sorted(network_roles(check_weights("none"), copy=False))
-        ['evidence', 'upright']
+        ['evidence', 'upright', 'upright_lines']
     """
     return {_ROLES[type(net).__name__]: deepcopy(net) if copy else net for net in nets}
 

@@ -9,11 +9,12 @@ import torch
 from torch.autograd import gradcheck
 
 import ngp_kornia.nets as nets_room
-from ngp_kornia.nets import fsnet_inputs, line_evidence, line_features, resnet, upright, zsnet
+from ngp_kornia.nets import fsnet_inputs, line_evidence, line_features, resnet, upright, upright_lines, zsnet
 from ngp_kornia.nets.fsnet import FSNet
 from ngp_kornia.nets.line_evidence import LineEvidenceNet
 from ngp_kornia.nets.resnet import ResNet
 from ngp_kornia.nets.upright import UprightNet
+from ngp_kornia.nets.upright_lines import UprightLinesNet
 from ngp_kornia.nets.zsnet import ZSNet
 from tests.rooms import check_output, inputs, public_functions, tensors
 
@@ -79,6 +80,9 @@ CASES = {
     "resnet.make_norm": (lambda x: resnet.make_norm("batch", 3).to(x.device, x.dtype).eval()(x.images), {}),
     "upright.thumbnail": (  # the orientation network's input: float32 whatever the images' dtype
         lambda x: upright.thumbnail(x.images, 32), {"float_dtype": torch.float32, "tol": 1e-6}),
+    "upright_lines.line_turn_features": (
+        lambda x: upright_lines.line_turn_features(x.segments, x.mask, x.height, x.width), {}),
+    "upright_lines.turn_segments": (lambda x: upright_lines.turn_segments(x.segments, x.height, x.width, 3)[0], {}),
     "zsnet.canonical_homogeneous": (lambda x: zsnet.canonical_homogeneous(x.trace.zenith_candidates, 1), {}),
     "zsnet.zenith_estimate": (
         lambda x: zsnet.zenith_estimate(x.trace.zenith_candidates, x.trace.zenith_weights), {}),
@@ -93,6 +97,8 @@ CASES = {
         lambda x: _net(LineEvidenceNet, x, width=8, context=4)(x.images, x.segments, x.mask), {"tol": 1e-2}),
     "UprightNet.forward": (
         lambda x: _net(UprightNet, x, size=32, width=4)(upright.thumbnail(x.images, 32).to(x.dtype)), {"tol": 1e-3}),
+    "UprightLinesNet.forward": (
+        lambda x: _net(UprightLinesNet, x, width=8, members=2)(x.segments, x.mask, x.height, x.width), {"tol": 1e-3}),
     "ResNet.forward": (
         lambda x: _net(ResNet, x, widths=(4, 8), depths=(1, 1))(x.images[:, :, :64, :64]), {"tol": 1e-3}),
 }  # fmt: skip

@@ -17,6 +17,7 @@ import ngp_kornia.pipeline as pipeline_room
 from ngp_kornia.geometry import FrameCandidates, coefficient_from_pseudo, coefficient_to_pseudo
 from ngp_kornia.nets.line_evidence import LineEvidenceNet
 from ngp_kornia.nets.upright import UprightNet
+from ngp_kornia.nets.upright_lines import UprightLinesNet
 from ngp_kornia.pipeline import (
     answer,
     camera_export,
@@ -54,6 +55,11 @@ ESTIMATES = Priors(principal_point="estimate", k1="estimate")
 def _upright_net(x):
     torch.manual_seed(0)
     return UprightNet(size=32, width=4).to(x.device).eval()
+
+
+def _lines_net(x):
+    torch.manual_seed(0)
+    return UprightLinesNet(width=8, members=2).to(x.device).eval()
 
 
 def _evidence_net(x):
@@ -290,6 +296,14 @@ CASES = {
     "upright_check.read_beside": (  # the orientation network reads a float32 thumbnail, whatever the image's dtype
         lambda x: upright_check.read_beside(_upright_net(x), x.images, 0.5)(),
         {"tol": 1e-4, "float_dtype": torch.float32}),
+    "upright_check.fuse_line_reading": (
+        lambda x: upright_check.fuse_line_reading(_lines_net(x), torch.tensor([[0.5, 0.2, 0.1, 0.1, 0.1]] * 2).to(
+            x.cal.K), torch.log(torch.tensor([[0.1, 0.6, 0.2, 0.1]] * 2)).to(x.cal.K)), {}),
+    "upright_check.read_lines_beside": (  # the reader runs in its own dtype, float32, whatever the segments'
+        lambda x: upright_check.read_lines_beside(_lines_net(x), x.segments, x.mask, (x.height, x.width))(),
+        {"tol": 1e-4, "float_dtype": torch.float32}),
+    "upright_check.with_prior": (
+        lambda x: upright_check.with_prior(torch.tensor([[0.4, 0.3, 0.1, 0.1, 0.1]] * 2).to(x.cal.K), 0.75), {}),
     "upright_check.turned_answer": (
         lambda x: upright_check.turned_answer(x.cal, torch.tensor([1, 2], device=x.device),
                                               torch.tensor([True, False], device=x.device)), {}),

@@ -59,8 +59,8 @@ def photo_sets(args: argparse.Namespace) -> dict[str, list[tuple[str, str, float
     if args.manifest:
         sets["Eurasian Cities"] = [(x.name, str(x.image_path), x.roll) for x in load_manifest(args.manifest)]
     if args.photos:
-        names = split_photos(args.photos, "test")
-        sets["RealPhotos test part"] = [(n, f"{args.photos}/{n}", None) for n in names]
+        names = split_photos(args.photos, args.part)
+        sets[f"RealPhotos {args.part} part"] = [(n, f"{args.photos}/{n}", None) for n in names]
     return sets
 
 
@@ -119,6 +119,7 @@ def main() -> None:
     ap.add_argument("--yud", help="York Urban DB folder")
     ap.add_argument("--manifest", help="a CSV manifest with true horizons (Eurasian Cities)")
     ap.add_argument("--photos", help="a folder of upright photos: its held-back test part")
+    ap.add_argument("--part", default="test", help="the photo folder's part (photo_split: test, calibrate)")
     ap.add_argument("--weights", default="default", help="a weight set, with settings as the development suite "
                     "takes them (default:upright.lines=false)")
     ap.add_argument("--seeds", default="0", help="comma-separated seeds of the turned photos")

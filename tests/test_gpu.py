@@ -9,6 +9,7 @@ from ngp_kornia import calibrate
 from ngp_kornia.nets.fsnet import FSNet
 from ngp_kornia.nets.line_evidence import LineEvidenceNet
 from ngp_kornia.nets.upright import UprightNet
+from ngp_kornia.nets.upright_lines import UprightLinesNet
 from ngp_kornia.nets.zsnet import ZSNet
 from ngp_kornia.training.datamodules import RenderedDataModule
 from ngp_kornia.training.evidence_data import LineEvidenceDataModule
@@ -16,6 +17,8 @@ from ngp_kornia.training.evidence_module import LineEvidenceModule
 from ngp_kornia.training.fsnet_module import FSNetModule
 from ngp_kornia.training.synth.render import render_scene
 from ngp_kornia.training.upright_data import UprightDataModule
+from ngp_kornia.training.upright_lines_data import UprightLinesDataModule
+from ngp_kornia.training.upright_lines_module import UprightLinesModule
 from ngp_kornia.training.upright_module import UprightModule
 from ngp_kornia.training.zsnet_module import ZSNetModule
 
@@ -84,3 +87,16 @@ def test_one_upright_training_step_on_cuda(tmp_path):
     datamodule = UprightDataModule(cache_dir=str(tmp_path), train_size=4, val_size=4, test_size=4, batch_size=4,
                                    size=32, structureless_every=2)
     _one_step(UprightModule(net), datamodule, net)
+
+
+def test_one_line_reader_training_step_on_cuda(tmp_path):
+    import cv2
+    import numpy as np
+
+    for i in range(40):  # enough photos for a calibrate part (one in eight)
+        image = np.full((60, 80, 3), 210, np.uint8)
+        cv2.line(image, (5 + i, 5), (70, 50 - i // 2), (30, 30, 30), 2)
+        cv2.imwrite(str(tmp_path / f"{i}.png"), image)
+    net = UprightLinesNet(width=8, members=2)
+    datamodule = UprightLinesDataModule(photos=str(tmp_path), cache_dir=str(tmp_path / "cache"), batch_size=8)
+    _one_step(UprightLinesModule(net), datamodule, net)

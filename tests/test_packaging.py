@@ -33,8 +33,8 @@ def test_package_data_ships_weights_configs_and_py_typed():
     assert (package / "py.typed").is_file()
     configs = sorted(p.name for p in (package / "configs").glob("*.yaml"))
     assert configs == [
-        "evidence.yaml", "evidence_nyu.yaml", "fsnet.yaml", "fsnet_photos.yaml", "upright.yaml", "zsnet.yaml",
-        "zsnet_nyu.yaml",
+        "evidence.yaml", "evidence_nyu.yaml", "fsnet.yaml", "fsnet_photos.yaml", "upright.yaml", "upright_lines.yaml",
+        "zsnet.yaml", "zsnet_nyu.yaml",
     ]
 
 

@@ -9,7 +9,8 @@ through a small MLP, their length-weighted mean and their maximum over the image
 such readers trained from different seeds.
 Its reading is fused with the thumbnail network's (:meth:`UprightLinesNet.fuse`, two weights fitted on real photos
 held back from both networks' training), which reads which end is up far better than the lines do. Trained on the
-four turns and mirror images of real photos (``benchmarks/upright_lines.py``, docs/lab-notes/orientation-check.md).
+four turns and mirror images of real photos (``ngp-train fit --config upright_lines``, first studied in
+``benchmarks/upright_lines.py``; docs/lab-notes/orientation-check.md).
 
 Example:
     >>> net = UprightLinesNet(width=8, members=2).eval()
@@ -26,7 +27,7 @@ import math
 import torch
 from torch import Tensor, nn
 
-__all__ = ["UprightLinesNet", "line_turn_features", "turn_segments"]
+__all__ = ["UprightLinesNet", "line_turn_features", "mirror_segments", "turn_segments"]
 
 #: the features of :func:`line_turn_features`, in order
 FEATURES = (
@@ -49,6 +50,17 @@ def turn_segments(segments: Tensor, height: int, width: int, turns: int) -> tupl
         segments = torch.stack([segments[..., 1], width - 1 - segments[..., 0]], -1)
         height, width = width, height
     return segments, height, width
+
+
+def mirror_segments(segments: Tensor, width: int) -> Tensor:
+    """Segments (..., 2, 2) of an image ``width`` pixels wide as they lie in its mirror image (``np.fliplr``: the
+    pixel (x, y) goes to (W - 1 - x, y)); a mirror image is as upright as the photo, so it keeps the turn's label.
+
+    Example:
+        >>> mirror_segments(torch.tensor([[[0.0, 2.0], [3.0, 4.0]]]), 10).tolist()
+        [[[9.0, 2.0], [6.0, 4.0]]]
+    """
+    return torch.stack([width - 1 - segments[..., 0], segments[..., 1]], -1)
 
 
 def line_turn_features(segments: Tensor, mask: Tensor, height: int, width: int) -> Tensor:

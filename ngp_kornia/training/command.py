@@ -43,8 +43,8 @@ LIGHTNING_COMMANDS = ("fit", "validate", "test", "predict")
 _OWN = ("-h", "--help", "--version")
 
 _DESCRIPTION = (
-    "Train ZSNet, FSNet, the line-evidence network and the orientation check with Lightning (fit, validate, test, "
-    "predict), then export the network (export) and plot its curves (plot)."
+    "Train ZSNet, FSNet, the line-evidence network, the orientation check and its line reader with Lightning (fit, "
+    "validate, test, predict), then export the network (export) and plot its curves (plot)."
 )
 _EPILOG = (
     "Packaged configs, by name: {names} (e.g. --config zsnet; a path to a YAML file of your own works too). "

@@ -82,6 +82,7 @@ CASES = {
         lambda x: upright.thumbnail(x.images, 32), {"float_dtype": torch.float32, "tol": 1e-6}),
     "upright_lines.line_turn_features": (
         lambda x: upright_lines.line_turn_features(x.segments, x.mask, x.height, x.width), {}),
+    "upright_lines.mirror_segments": (lambda x: upright_lines.mirror_segments(x.segments, x.width), {}),
     "upright_lines.turn_segments": (lambda x: upright_lines.turn_segments(x.segments, x.height, x.width, 3)[0], {}),
     "zsnet.canonical_homogeneous": (lambda x: zsnet.canonical_homogeneous(x.trace.zenith_candidates, 1), {}),
     "zsnet.zenith_estimate": (

@@ -21,11 +21,12 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_configs_ship_in_the_package_and_resolve_by_name():
-    assert packaged_configs() == ["evidence", "evidence_nyu", "fsnet", "fsnet_photos", "upright", "zsnet", "zsnet_nyu"]
+    expected = ["evidence", "evidence_nyu", "fsnet", "fsnet_photos", "upright", "upright_lines", "zsnet", "zsnet_nyu"]
+    assert packaged_configs() == expected
     path = config_path("zsnet")
     assert path.is_file() and path.parent == Path(ngp_kornia.__file__).parent / "configs"
     assert config_path("fsnet.yaml").name == "fsnet.yaml"
-    packaged = "packaged: evidence, evidence_nyu, fsnet, fsnet_photos, upright, zsnet, zsnet_nyu"
+    packaged = "packaged: " + ", ".join(expected)
     with pytest.raises(FileNotFoundError, match=packaged):
         config_path("zsnett")
 
@@ -37,7 +38,7 @@ def test_top_level_configs_folder_is_the_packaged_one():
 
 def test_unknown_config_is_a_usage_error(capsys):
     assert main(["fit", "--config", "nonsense"]) == 2
-    assert "packaged: evidence, evidence_nyu, fsnet, fsnet_photos, upright, zsnet, zsnet_nyu" in capsys.readouterr().err
+    assert "packaged: evidence, evidence_nyu, fsnet, fsnet_photos, upright, upright_lines," in capsys.readouterr().err
 
 
 def test_help_names_export_and_plot_and_version(capsys):

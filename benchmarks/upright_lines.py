@@ -38,6 +38,7 @@ from ngp_kornia.nets.upright_lines import UprightLinesNet
 from ngp_kornia.nets.weights import save_network
 from ngp_kornia.pipeline.segments import pad_segments
 from ngp_kornia.training.upright_calibration import fit_temperature
+from ngp_kornia.training.upright_lines_fit import fit_fusion
 
 
 def turn_segments(seg: Tensor, size: Tensor, k: int) -> tuple[Tensor, Tensor]:
@@ -241,22 +242,6 @@ def train_mlp(
             best, state = val, {k: v.clone() for k, v in net.state_dict().items()}
     net.load_state_dict(state)
     return net.eval(), curve
-
-
-def fit_fusion(a: Tensor, b: Tensor, y: Tensor) -> tuple[float, float]:
-    """Weights (u, v) minimising the NLL of softmax(u * a + v * b), a and b log-probabilities (M, 4)."""
-    w = torch.ones(2, dtype=torch.float64, requires_grad=True)
-    opt = torch.optim.LBFGS([w], max_iter=200, line_search_fn="strong_wolfe")
-    a, b = a.double(), b.double()
-
-    def closure():
-        opt.zero_grad()
-        loss = F.cross_entropy(w[0] * a + w[1] * b, y)
-        loss.backward()
-        return loss
-
-    opt.step(closure)
-    return float(w[0].detach()), float(w[1].detach())
 
 
 def check_decisions(shipped: Tensor, fused: Tensor, prior: float = 0.75) -> dict:

@@ -218,7 +218,8 @@ class NeuralGeometricParser(nn.Module):
             probs = with_prior(fuse_line_reading(self.upright_lines, probs, lines()), check.prior)
         if check.pitch_spread > 0:  # a steep answer is likelier that of a photo turned by a quarter
             probs = weigh_by_pitch(probs, result.pitch, check.pitch_spread)
-        return apply_upright(result, probs, check.sure, check.turn_back, self.config.scoring.fallback_fov, check.doubt)
+        return apply_upright(result, probs, check.sure, check.turn_back, self.config.scoring.fallback_fov, check.doubt,
+                             check.doubt_power)
 
     def _segments(self, images: Tensor, segments: Tensor | None, mask: Tensor | None) -> tuple[Tensor, Tensor]:
         """The segments given (checked) or detected, never an empty tensor."""

@@ -127,8 +127,11 @@ class UprightSettings:
         prior: the share of photos with structure handed over upright (the readings, calibrated for the four turns
             equally often, are weighed by it: an unsure reading leans to upright, as most photos are).
         sure: the probability one turn needs to be reported (``turned``; below it 0).
-        doubt: the upright probability below which the confidence is multiplied by ``upright / doubt``, ``ngp
-            calibrate`` warns and ``ngp rectify`` refuses the photo.
+        doubt: the upright probability below which the confidence is multiplied by ``(upright / doubt) **
+            doubt_power``, ``ngp calibrate`` warns and ``ngp rectify`` refuses the photo.
+        doubt_power: how steeply the confidence of a doubted photo falls (1: in proportion to ``upright``; 2, the
+            default, chosen on real scene photos: at half the level it is ``upright`` itself, the probability that the
+            answer's way up is right).
         pitch_spread: how far from level, in degrees, photos are taken: the answered pitch as a further cue (a photo
             turned a quarter is answered with a steep pitch; 0: not used).
         lines: fuse the turn read from the detected segments (where the parser has an ``UprightLinesNet``).
@@ -141,6 +144,7 @@ class UprightSettings:
     prior: float = _number(0.75, 0.01, 0.99)
     sure: float = _number(0.9, 0.0, 1.0)
     doubt: float = _number(0.5, 0.0, 1.0)
+    doubt_power: float = _number(2.0, 1.0, 8.0)
     pitch_spread: float = _number(15.0, 0.0, 90.0)
     turn_back: bool = _flag(True)
     lines: bool = _flag(True)

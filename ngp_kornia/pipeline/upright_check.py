@@ -178,6 +178,7 @@ def apply_upright(
     turn_back: bool = False,
     fallback_fov: float = 60.0,
     doubt: float = 0.0,
+    doubt_power: float = 1.0,
 ) -> Calibration:
     """The answer with ``upright`` and ``turned`` filled in and its confidence lowered where the check doubts the
     orientation it answers for.
@@ -186,8 +187,8 @@ def apply_upright(
     photos held back from its training and weighed by the prior). ``turned`` is the image's counter-clockwise turn
     from upright in degrees (90, 180 or 270) where one turn's probability is at least ``sure``, else 0: a turn is
     reported only where the check is sure of it. Where ``upright`` is below ``doubt`` the confidence is multiplied
-    by ``upright / doubt`` (down to 0 as the doubt grows, continuous at the level); at or above it, it is the lines'
-    own: the network reads real photos far from perfectly, and multiplying every confidence by its reading would
+    by ``(upright / doubt) ** doubt_power`` (down to 0 as the doubt grows, continuous at the level); at or above it,
+    it is the lines' own: the network reads real photos far from perfectly, and multiplying every confidence by its reading would
     reorder the upright photos' answers by its noise. With ``turn_back``, where a turn is reported the answer is
     that of the turned camera (:func:`turned_answer`; its roll then lies beyond 45 degrees, which no upright answer
     has) and its confidence is multiplied by that turn's probability instead; not where a gravity prior says which
@@ -205,7 +206,7 @@ def apply_upright(
     likeliest = structured.gather(-1, turns[:, None])[:, 0]
     reported = (turns > 0) & (likeliest >= sure) & valid
     back = reported & turn_back & (result.gravity is None)
-    doubted = (upright / doubt).clamp(max=1.0) if doubt > 0 else torch.ones_like(upright)
+    doubted = (upright / doubt).clamp(max=1.0) ** doubt_power if doubt > 0 else torch.ones_like(upright)
     factor = torch.where(back, likeliest, doubted)
     result = level_answer(turned_answer(result, turns, back), result.valid & ~valid, fallback_fov)
     confidence = None if result.confidence is None else torch.where(valid, result.confidence * factor, 0.0)

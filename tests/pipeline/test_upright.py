@@ -35,6 +35,26 @@ def test_confidence_is_the_lines_own_unless_doubted_then_lowered_continuously():
     assert torch.equal(apply_upright(result, probs, sure=1.0).confidence, result.confidence)  # doubt 0: never
 
 
+def test_a_doubted_photo_loses_confidence_by_the_power_of_its_doubt():
+    result = _batched(_answer())
+    for upright, factor in ((0.6, 1.0), (0.5, 1.0), (0.4, 0.64), (0.25, 0.25), (0.1, 0.04), (0.0, 0.0)):
+        probs = torch.tensor([[upright, 1.0 - upright, 0.0, 0.0, 0.0]])
+        out = apply_upright(result, probs, sure=1.0, doubt=0.5, doubt_power=2.0)
+        assert torch.allclose(out.confidence, result.confidence * factor)
+    below = apply_upright(result, torch.tensor([[0.4999, 0.5001, 0.0, 0.0, 0.0]]), sure=1.0, doubt=0.5, doubt_power=2.0)
+    assert torch.allclose(below.confidence, result.confidence, rtol=1e-3)  # continuous at the level: no cliff
+
+
+def test_the_parser_lowers_a_doubted_confidence_by_its_settings_power():
+    image = render_scene(1).image
+    configs = {p: ParserConfig().replace(**{"upright.doubt": 1.0, "upright.sure": 1.0, "upright.doubt_power": p})
+               for p in (1.0, 3.0)}  # fmt: skip
+    linear, steep = (calibrate(image, config=c) for c in configs.values())
+    upright = float(linear.upright)
+    assert 0.0 < upright < 1.0 and float(steep.upright) == pytest.approx(upright)
+    assert float(steep.confidence) == pytest.approx(float(linear.confidence) * upright**2, rel=1e-4)
+
+
 def _sure_answer(confidence=0.9):
     result = _camera(3.0, 1.0, 10.0)
     return type(result)(**{**result.__dict__, "confidence": torch.tensor([confidence], dtype=torch.float64)})

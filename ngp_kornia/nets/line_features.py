@@ -205,7 +205,7 @@ def _neighbourhood(s: _Shared, mask: Tensor, lay: _Layout) -> Tensor:
 def _refine(lines: Tensor, weights: Tensor, vps: Tensor, angle: float, eye: Tensor) -> Tensor:
     """Each VP (B, K, 3) moved to the least-squares point of the lines (B, N, 3) within ``angle`` degrees of it
     (kept where none is)."""
-    near = torch.where((vps @ lines.transpose(1, 2)).abs() < math.sin(math.radians(angle)), weights[:, None], 0.0)
+    near = ((vps @ lines.transpose(1, 2)).abs() < math.sin(math.radians(angle))) * weights[:, None]  # lengths >= 0
     weighted = near[..., None] * lines[:, None]  # (B, K, N, 3)
     tensor = weighted.transpose(-1, -2) @ lines[:, None]  # (B, K, 3, 3)
     refined = torch.linalg.eigh(tensor + eye)[1][..., :, 0]  # the direction the lines are most orthogonal to
@@ -228,15 +228,16 @@ def _dominant_vps(lines: Tensor, weights: Tensor) -> tuple[Tensor, Tensor]:
     """The :data:`_PEAKS` directions on the half sphere that the most line length of the :data:`_VOTERS` longest
     lines passes within 4 degrees of, each refined twice to the least-squares point of the lines near it: VPs
     (B, K, 3) in the pseudo camera and their support (B, K), the share of the image's line length within 1.5
-    degrees of them."""
+    degrees of them. The weights (B, N) are lengths, 0 for padding (so a test times a weight is the weight where
+    the test passes: half the cost of ``where`` with a broadcast weight)."""
     top = weights.topk(min(_VOTERS, weights.shape[1]), dim=-1)
     voters = lines.gather(1, top.indices[..., None].expand(-1, -1, 3))
     const = _constants(lines.dtype, lines.device)
-    hits = torch.where((voters @ const.bins.T).abs() < math.sin(math.radians(4.0)), top.values[..., None], 0.0)
+    hits = ((voters @ const.bins.T).abs() < math.sin(math.radians(4.0))) * top.values[..., None]
     vps = const.bins[_peaks(hits.sum(1))]
     vps = _refine(lines, weights, _refine(lines, weights, vps, 4.0, const.eye), 1.5, const.eye)
     close = (vps @ lines.transpose(1, 2)).abs() < math.sin(math.radians(1.5))
-    support = torch.where(close, weights[:, None], 0.0).sum(-1) / weights.sum(-1, keepdim=True).clamp_min(1e-9)
+    support = (close * weights[:, None]).sum(-1) / weights.sum(-1, keepdim=True).clamp_min(1e-9)
     return vps, support
 
 

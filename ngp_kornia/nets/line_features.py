@@ -120,6 +120,7 @@ class _Layout(NamedTuple):
     cell_high: Tensor
     turns: Tensor  # (2,) orientation bins per radian: the crowding counts' and the Hough grid's
     last_turn: Tensor  # (2,) the last of those bins
+    flip: Tensor  # (2,) (-1, 1): a direction (x, y) flipped, times this, is its normal (-y, x)
     steps: Tensor  # (3, 1, 1, 9) the 3x3 neighbours of a bin in each of the three flat grids
     grid: tuple[int, int, int]  # cells of the padded grid, its row length, the Hough grid's row length
 
@@ -143,7 +144,20 @@ def _layout(height: int, width: int, dtype: torch.dtype, device: torch.device) -
             image_center(height, width).to(**kw), torch.tensor([max(width - 1, 1), max(height - 1, 1)], **kw),
             torch.zeros(2, **kw), torch.tensor([gw - 3, gh - 3], **kw),
             torch.tensor([_ORIENTATIONS / math.pi, 90 / math.pi], **kw),
-            torch.tensor([_ORIENTATIONS - 1, 89], device=device), steps[:, None, None], (gh * gw, gw, rho))
+            torch.tensor([_ORIENTATIONS - 1, 89], device=device), torch.tensor([-1.0, 1.0], **kw),
+            steps[:, None, None], (gh * gw, gw, rho))
+
+
+@functools.lru_cache(maxsize=16)
+def _offsets(batch: int, grid: tuple[int, int, int], device: torch.device) -> Tensor:
+    """Where each image's part of each of the three flat grids starts (3, B, 1), and the padding of the cell grids
+    and the Hough grid's rows (a cell (0, 0) is at (1, 1), a distance bin -span at 0, an angle bin 0 in row 1)."""
+    cells, row_length, rho_bins = grid
+    with torch.inference_mode(False):
+        image = torch.arange(batch)[:, None]
+        hough = (image * 92 + 1) * rho_bins + rho_bins // 2 + batch * (_ORIENTATIONS + 1) * cells
+        cell_grids = [image * cells, (image * _ORIENTATIONS + batch) * cells]
+        return torch.stack([g + row_length + 1 for g in cell_grids] + [hough]).to(device)
 
 
 def _shared(segments: Tensor) -> _Shared:
@@ -171,19 +185,17 @@ def _bins(s: _Shared, lay: _Layout) -> Tensor:
     """The bin (3, B, N) of each segment in the three flat grids: its cell, its cell and orientation, its Hough bin
     (the normal's angle in 2 degree bins, the distance from the image centre in 4 pixel bins); the grids of a batch
     lie one after the other (the first two B, 12 B padded cell grids, the third B Hough grids of 92 rows)."""
-    b = s.length.shape[0]
     cells, row_length, rho_bins = lay.grid
     span = rho_bins // 2
-    col, row = ((s.mid / _CELL).floor().clamp(lay.cell_low, lay.cell_high).long() + 1).unbind(-1)
+    col, row = (s.mid / _CELL).floor().clamp(lay.cell_low, lay.cell_high).long().unbind(-1)
     local = row * row_length + col
     raw = torch.atan2(s.u[..., 1], s.u[..., 0])
     turn, angle = ((raw % math.pi)[..., None] * lay.turns).long().clamp(max=lay.last_turn).unbind(-1)
-    rho = ((s.mid - lay.centre) * torch.stack([-s.u[..., 1], s.u[..., 0]], -1)).sum(-1)  # along the normal
+    rho = ((s.mid - lay.centre) * (s.u.flip(-1) * lay.flip)).sum(-1)  # along the normal
     rho = torch.where(raw < 0, -rho, rho)  # the same for both directions of a segment
-    r_bin = (rho / 4.0).round().long().clamp(1 - span, span - 1) + span
-    image = torch.arange(b, device=local.device)[:, None]
-    return torch.stack([image * cells + local, (image * _ORIENTATIONS + turn + b) * cells + local,
-                        (image * 92 + angle + 1) * rho_bins + r_bin + b * (_ORIENTATIONS + 1) * cells])
+    r_bin = (rho / 4.0).round().long().clamp(1 - span, span - 1)
+    offsets = _offsets(s.length.shape[0], lay.grid, local.device)
+    return torch.stack([local, turn * cells + local, angle * rho_bins + r_bin]) + offsets
 
 
 def _neighbourhood(s: _Shared, mask: Tensor, lay: _Layout) -> Tensor:

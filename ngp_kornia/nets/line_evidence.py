@@ -104,6 +104,10 @@ class LineEvidenceNet(nn.Module):
                              f"{tuple(features.shape)} and {tuple(mask.shape)}")
         mask = mask.bool()
         b, n = mask.shape
+        if n and bool(mask.all()):  # nothing to pack (one image's detected segments): the same rows in the same order
+            image = torch.arange(b, device=mask.device).repeat_interleave(n)
+            out = self._score(features.flatten(0, 1), image, b).unflatten(0, (b, n))
+            return out[..., 0] + self.structure_offset, out[..., 1:]
         out = features.new_zeros(b, n, 1 + len(DIRECTION_CLASSES))
         if bool(mask.any()):
             out[mask] = self._score(features[mask], mask.nonzero()[:, 0], b)

@@ -18,8 +18,11 @@ the same features at any input size.
 
 from __future__ import annotations
 
+import functools
 import math
+from typing import NamedTuple
 
+import numpy as np
 import torch
 from kornia.geometry.conversions import pol2cart
 from torch import Tensor
@@ -70,68 +73,6 @@ def to_working_resolution(segments: Tensor, height: int, width: int) -> tuple[Te
     return (segments + 0.5) * factor - 0.5, h, w
 
 
-def _frames(segments: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-    """Start (B, N, 2), unit direction (B, N, 2), unit normal (B, N, 2) and length (B, N) of each segment; a
-    zero-length segment gets the direction (1, 0)."""
-    start, d = segments[..., 0, :], segments[..., 1, :] - segments[..., 0, :]
-    length = d.norm(dim=-1)
-    u = torch.where(length[..., None] > 1e-6, d / length.clamp_min(1e-6)[..., None], _UNIT_X.to(d))
-    return start, u, torch.stack([-u[..., 1], u[..., 0]], -1), length
-
-
-def geometry_features(segments: Tensor, height: int, width: int) -> Tensor:
-    """Length (log of working pixels), orientation (cos and sin of twice its angle) and midpoint (-1..1 across the
-    image, y down) of each segment: (B, N, 2, 2) -> (B, N, 5)."""
-    _, u, _, length = _frames(segments)
-    mid = segments.mean(-2)
-    cos2, sin2 = u[..., 0] ** 2 - u[..., 1] ** 2, 2 * u[..., 0] * u[..., 1]
-    x = 2 * mid[..., 0] / max(width - 1, 1) - 1
-    y = 2 * mid[..., 1] / max(height - 1, 1) - 1
-    return torch.stack([torch.log1p(length) / math.log(WORKING_SIZE), cos2, sin2, x, y], -1)
-
-
-def _around(grid: Tensor, index: Tensor, stride: int) -> Tensor:
-    """The sum of a flat padded grid over the 3x3 bins around each index (B, N) (``stride``: its row length)."""
-    steps = torch.tensor([-stride - 1, -stride, -stride + 1, -1, 0, 1, stride - 1, stride, stride + 1],
-                         device=index.device)
-    return grid.gather(0, (index[..., None] + steps).flatten()).reshape(*index.shape, 9).sum(-1)
-
-
-def _neighbourhood(segments: Tensor, mask: Tensor, height: int, width: int) -> Tensor:
-    """Crowding around each segment, counted on coarse grids (the cost grows with the segments, not their pairs):
-    the other segments whose midpoints share its 3x3 block of cells of :data:`_CELL` pixels, those among them of
-    about its orientation (the same bin of :data:`_ORIENTATIONS`), and the length of the others along about the same
-    line (a Hough grid of 2 degrees by 4 pixels, each bin with its neighbours) over its own. (B, N, 3)."""
-    b = mask.shape[0]
-    _, u, normal, length = _frames(segments)
-    valid = mask.to(length).flatten()
-    mid = segments.mean(-2)
-    image = torch.arange(b, device=mask.device)[:, None]
-    # cells, padded by one on every side so that the 3x3 block around any cell exists
-    gh, gw = -(-height // _CELL) + 2, -(-width // _CELL) + 2
-    row = (mid[..., 1] / _CELL).floor().clamp(0, gh - 3).long() + 1
-    col = (mid[..., 0] / _CELL).floor().clamp(0, gw - 3).long() + 1
-    raw = torch.atan2(u[..., 1], u[..., 0])
-    theta = raw % math.pi
-    turn = (theta * (_ORIENTATIONS / math.pi)).long().clamp(max=_ORIENTATIONS - 1)
-    cell = (image * gh + row) * gw + col
-    near = _around(valid.new_zeros(b * gh * gw).index_add_(0, cell.flatten(), valid), cell, gw) - 1.0
-    cell = cell + (image * (_ORIENTATIONS - 1) + turn) * gh * gw  # into (B, orientations, gh, gw)
-    same = _around(valid.new_zeros(b * _ORIENTATIONS * gh * gw).index_add_(0, cell.flatten(), valid), cell, gw) - 1.0
-    # the Hough grid: the normal's angle in 2 degree bins, the distance from the image centre in 4 pixel bins
-    span = int(math.ceil(math.hypot(height, width) / 8.0)) + 2
-    centre = image_center(height, width, like=mid)
-    rho = ((mid - centre) * normal).sum(-1)
-    rho = torch.where(raw < 0, -rho, rho)  # the same for both directions of a segment
-    r_bin = (rho / 4.0).round().long().clamp(1 - span, span - 1) + span
-    a_bin = (theta * (90 / math.pi)).long().clamp(max=89) + 1
-    line = (image * 92 + a_bin) * (2 * span + 1) + r_bin
-    weight = length.flatten() * valid
-    along = _around(weight.new_zeros(b * 92 * (2 * span + 1)).index_add_(0, line.flatten(), weight), line, 2 * span + 1)
-    collinear = (along - length * mask) / length.clamp_min(1.0)
-    return torch.log1p(torch.stack([near, same, collinear], -1).clamp_min(0.0))
-
-
 def sphere_directions(count: int = _SPHERE_BINS) -> Tensor:
     """(count, 3) unit directions spread evenly over the half sphere ``z >= 0`` (a Fibonacci lattice): the bins of
     the vanishing-point vote.
@@ -150,59 +91,184 @@ def sphere_directions(count: int = _SPHERE_BINS) -> Tensor:
 
 _BINS = sphere_directions()
 #: pairs of bins too close (within 12 degrees) to be two peaks of the vote
-_APART = (_BINS @ _BINS.T).abs() > math.cos(math.radians(12.0))
+_APART = ((_BINS @ _BINS.T).abs() > math.cos(math.radians(12.0))).numpy()
 
 
-def _refine(lines: Tensor, weights: Tensor, vps: Tensor, angle: float) -> Tensor:
+class _Shared(NamedTuple):
+    """What several features of the segments share, computed once per call."""
+
+    segments: Tensor  # (B, N, 2, 2) at the working resolution
+    mid: Tensor  # (B, N, 2) midpoints
+    u: Tensor  # (B, N, 2) unit directions, (1, 0) for a zero-length segment
+    length: Tensor  # (B, N)
+
+
+class _Constants(NamedTuple):
+    """Constants of one dtype and device (:func:`_constants`)."""
+
+    unit_x: Tensor  # (2,) the direction of a zero-length segment
+    bins: Tensor  # (D, 3) the vote's directions
+    eye: Tensor  # (3, 3) 1e-9 * identity: keeps the refinement's eigenproblem regular
+
+
+class _Layout(NamedTuple):
+    """Constants of one working resolution, dtype and device (:func:`_layout`)."""
+
+    centre: Tensor  # (2,) the image centre
+    scale: Tensor  # (2,) what maps a midpoint's doubled x and y to 0..2
+    cell_low: Tensor  # (2,) and cell_high: the clamp of a midpoint's cell column and row
+    cell_high: Tensor
+    turns: Tensor  # (2,) orientation bins per radian: the crowding counts' and the Hough grid's
+    last_turn: Tensor  # (2,) the last of those bins
+    flip: Tensor  # (2,) (-1, 1): a direction (x, y) flipped, times this, is its normal (-y, x)
+    steps: Tensor  # (3, 1, 1, 9) the 3x3 neighbours of a bin in each of the three flat grids
+    grid: tuple[int, int, int]  # cells of the padded grid, its row length, the Hough grid's row length
+
+
+# built once for each dtype and device, or working resolution: creating small tensors costs more than using them
+@functools.lru_cache(maxsize=16)
+def _constants(dtype: torch.dtype, device: torch.device) -> _Constants:
+    with torch.inference_mode(False):  # plain tensors, usable in and out of inference mode
+        kw = {"dtype": dtype, "device": device}
+        return _Constants(_UNIT_X.to(**kw), _BINS.to(**kw), 1e-9 * torch.eye(3, **kw))
+
+
+@functools.lru_cache(maxsize=16)
+def _layout(height: int, width: int, dtype: torch.dtype, device: torch.device) -> _Layout:
+    gh, gw = -(-height // _CELL) + 2, -(-width // _CELL) + 2  # padded by one cell on every side
+    rho = 2 * (int(math.ceil(math.hypot(height, width) / 8.0)) + 2) + 1
+    with torch.inference_mode(False):
+        kw = {"dtype": dtype, "device": device}
+        steps = torch.tensor([[-s - 1, -s, -s + 1, -1, 0, 1, s - 1, s, s + 1] for s in (gw, gw, rho)], device=device)
+        return _Layout(
+            image_center(height, width, like=torch.empty(0, **kw)),
+            torch.tensor([max(width - 1, 1), max(height - 1, 1)], **kw), torch.zeros(2, **kw),
+            torch.tensor([gw - 3, gh - 3], **kw),
+            torch.tensor([_ORIENTATIONS / math.pi, 90 / math.pi], **kw),
+            torch.tensor([_ORIENTATIONS - 1, 89], device=device), torch.tensor([-1.0, 1.0], **kw),
+            steps[:, None, None], (gh * gw, gw, rho))
+
+
+@functools.lru_cache(maxsize=16)
+def _offsets(batch: int, grid: tuple[int, int, int], device: torch.device) -> Tensor:
+    """Where each image's part of each of the three flat grids starts (3, B, 1), and the padding of the cell grids
+    and the Hough grid's rows (a cell (0, 0) is at (1, 1), a distance bin -span at 0, an angle bin 0 in row 1)."""
+    cells, row_length, rho_bins = grid
+    with torch.inference_mode(False):
+        image = torch.arange(batch)[:, None]
+        hough = (image * 92 + 1) * rho_bins + rho_bins // 2 + batch * (_ORIENTATIONS + 1) * cells
+        cell_grids = [image * cells, (image * _ORIENTATIONS + batch) * cells]
+        return torch.stack([g + row_length + 1 for g in cell_grids] + [hough]).to(device)
+
+
+def _shared(segments: Tensor) -> _Shared:
+    """The quantities of the segments (B, N, 2, 2) that the features share (:class:`_Shared`)."""
+    d = segments[..., 1, :] - segments[..., 0, :]
+    length = d.norm(dim=-1)
+    unit_x = _constants(d.dtype, d.device).unit_x
+    u = torch.where(length[..., None] > 1e-6, d / length.clamp_min(1e-6)[..., None], unit_x)
+    return _Shared(segments, segments.mean(-2), u, length)
+
+
+def geometry_features(segments: Tensor, height: int, width: int) -> Tensor:
+    """Length (log of working pixels), orientation (cos and sin of twice its angle) and midpoint (-1..1 across the
+    image, y down) of each segment: (B, N, 2, 2) -> (B, N, 5)."""
+    return _geometry(_shared(segments), _layout(height, width, segments.dtype, segments.device))
+
+
+def _geometry(s: _Shared, lay: _Layout) -> Tensor:
+    u0, u1 = s.u.unbind(-1)
+    turn = torch.stack([u0 * u0 - u1 * u1, 2 * u0 * u1], -1)
+    return torch.cat([(torch.log1p(s.length) / math.log(WORKING_SIZE))[..., None], turn,
+                      2 * s.mid / lay.scale - 1], -1)
+
+
+def _bins(s: _Shared, lay: _Layout) -> Tensor:
+    """The bin (3, B, N) of each segment in the three flat grids: its cell, its cell and orientation, its Hough bin
+    (the normal's angle in 2 degree bins, the distance from the image centre in 4 pixel bins). The grids lie one
+    after the other in one flat tensor: B padded cell grids, 12 B of them (one per orientation), B Hough grids."""
+    cells, row_length, rho_bins = lay.grid
+    span = rho_bins // 2
+    col, row = (s.mid / _CELL).floor().clamp(lay.cell_low, lay.cell_high).long().unbind(-1)
+    local = row * row_length + col
+    raw = torch.atan2(s.u[..., 1], s.u[..., 0])
+    turn, angle = ((raw % math.pi)[..., None] * lay.turns).long().clamp(max=lay.last_turn).unbind(-1)
+    rho = ((s.mid - lay.centre) * (s.u.flip(-1) * lay.flip)).sum(-1)  # along the normal
+    rho = torch.where(raw < 0, -rho, rho)  # the same for both directions of a segment
+    r_bin = (rho / 4.0).round().long().clamp(1 - span, span - 1)
+    offsets = _offsets(s.length.shape[0], lay.grid, local.device)
+    return torch.stack([local, turn * cells + local, angle * rho_bins + r_bin]) + offsets
+
+
+def _neighbourhood(s: _Shared, mask: Tensor, lay: _Layout) -> Tensor:
+    """Crowding around each segment, counted on coarse grids (the cost grows with the segments, not their pairs):
+    the other segments whose midpoints share its 3x3 block of cells of :data:`_CELL` pixels, those among them of
+    about its orientation (the same bin of :data:`_ORIENTATIONS`), and the length of the others along about the same
+    line (a Hough grid of 2 degrees by 4 pixels, each bin with its neighbours) over its own. (B, N, 3)."""
+    b = mask.shape[0]
+    valid = mask.to(s.length)
+    weight = s.length * valid
+    index = _bins(s, lay)
+    size = b * ((_ORIENTATIONS + 1) * lay.grid[0] + 92 * lay.grid[2])
+    grid = weight.new_zeros(size).index_add_(0, index.flatten(), torch.stack([valid, valid, weight]).flatten())
+    around = grid.take(index[..., None] + lay.steps).sum(-1)  # (3, B, N): each bin with its 3x3 neighbours
+    collinear = (around[2] - weight) / s.length.clamp_min(1.0)
+    return torch.log1p(torch.cat([around[:2] - 1.0, collinear[None]]).permute(1, 2, 0).clamp_min(0.0))
+
+
+def _refine(lines: Tensor, weights: Tensor, vps: Tensor, angle: float, eye: Tensor) -> Tensor:
     """Each VP (B, K, 3) moved to the least-squares point of the lines (B, N, 3) within ``angle`` degrees of it
     (kept where none is)."""
-    near = torch.where((vps @ lines.transpose(1, 2)).abs() < math.sin(math.radians(angle)), weights[:, None], 0.0)
+    near = ((vps @ lines.transpose(1, 2)).abs() < math.sin(math.radians(angle))) * weights[:, None]  # lengths >= 0
     weighted = near[..., None] * lines[:, None]  # (B, K, N, 3)
     tensor = weighted.transpose(-1, -2) @ lines[:, None]  # (B, K, 3, 3)
-    eye = torch.eye(3, dtype=lines.dtype, device=lines.device)
-    refined = torch.linalg.eigh(tensor + 1e-9 * eye)[1][..., :, 0]  # the direction the lines are most orthogonal to
+    refined = torch.linalg.eigh(tensor + eye)[1][..., :, 0]  # the direction the lines are most orthogonal to
     refined = torch.where((refined * vps).sum(-1, keepdim=True) < 0, -refined, refined)
     return torch.where(near.sum(-1, keepdim=True) > 0, refined, vps)
+
+
+def _peaks(votes: Tensor) -> Tensor:
+    """The :data:`_PEAKS` strongest bins (B, K) of the votes (B, D), greedily: the strongest, then none within 12
+    degrees of it. A loop of a few steps on a few hundred numbers, in NumPy: its steps cost less than the dispatch
+    of torch's."""
+    left = votes.detach().to("cpu", torch.float64).numpy().copy()
+    peaks = np.empty((len(left), _PEAKS), dtype=np.int64)
+    for k in range(_PEAKS):
+        peaks[:, k] = best = left.argmax(-1)
+        left[_APART[best]] = -1.0
+    return torch.from_numpy(peaks).to(votes.device)
 
 
 def _dominant_vps(lines: Tensor, weights: Tensor) -> tuple[Tensor, Tensor]:
     """The :data:`_PEAKS` directions on the half sphere that the most line length of the :data:`_VOTERS` longest
     lines passes within 4 degrees of, each refined twice to the least-squares point of the lines near it: VPs
     (B, K, 3) in the pseudo camera and their support (B, K), the share of the image's line length within 1.5
-    degrees of them."""
+    degrees of them. The weights (B, N) are lengths, 0 for padding (so a test times a weight is the weight where
+    the test passes: about half the cost of ``where`` with a broadcast weight on the vote's 128 x 300 tests)."""
     top = weights.topk(min(_VOTERS, weights.shape[1]), dim=-1)
     voters = lines.gather(1, top.indices[..., None].expand(-1, -1, 3))
-    bins, apart = _BINS.to(lines), _APART.to(lines.device)
-    hits = torch.where((voters @ bins.T).abs() < math.sin(math.radians(4.0)), top.values[..., None], 0.0)
-    votes = hits.sum(1)  # (B, D)
-    peaks = []
-    for _ in range(_PEAKS):  # greedy: the strongest bin, then none near it
-        best = votes.argmax(-1)
-        peaks.append(best)
-        votes = votes.masked_fill(apart[best], -1.0)
-    vps = _refine(lines, weights, _refine(lines, weights, bins[torch.stack(peaks, -1)], 4.0), 1.5)
+    const = _constants(lines.dtype, lines.device)
+    hits = ((voters @ const.bins.T).abs() < math.sin(math.radians(4.0))) * top.values[..., None]
+    vps = const.bins[_peaks(hits.sum(1))]
+    vps = _refine(lines, weights, _refine(lines, weights, vps, 4.0, const.eye), 1.5, const.eye)
     close = (vps @ lines.transpose(1, 2)).abs() < math.sin(math.radians(1.5))
-    support = torch.where(close, weights[:, None], 0.0).sum(-1) / weights.sum(-1, keepdim=True).clamp_min(1e-9)
+    support = (close * weights[:, None]).sum(-1) / weights.sum(-1, keepdim=True).clamp_min(1e-9)
     return vps, support
 
 
-def _vanishing_features(segments: Tensor, mask: Tensor, height: int, width: int) -> Tensor:
+def _vanishing_features(s: _Shared, mask: Tensor, height: int, width: int, lay: _Layout) -> Tensor:
     """Angle (degrees / 10, at most 1) to the nearest and the second nearest dominant VP, the nearest one's support
     and how vertical it is in the pseudo camera (|y| of its unit vector): (B, N, 4)."""
     f = pseudo_focal(height, width)
-    centre = image_center(height, width, like=segments)
-    x0, y0, x1, y1 = ((segments - centre) / f).flatten(-2).unbind(-1)
+    x0, y0, x1, y1 = ((s.segments - lay.centre) / f).flatten(-2).unbind(-1)
     lines = torch.stack([y0 - y1, x1 - x0, x0 * y1 - x1 * y0], -1)  # the cross product of the two ends
     lines = lines / lines.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-    length = (segments[..., 1, :] - segments[..., 0, :]).norm(dim=-1) * mask.to(segments)
-    vps, support = _dominant_vps(lines, length)
-    pixel_vps = torch.cat([vps[..., :2] * f + centre * vps[..., 2:], vps[..., 2:]], -1)
-    angle = segment_vp_angle(segments, pixel_vps)  # (B, K, N)
-    order = angle.argsort(dim=1)
-    first, second = angle.gather(1, order[:, :1])[:, 0], angle.gather(1, order[:, 1:2])[:, 0]
-    best_support = support.gather(1, order[:, 0])
-    vertical = vps[..., 1].abs().gather(1, order[:, 0])
-    return torch.stack([(first / 10).clamp(max=1), best_support, vertical, (second / 10).clamp(max=1)], -1)
+    vps, support = _dominant_vps(lines, s.length * mask)
+    pixel_vps = torch.cat([vps[..., :2] * f + lay.centre * vps[..., 2:], vps[..., 2:]], -1)
+    nearest = segment_vp_angle(s.segments, pixel_vps).sort(dim=1)  # (B, K, N)
+    first, second = (nearest.values[:, :2] / 10).clamp(max=1).unbind(1)
+    of_first = torch.stack([support, vps[..., 1].abs()], -1).gather(1, nearest.indices[:, 0, :, None].expand(-1, -1, 2))
+    return torch.stack([first, of_first[..., 0], of_first[..., 1], second], -1)
 
 
 def context_features(segments: Tensor, mask: Tensor, height: int, width: int) -> Tensor:
@@ -218,13 +284,17 @@ def context_features(segments: Tensor, mask: Tensor, height: int, width: int) ->
     Returns:
         (B, N, 8).
     """
-    length = (segments[..., 1, :] - segments[..., 0, :]).norm(dim=-1)
-    ranked = torch.where(mask, length, torch.full_like(length, -1.0))
-    rank = ranked.argsort(-1, descending=True).argsort(-1).to(length)
-    count = mask.sum(-1, keepdim=True).clamp_min(2).to(length)
-    rank = rank / (count - 1)
-    return torch.cat([_neighbourhood(segments, mask, height, width), rank.clamp(max=1)[..., None],
-                      _vanishing_features(segments, mask, height, width)], -1)
+    return _context(_shared(segments), mask, _layout(height, width, segments.dtype, segments.device), height, width)
+
+
+def _context(s: _Shared, mask: Tensor, lay: _Layout, height: int, width: int) -> Tensor:
+    """:func:`context_features` from the shared quantities."""
+    order = torch.where(mask, s.length, -1.0).argsort(-1, descending=True)
+    ranks = torch.arange(mask.shape[1], dtype=s.length.dtype, device=mask.device).expand_as(s.length)
+    rank = torch.empty_like(s.length).scatter_(-1, order, ranks)  # the inverse permutation of the order
+    rank = rank / (mask.sum(-1, keepdim=True).clamp_min(2).to(rank) - 1)
+    return torch.cat([_neighbourhood(s, mask, lay), rank.clamp(max=1)[..., None],
+                      _vanishing_features(s, mask, height, width, lay)], -1)
 
 
 def check_inputs(images: Tensor, segments: Tensor, mask: Tensor) -> None:
@@ -272,7 +342,8 @@ def segment_features(images: Tensor, segments: Tensor, mask: Tensor) -> Tensor:
     check_inputs(images, segments, mask)
     if segments.shape[1] == 0:
         return images.new_zeros(images.shape[0], 0, len(FEATURE_NAMES))
-    seg = torch.where(mask[..., None, None], segments.to(images.dtype), torch.zeros_like(segments, dtype=images.dtype))
+    seg = torch.where(mask[..., None, None], segments.to(images.dtype), 0.0)
     seg, h, w = to_working_resolution(seg, *images.shape[-2:])
-    out = torch.cat([geometry_features(seg, h, w), context_features(seg, mask, h, w)], -1)
-    return torch.where(mask[..., None], out, torch.zeros_like(out))
+    shared, layout = _shared(seg), _layout(h, w, seg.dtype, seg.device)
+    out = torch.cat([_geometry(shared, layout), _context(shared, mask, layout, h, w)], -1)
+    return torch.where(mask[..., None], out, 0.0)

@@ -201,3 +201,46 @@ def test_the_shipped_weights_tell_structure_from_clutter_on_renders():
     assert torch.cat(kept).double().mean() > 0.85
     assert torch.cat(dropped).double().mean() > 0.2
     assert right / total > 0.9
+
+
+def _crowding_reference(segments, mask, height, width):
+    """The crowding counts and the length rank of one image by their definitions, pair by pair in Python floats:
+    the others whose midpoint cells of 32 px are within one cell, those of the same of 12 orientation bins, and the
+    length of the others within one bin of 2 degrees and 4 px of the segment's line, over its own length."""
+    span = math.ceil(math.hypot(height, width) / 8.0) + 2
+    rows = []
+    for (x0, y0), (x1, y1) in segments.tolist():
+        mx, my, length = (x0 + x1) / 2, (y0 + y1) / 2, math.hypot(x1 - x0, y1 - y0)
+        raw = math.atan2((y1 - y0) / length, (x1 - x0) / length)
+        theta = raw % math.pi
+        rho = (my - (height - 1) / 2) * (x1 - x0) / length - (mx - (width - 1) / 2) * (y1 - y0) / length
+        rho = -rho if raw < 0 else rho
+        cell = (min(max(math.floor(my / 32), 0), -(-height // 32) - 1),
+                min(max(math.floor(mx / 32), 0), -(-width // 32) - 1))
+        rows.append((cell, min(int(theta * 12 / math.pi), 11), min(int(theta * 90 / math.pi), 89),
+                     min(max(round(rho / 4), 1 - span), span - 1), length))
+    valid = [i for i, m in enumerate(mask.tolist()) if m]
+    out = []
+    for i in valid:
+        (cell, turn, angle, r, length), others = rows[i], [rows[j] for j in valid if j != i]
+        near = [o for o in others if abs(o[0][0] - cell[0]) <= 1 and abs(o[0][1] - cell[1]) <= 1]
+        along = sum(o[4] for o in others if abs(o[2] - angle) <= 1 and abs(o[3] - r) <= 1)
+        rank = sorted((rows[j][4] for j in valid), reverse=True).index(length) / max(len(valid) - 1, 1)
+        out.append([math.log1p(len(near)), math.log1p(sum(o[1] == turn for o in near)),
+                    math.log1p(along / max(length, 1.0)), min(rank, 1.0)])
+    return torch.tensor(out, dtype=torch.float64)
+
+
+def test_crowding_counts_and_rank_match_their_definition_in_a_batch():
+    # the three grids of a batch of images share one flat tensor: each image must count only its own segments
+    images, segments, mask = _inputs(b=3, n=60, h=480, w=640, dtype=torch.float64)
+    segments = segments * 8  # spread over the image
+    start, step = segments[:, :10, :1], segments[:, :10, 1:] - segments[:, :10, :1]
+    segments[:, 40:50] = start + step * torch.tensor([1.5, 2.2], dtype=torch.float64)[:, None]  # further along
+    features = segment_features(images, segments, mask)
+    names = list(FEATURE_NAMES)
+    columns = [names.index(c) for c in ("neighbours", "parallel_neighbours", "collinear_length", "length_rank")]
+    for b in range(3):
+        expected = _crowding_reference(segments[b], mask[b], 480, 640)
+        torch.testing.assert_close(features[b][mask[b]][:, columns], expected, atol=1e-9, rtol=1e-9)
+        assert (expected[:, :3] > 0).any(0).all()  # each count is something somewhere

@@ -122,22 +122,18 @@ class UprightSettings:
     """The orientation and structure check (:mod:`ngp_kornia.pipeline.upright_check`).
 
     Attributes:
-        enabled: report the image's turn and the probability that it is upright and shows man-made structure, and
-            lower the confidence where it is doubted (every weight set of :func:`ngp_kornia.calibrate` has it).
+        enabled: report ``upright`` and ``turned`` and lower the confidence where the check doubts the photo.
         prior: the share of photos with structure handed over upright (the readings, calibrated for the four turns
             equally often, are weighed by it: an unsure reading leans to upright, as most photos are).
         sure: the probability one turn needs to be reported (``turned``; below it 0).
         doubt: the upright probability below which the confidence is multiplied by ``(upright / doubt) **
             doubt_power``, ``ngp calibrate`` warns and ``ngp rectify`` refuses the photo.
-        doubt_power: how steeply the confidence of a doubted photo falls (1: in proportion to ``upright``; 2, the
-            default, chosen on real scene photos: at half the level it is ``upright`` itself, the probability that the
-            answer's way up is right).
+        doubt_power: how steeply a doubted photo's confidence falls (2: ``upright`` itself at half the level).
         pitch_spread: how far from level, in degrees, photos are taken: the answered pitch as a further cue (a photo
             turned a quarter is answered with a steep pitch; 0: not used).
         lines: fuse the turn read from the detected segments (where the parser has an ``UprightLinesNet``).
-        turn_back: where a turn is reported, answer the camera of the turned photo (its roll beyond 45 degrees)
-            with the confidence times that turn's probability, not the upright camera's with the confidence times
-            ``upright`` (:func:`ngp_kornia.pipeline.upright_check.turned_answer`).
+        turn_back: where a turn is reported, answer the turned photo's camera (roll beyond 45 degrees) at the
+            confidence times that turn's probability (:func:`ngp_kornia.pipeline.upright_check.turned_answer`).
     """
 
     enabled: bool = _flag(True)

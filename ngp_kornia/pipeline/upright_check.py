@@ -188,15 +188,15 @@ def apply_upright(
     from upright in degrees (90, 180 or 270) where one turn's probability is at least ``sure``, else 0: a turn is
     reported only where the check is sure of it. Where ``upright`` is below ``doubt`` the confidence is multiplied
     by ``(upright / doubt) ** doubt_power`` (down to 0 as the doubt grows, continuous at the level); at or above it,
-    it is the lines' own: the network reads real photos far from perfectly, and multiplying every confidence by its reading would
-    reorder the upright photos' answers by its noise. With ``turn_back``, where a turn is reported the answer is
-    that of the turned camera (:func:`turned_answer`; its roll then lies beyond 45 degrees, which no upright answer
-    has) and its confidence is multiplied by that turn's probability instead; not where a gravity prior says which
-    way is up. ``valid`` becomes False where no structure is likelier than every reading with structure: the answer then
-    rests on no line evidence worth the name, so it is that of an image without a frame
+    it is the lines' own: the network reads real photos far from perfectly, and multiplying every confidence by its
+    reading would reorder the upright photos' answers by its noise. With ``turn_back``, where a turn is reported the
+    answer is that of the turned camera (:func:`turned_answer`; its roll then lies beyond 45 degrees, which no
+    upright answer has) and its confidence is multiplied by that turn's probability instead; not where a gravity
+    prior says which way is up. ``valid`` becomes False where no structure is likelier than every reading with
+    structure: the answer then rests on no line evidence worth the name, so it is that of an image without a frame
     (:func:`~ngp_kornia.pipeline.answer.level_answer`: a level camera with the known focal length or
-    ``fallback_fov`` degrees on the long side), with confidence 0 and the standard deviations of an answer without
-    a frame (90 degrees for pitch and roll, 180 for the field of view, 0 for a known focal length).
+    ``fallback_fov`` degrees on the long side), with confidence 0 and the standard deviations of an answer without a
+    frame (90 degrees for pitch and roll, 180 for the field of view, 0 for a known focal length).
     """
     probs = probs.to(result.focal.dtype)
     upright = probs[:, 0]

@@ -64,7 +64,9 @@ def test_a_clean_checkpoint_still_exports(tmp_path):
     "make, message",
     [
         (lambda p: p / "none.ckpt", "checkpoint not found"),
-        (lambda p: (p / "r.ckpt").write_bytes(os.urandom(4096)) and p / "r.ckpt", "is not a readable checkpoint"),
+        (lambda p: (p / "r.ckpt").write_bytes(np.random.default_rng(0).bytes(4096)) and p / "r.ckpt",
+         "is not a readable checkpoint"),  # fmt: skip
+        (lambda p: (p / "p.ckpt").write_bytes(b"\x80\x09" + bytes(64)) and p / "p.ckpt", "not a readable checkpoint"),
         (lambda p: torch.save({"epoch": 1}, p / "x.ckpt") or p / "x.ckpt", "has no network description"),
     ],
 )
@@ -75,9 +77,14 @@ def test_ngp_train_export_errors_are_one_line(tmp_path, capsys, make, message):
     assert "weights_only" not in err and "Traceback" not in err
 
 
-def test_random_bytes_as_weights_are_one_line_without_torch_advice(tmp_path):
+@pytest.mark.parametrize(
+    "head",
+    [b"", b"\x80\x09", b"PK\x03\x04"],  # random bytes; a pickle of an unknown protocol (torch warns); a zip's magic
+    ids=["random", "pickle-protocol-9", "zip-magic"],
+)
+def test_random_bytes_as_weights_are_one_line_without_torch_advice(tmp_path, head):
     path, image = tmp_path / "random.pt", tmp_path / "image.png"
-    path.write_bytes(os.urandom(4096))
+    path.write_bytes(head + np.random.default_rng(0).bytes(4096))
     cv2.imwrite(str(image), np.full((64, 64, 3), 128, np.uint8))
     run = subprocess.run(
         [sys.executable, "-m", "ngp_kornia.cli", "calibrate", "--weights", str(path), str(image)],

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import pickle
 import re
+import warnings
 import zipfile
 from collections.abc import Sequence
 from pathlib import Path
@@ -186,8 +187,9 @@ def _check_inflation(file, size: int, path: Path, error: type[Exception], what: 
 
 
 def _load(file, path: Path, error: type[Exception], what: str, allowed: Sequence) -> object:
-    try:
-        with torch.serialization.safe_globals(list(allowed)):
+    try:  # torch warns of an unusual pickle protocol before failing on it: the failure below says it in one line
+        with torch.serialization.safe_globals(list(allowed)), warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)
             return torch.load(file, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as err:
         found = re.search(r"unsupported global:? (?:GLOBAL )?([\w.]+)", str(err), re.IGNORECASE)

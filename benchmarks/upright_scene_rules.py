@@ -44,7 +44,7 @@ from ngp_kornia import calibrate  # noqa: E402
 from ngp_kornia.data.photo_split import split_photos  # noqa: E402
 from ngp_kornia.io import read_image_file  # noqa: E402
 from ngp_kornia.nets.weights import load_network  # noqa: E402
-from ngp_kornia.pipeline.upright_check import weigh_by_pitch, with_prior  # noqa: E402
+from ngp_kornia.pipeline.upright_check import fuse_line_reading, weigh_by_pitch, with_prior  # noqa: E402
 from ngp_kornia.training.synth.render_config import RenderConfig  # noqa: E402
 from ngp_kornia.training.upright_calibration import fit_temperature, turned_logits  # noqa: E402
 from ngp_kornia.training.upright_data import STRUCTURELESS_SEEDS, PhotoThumbs, UprightThumbs, sample_keys  # noqa: E402
@@ -178,20 +178,15 @@ def gather(args: argparse.Namespace) -> dict:
     return sets
 
 
-def fused(data: dict, fusion: tuple[float, float]) -> torch.Tensor:
-    """(P * 4, 5) probabilities: the thumbnail's four turns fused with the segments' (``UprightLinesNet.fuse``), the
-    structure-free reading kept."""
-    p = data["thumb"].exp()
-    structured = p[..., :4].sum(-1, keepdim=True)
-    own = torch.log(p[..., :4] / structured).clamp_min(-80.0)
-    turns = torch.softmax(fusion[0] * own + fusion[1] * data["lines"], -1) * structured
-    return torch.cat([turns, p[..., 4:]], -1).reshape(-1, 5)
+def fused(data: dict, lines_net) -> torch.Tensor:
+    """(P * 4, 5) probabilities: the thumbnail's four turns fused with the segments' as the parser fuses them."""
+    return fuse_line_reading(lines_net, data["thumb"].exp().reshape(-1, 5), data["lines"].reshape(-1, 4))
 
 
-def decide(data: dict, rule: dict, fusion: tuple[float, float]) -> dict:
+def decide(data: dict, rule: dict, lines_net) -> dict:
     """Per photo and turn (P * 4,): the true turn, whether the answer is right, and its confidence, by the rules of
     ``pipeline/upright_check.py`` with ``rule``'s prior, sure, doubt and power."""
-    probs = weigh_by_pitch(with_prior(fused(data, fusion), rule["prior"]), data["pitch"].reshape(-1), 15.0)
+    probs = weigh_by_pitch(with_prior(fused(data, lines_net), rule["prior"]), data["pitch"].reshape(-1), 15.0)
     upright, (likeliest, turns) = probs[:, 0], probs[:, :4].max(-1)
     valid = probs[:, 4] < likeliest
     reported = (turns > 0) & (likeliest >= rule["sure"]) & valid
@@ -231,11 +226,11 @@ def interval(x: torch.Tensor, draws: int = 4000) -> str:
     return f"{float(x.mean()):+.4f} ({float(means.quantile(0.025)):+.4f}..{float(means.quantile(0.975)):+.4f})"
 
 
-def compare(sets: dict, names: tuple, rule: dict, fusion: tuple[float, float]) -> str:
+def compare(sets: dict, names: tuple, rule: dict, lines_net) -> str:
     """The rule against the shipped one, paired per photo, pooled over ``names``, with each part's halves."""
     diffs, halves = {}, []
     for name in names:
-        a, b = per_photo(decide(sets[name], SHIPPED, fusion)), per_photo(decide(sets[name], rule, fusion))
+        a, b = per_photo(decide(sets[name], SHIPPED, lines_net)), per_photo(decide(sets[name], rule, lines_net))
         for key in a:
             diffs.setdefault(key, []).append(b[key] - a[key])
         t = b["target"] - a["target"]
@@ -260,16 +255,16 @@ def main() -> None:
     torch.set_num_threads(1)
     Path(args.work).mkdir(parents=True, exist_ok=True)
     sets = gather(args)
-    fusion = tuple(float(v) for v in load_network(args.lines, "UprightLinesNet").fusion)
+    lines_net = load_network(args.lines, "UprightLinesNet").eval()
     for power in [1.0, *(float(p) for p in args.powers.split(","))]:
         rule = {**SHIPPED, "power": power}
         print(f"\ndoubt power {power}")
         for name in sets:
-            print(f"  {name:9s} {summary(decide(sets[name], rule, fusion))}")
+            print(f"  {name:9s} {summary(decide(sets[name], rule, lines_net))}")
         if power != 1.0:
-            print(f"  paired, the chooser (train, calibrate, test): {compare(sets, CHOOSE, rule, fusion)}")
+            print(f"  paired, the chooser (train, calibrate, test): {compare(sets, CHOOSE, rule, lines_net)}")
             for name in ("yud", "ecd"):
-                print(f"  paired, {name}: {compare(sets, (name,), rule, fusion)}")
+                print(f"  paired, {name}: {compare(sets, (name,), rule, lines_net)}")
 
 
 if __name__ == "__main__":
